@@ -1,0 +1,24 @@
+"""clpt: an OpenCL path tracer with caustic photon mapping, scripted from Python.
+
+    import clpt
+    img = clpt.render("cornell_box", spp=64)        # float32 H x W x 3, linear RGB
+    clpt.save_image("cbox.png", img)
+"""
+
+from .device import DeviceError, list_devices
+from .features import Features, scene_features
+from .image import load_image, save_image
+from .program import KernelBuildError, clear_cache
+from .render import RenderResult, Renderer, RenderStats, render
+from .resources import shipped_scenes
+from .scene import (Box, Camera, Material, Plane, Quad, RenderSettings, Scene, SceneError, Sphere, Triangle,
+                    load_scene, parse_scene)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Box", "Camera", "DeviceError", "Features", "KernelBuildError", "Material", "Plane", "Quad", "RenderResult",
+    "RenderSettings", "RenderStats", "Renderer", "Scene", "SceneError", "Sphere", "Triangle", "clear_cache",
+    "list_devices", "load_image", "load_scene", "parse_scene", "render", "save_image", "scene_features",
+    "shipped_scenes",
+]

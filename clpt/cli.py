@@ -1,0 +1,218 @@
+"""The clpt command line: render, bench, devices, scenes, check, cache.
+
+Exit codes: 0 done, 1 a device or kernel-build failure, 2 a mistake in the
+command or the scene (reported in one line, never a traceback), 130
+interrupted by Ctrl-C (a render still writes the image it has so far).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from . import __version__
+
+
+def _progress_printer(stream, enabled: bool):
+    """A one-line progress bar with samples/s and ETA, redrawn in place."""
+    state = {"last": 0.0}
+
+    def show(done, total, elapsed, rate):
+        now = time.perf_counter()
+        if not enabled or (now - state["last"] < 0.1 and done < total):
+            return
+        state["last"] = now
+        frac = done / total if total else 1.0
+        bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+        eta = elapsed / frac - elapsed if frac > 0 else 0.0
+        stream.write(f"\r[{bar}] {done}/{total} spp  {rate / 1e6:6.2f} Msamples/s  "
+                     f"elapsed {elapsed:5.1f}s  ETA {eta:5.1f}s ")
+        stream.flush()
+
+    def end():
+        if enabled:
+            stream.write("\n")
+            stream.flush()
+
+    return show, end
+
+
+def _add_render_options(p):
+    p.add_argument("--device", "-d", default=None, help="device index, platform:device, name substring, "
+                                                        "'all', or a comma list (default: PYOPENCL_CTX, a GPU, "
+                                                        "else the CPU)")
+    p.add_argument("--lanes", type=int, default=None, choices=(1, 2, 4, 8, 16),
+                   help="paths per work-item (default: 8 on an AVX2 CPU, 1 on a GPU)")
+    p.add_argument("--precision", choices=("float", "double"), default="float")
+    p.add_argument("--kernel", choices=("specialized", "generic", "baked"), default="specialized",
+                   help="kernel build: only the scene's features (default), everything, or the scene "
+                        "compiled in as constants")
+    p.add_argument("--no-nee", action="store_true", help="no next event estimation (pure path tracing)")
+    p.add_argument("--no-cache", action="store_true", help="do not use the kernel build cache")
+
+
+def _renderer_kwargs(a):
+    return dict(device=a.device, lanes=a.lanes, precision=a.precision, kernel=a.kernel, nee=not a.no_nee,
+                use_cache=not a.no_cache)
+
+
+def cmd_render(a) -> int:
+    from .render import Renderer
+    from .scene import load_scene
+
+    scene = load_scene(a.scene)
+    out = Path(a.output) if a.output else Path(Path(a.scene).stem + ".png")
+    r = Renderer(scene, **_renderer_kwargs(a))
+    if a.verbose:
+        for st in r.states:
+            b = st.build
+            print(f"device: {st.dctx.label}", file=sys.stderr)
+            print(f"kernel: {st.features.describe()}", file=sys.stderr)
+            print(f"build: {b.seconds:.3f}s ({'cache hit' if b.cache_hit else 'compiled'}, key {b.key})",
+                  file=sys.stderr)
+    show, end = _progress_printer(sys.stderr, not a.quiet and (a.progress or sys.stderr.isatty()))
+    res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,
+                   height=a.height, progress=show, time_limit=a.time_limit)
+    end()
+    res.save(out, exposure=a.exposure)
+    st = res.stats
+    secs = max(st.render_seconds, 1e-9)
+    msg = (f"wrote {out}: {res.image.shape[1]}x{res.image.shape[0]}, {res.spp} spp, "
+           f"{st.render_seconds:.2f}s, {res.samples / secs / 1e6:.2f} Msamples/s")
+    if st.nonfinite:
+        msg += f", {st.nonfinite} non-finite samples dropped"
+    if not a.quiet:
+        print(msg, file=sys.stderr)
+    if a.verbose:
+        print(f"rays: {st.camera_rays} camera, {st.bounce_rays} bounce, {st.shadow_rays} shadow "
+              f"({st.rays / secs / 1e6:.2f} Mrays/s); first launch {st.first_launch_seconds:.3f}s", file=sys.stderr)
+    if res.interrupted and a.time_limit is None:
+        print(f"interrupted after {res.spp} spp; the image so far was written", file=sys.stderr)
+        return 130
+    return 0
+
+
+def cmd_devices(a) -> int:
+    from .device import list_devices
+
+    devs = list_devices()
+    for d in devs:
+        print(d.line())
+    if not devs:
+        print("no OpenCL devices found", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_scenes(a) -> int:
+    from .resources import scene_dir, shipped_scenes
+
+    for name in shipped_scenes():
+        first = (scene_dir() / f"{name}.toml").read_text().splitlines()[0].lstrip("# ").strip()
+        print(f"{name:28s} {first}")
+    return 0
+
+
+def cmd_check(a) -> int:
+    from .features import scene_features
+    from .pack import pack_scene
+    from .scene import load_scene
+
+    scene = load_scene(a.scene)
+    packed = pack_scene(scene)
+    names = ("materials", "spheres", "quads", "triangles", "planes", "lights")
+    print(f"{a.scene}: ok; " + ", ".join(f"{n} {c}" for n, c in zip(names, packed.counts)))
+    print(f"features: {scene_features(packed).describe()}")
+    return 0
+
+
+def cmd_cache(a) -> int:
+    from .program import cache_dir, clear_cache
+
+    if a.clear:
+        print(f"removed {clear_cache()} cached kernel builds from {cache_dir()}")
+    else:
+        d = cache_dir() / "kernels"
+        files = list(d.glob("*.bin")) if d.is_dir() else []
+        print(f"{cache_dir()}: {len(files)} cached kernel builds, {sum(f.stat().st_size for f in files) / 1e6:.1f} MB")
+    return 0
+
+
+def cmd_bench(a) -> int:
+    from .bench import run_bench
+
+    return run_bench(a)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="clpt", description="OpenCL path tracer with caustic photon mapping")
+    ap.add_argument("--version", action="version", version=f"clpt {__version__}")
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("render", help="render a scene to an image file")
+    p.add_argument("scene", nargs="?", default="cornell_box", help="scene file, or a shipped scene's name "
+                                                                  "(default: cornell_box)")
+    p.add_argument("-o", "--output", help="image file: .png, .jpg (8-bit sRGB) or .exr (linear float); "
+                                          "default <scene>.png")
+    p.add_argument("--spp", type=int, help="samples per pixel (default: the scene's)")
+    p.add_argument("--width", type=int)
+    p.add_argument("--height", type=int)
+    p.add_argument("--max-depth", type=int, help="most scattering events per path (0: emitters only)")
+    p.add_argument("--rr-depth", type=int, help="depth from which Russian roulette may absorb paths")
+    p.add_argument("--seed", type=int)
+    p.add_argument("--exposure", type=float, default=0.0, help="exposure in stops for 8-bit images")
+    p.add_argument("--time-limit", type=float, help="stop after about this many seconds")
+    p.add_argument("-v", "--verbose", action="store_true", help="report device, kernel features, build and rays")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("--progress", action="store_true", help="show progress even when not on a terminal")
+    _add_render_options(p)
+    p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("bench", help="measure samples/s, rays/s and kernel build times")
+    p.add_argument("scene", nargs="?", default="cornell_box")
+    p.add_argument("--width", type=int, default=256)
+    p.add_argument("--height", type=int, default=256)
+    p.add_argument("--max-depth", type=int, default=8)
+    p.add_argument("--seconds", type=float, default=3.0, help="steady-state time to measure per device")
+    p.add_argument("--no-cold", action="store_true", help="skip the cold-build measurement (a subprocess)")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    _add_render_options(p)
+    p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("devices", help="list the OpenCL devices")
+    p.set_defaults(func=cmd_devices)
+    p = sub.add_parser("scenes", help="list the shipped scenes")
+    p.set_defaults(func=cmd_scenes)
+    p = sub.add_parser("check", help="validate a scene file")
+    p.add_argument("scene")
+    p.set_defaults(func=cmd_check)
+    p = sub.add_parser("cache", help="show or clear the kernel build cache")
+    p.add_argument("--clear", action="store_true")
+    p.set_defaults(func=cmd_cache)
+    return ap
+
+
+def main(argv=None) -> int:
+    from .device import DeviceError
+    from .image import ImageError
+    from .program import KernelBuildError
+    from .scene import SceneError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except SceneError as e:
+        print(f"clpt: error: {e}", file=sys.stderr)
+        return 2
+    except (DeviceError, KernelBuildError, ImageError) as e:
+        print(f"clpt: error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("\nclpt: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,176 @@
+"""OpenCL device discovery and selection; one context and queue per device.
+
+Nothing here is global: each selected device gets its own ``DeviceContext``,
+so one image can be rendered on several devices at once.
+
+Selection (``--device``, ``clpt.render(device=...)``): an index into
+``list_devices()`` ("1"), a platform:device pair as in PYOPENCL_CTX ("0:1"),
+a case-insensitive substring of the device or platform name ("pocl",
+"nvidia"), "all", or several of these separated by commas. Without one,
+PYOPENCL_CTX is honoured, then a GPU is preferred, then any CPU.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import pyopencl as cl
+
+
+class DeviceError(RuntimeError):
+    """No usable OpenCL device matches what was asked for."""
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    index: int
+    platform_index: int
+    device_index: int
+    name: str
+    platform: str
+    kind: str
+    compute_units: int
+    global_mem: int
+    max_alloc: int
+    fp64: bool
+    driver: str
+
+    def line(self) -> str:
+        return (f"[{self.index}] {self.platform_index}:{self.device_index}  {self.name}  ({self.platform}; "
+                f"{self.kind}, {self.compute_units} units, {self.global_mem / 2**30:.1f} GiB, "
+                f"fp64 {'yes' if self.fp64 else 'no'}, driver {self.driver})")
+
+
+def _kind(dev) -> str:
+    t = dev.type
+    if t & cl.device_type.GPU:
+        return "GPU"
+    if t & cl.device_type.CPU:
+        return "CPU"
+    if t & cl.device_type.ACCELERATOR:
+        return "accelerator"
+    return "other"
+
+
+def _all_devices():
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error as e:
+        raise DeviceError(f"no OpenCL platform found ({e}); install an OpenCL runtime "
+                          f"(pip install pocl-binary-distribution gives a CPU one)") from None
+    out = []
+    for pi, p in enumerate(platforms):
+        try:
+            devs = p.get_devices()
+        except cl.Error:
+            continue
+        for di, d in enumerate(devs):
+            out.append((pi, di, p, d))
+    return out
+
+
+def device_has_fp64(dev) -> bool:
+    return bool(dev.double_fp_config) or "cl_khr_fp64" in dev.extensions
+
+
+def list_devices() -> list[DeviceInfo]:
+    infos = []
+    for i, (pi, di, p, d) in enumerate(_all_devices()):
+        infos.append(DeviceInfo(index=i, platform_index=pi, device_index=di, name=d.name.strip(),
+                                platform=p.name.strip(), kind=_kind(d), compute_units=d.max_compute_units,
+                                global_mem=d.global_mem_size, max_alloc=d.max_mem_alloc_size,
+                                fp64=device_has_fp64(d), driver=d.driver_version))
+    return infos
+
+
+def _match(spec: str, found) -> list:
+    spec = spec.strip()
+    if spec.lower() == "all":
+        return [d for _, _, _, d in found]
+    if ":" in spec:
+        a, b = spec.split(":", 1)
+        if a.isdigit() and (b.isdigit() or b == ""):
+            pis = sorted({pi for pi, _, _, _ in found})
+            if int(a) >= len(pis):
+                raise DeviceError(f"no OpenCL platform {a} (there are {len(pis)})")
+            devs = [(di, d) for pi, di, _, d in found if pi == pis[int(a)]]
+            if b == "":
+                return [devs[0][1]]
+            for di, d in devs:
+                if di == int(b):
+                    return [d]
+            raise DeviceError(f"platform {a} has no device {b} (it has {len(devs)})")
+    if spec.isdigit():
+        i = int(spec)
+        if i >= len(found):
+            raise DeviceError(f"no device {i}: there are {len(found)} (see `clpt devices`)")
+        return [found[i][3]]
+    low = spec.lower()
+    hits = [d for _, _, p, d in found if low in d.name.lower() or low in p.name.lower()]
+    if not hits:
+        names = "; ".join(f"{d.name.strip()} ({p.name.strip()})" for _, _, p, d in found)
+        raise DeviceError(f"no OpenCL device matches {spec!r}; available: {names}")
+    return hits[:1]
+
+
+def select_devices(spec=None) -> list:
+    """pyopencl Device objects for a selection string, an index, a Device or a list of these."""
+    found = _all_devices()
+    if not found:
+        raise DeviceError("no OpenCL device found; install an OpenCL runtime "
+                          "(pip install pocl-binary-distribution gives a CPU one)")
+    if isinstance(spec, cl.Device):
+        return [spec]
+    if isinstance(spec, (list, tuple)):
+        out = []
+        for s in spec:
+            out += select_devices(s)
+        return out
+    if isinstance(spec, int):
+        spec = str(spec)
+    if spec is None:
+        env = os.environ.get("PYOPENCL_CTX", "").strip()
+        if env:
+            spec = env
+    if spec is None:
+        gpus = [d for _, _, _, d in found if d.type & cl.device_type.GPU]
+        cpus = [d for _, _, _, d in found if d.type & cl.device_type.CPU]
+        return [(gpus or cpus or [found[0][3]])[0]]
+    out = []
+    for part in str(spec).split(","):
+        for d in _match(part, found):
+            if d not in out:
+                out.append(d)
+    return out
+
+
+class DeviceContext:
+    """A device with its own context and profiling-enabled in-order queue."""
+
+    def __init__(self, device):
+        self.device = device
+        self.context = cl.Context([device])
+        self.queue = cl.CommandQueue(self.context, device,
+                                     properties=cl.command_queue_properties.PROFILING_ENABLE)
+        self.name = device.name.strip()
+        self.platform = device.platform.name.strip()
+        self.fp64 = device_has_fp64(device)
+        self.is_cpu = bool(device.type & cl.device_type.CPU)
+        self.is_pocl = "portable computing language" in self.platform.lower() or "pocl" in self.platform.lower()
+
+    @property
+    def label(self) -> str:
+        return f"{self.name} ({self.platform})"
+
+    def default_lanes(self) -> int:
+        """Paths per work-item: a CPU's float SIMD width (8 on AVX2), 1 on a GPU,
+        whose hardware already runs work-items in lockstep."""
+        if not self.is_cpu:
+            return 1
+        w = self.device.preferred_vector_width_float or self.device.native_vector_width_float or 4
+        return 8 if w >= 8 else 4
+
+    def identity(self) -> str:
+        d = self.device
+        return "|".join([self.platform, d.platform.version, self.name, d.vendor, d.version, d.driver_version])

@@ -1,0 +1,90 @@
+"""What a kernel build contains: a small, hashable, printable description.
+
+``scene_features`` reads a packed scene and the render options and returns a
+``Features``; its ``options()`` are the sorted ``-D CLPT_*`` flags the kernels
+are built with, and are part of every build-cache key. A specialized build
+compiles only the shapes, lobes and light kinds the scene has, with its
+primitive counts as compile-time constants; a generic build has everything
+on and reads the counts at run time; a baked build also puts the scene's
+records into the kernel source as constants.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+from .pack import PackedScene
+
+KERNEL_MODES = ("specialized", "generic", "baked")
+
+
+@dataclass(frozen=True)
+class Features:
+    lanes: int = 8
+    double: bool = False
+    mode: str = "specialized"
+    nee: bool = True
+    spheres: bool = True
+    quads: bool = True
+    triangles: bool = True
+    planes: bool = True
+    phong: bool = True
+    mirror: bool = True
+    glass: bool = True
+    triangle_lights: bool = True
+    sphere_lights: bool = True
+    counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights (not generic)
+
+    def defines(self) -> dict[str, int]:
+        d = {
+            "CLPT_LANES": self.lanes,
+            "CLPT_DOUBLE": int(self.double),
+            "CLPT_GENERIC": int(self.mode == "generic"),
+            "CLPT_BAKED": int(self.mode == "baked"),
+            "CLPT_NEE": int(self.nee),
+            "CLPT_HAS_SPHERES": int(self.spheres),
+            "CLPT_HAS_QUADS": int(self.quads),
+            "CLPT_HAS_TRIANGLES": int(self.triangles),
+            "CLPT_HAS_PLANES": int(self.planes),
+            "CLPT_HAS_PHONG": int(self.phong),
+            "CLPT_HAS_MIRROR": int(self.mirror),
+            "CLPT_HAS_GLASS": int(self.glass),
+            "CLPT_HAS_TRIANGLE_LIGHTS": int(self.triangle_lights),
+            "CLPT_HAS_SPHERE_LIGHTS": int(self.sphere_lights),
+        }
+        if self.mode != "generic":
+            for name, n in zip(("MATERIALS", "SPHERES", "QUADS", "TRIANGLES", "PLANES", "LIGHTS"), self.counts):
+                d[f"CLPT_NUM_{name}"] = n
+        return d
+
+    def options(self) -> list[str]:
+        return sorted(f"-D{k}={v}" for k, v in self.defines().items())
+
+    def describe(self) -> str:
+        on = [k for k, v in asdict(self).items() if v is True and k not in ("double",)]
+        counts = ""
+        if self.counts:
+            counts = " counts=" + ",".join(str(c) for c in self.counts)
+        return (f"{self.mode} lanes={self.lanes} {'double' if self.double else 'float'} "
+                f"features={'+'.join(on) or 'none'}{counts}")
+
+
+def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False, mode: str = "specialized",
+                   nee: bool = True) -> Features:
+    if mode not in KERNEL_MODES:
+        raise ValueError(f"kernel mode must be one of {', '.join(KERNEL_MODES)} (got {mode!r})")
+    if mode == "generic":
+        return Features(lanes=lanes, double=double, mode=mode, nee=nee)
+    return Features(
+        lanes=lanes, double=double, mode=mode, nee=nee,
+        spheres=packed.count("spheres") > 0,
+        quads=packed.count("quads") > 0,
+        triangles=packed.count("triangles") > 0,
+        planes=packed.count("planes") > 0,
+        phong=packed.has_phong,
+        mirror=packed.has_mirror,
+        glass=packed.has_glass,
+        triangle_lights="triangle" in packed.light_kinds,
+        sphere_lights="sphere" in packed.light_kinds,
+        counts=tuple(packed.counts),
+    )

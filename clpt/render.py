@@ -1,0 +1,338 @@
+"""Rendering: builds kernels per device, runs progressive passes, returns images.
+
+A pass adds samples [s0, s0 + n) to every pixel. Samples are keyed by
+(pixel, sample index), so passes can be of any size, on any device, in any
+order: on one device the image is bit-identical however the samples were
+split; with several devices each pulls the next sample range when it is free
+and the host adds their sums at the end.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.cltypes as clt
+
+from . import program
+from .device import DeviceContext, DeviceError, select_devices
+from .features import Features, scene_features
+from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
+from .scene import Scene, SceneError, load_scene
+
+LOCAL_SIZE_CPU = 16
+LOCAL_SIZE_GPU = 64
+
+
+@dataclass
+class RenderStats:
+    nonfinite: int = 0       # samples dropped because they were NaN or infinite
+    camera_rays: int = 0
+    bounce_rays: int = 0
+    shadow_rays: int = 0
+    build_seconds: float = 0.0
+    cache_hits: int = 0
+    first_launch_seconds: float = 0.0  # includes a lazy device compile (PoCL)
+    render_seconds: float = 0.0
+    passes: list = field(default_factory=list)  # (device label, first sample, samples, seconds)
+
+    @property
+    def rays(self) -> int:
+        return self.camera_rays + self.bounce_rays + self.shadow_rays
+
+
+@dataclass
+class RenderResult:
+    image: np.ndarray          # H x W x 3 float32, linear RGB
+    sample_count: np.ndarray   # H x W samples per pixel
+    lum_var: np.ndarray        # H x W variance of one sample's luminance
+    spp: int
+    seed: int
+    max_depth: int
+    rr_depth: int
+    devices: list
+    features: Features
+    stats: RenderStats
+    interrupted: bool = False
+
+    @property
+    def samples(self) -> int:
+        return int(self.sample_count.sum())
+
+    def metadata(self) -> dict:
+        return {"clpt:spp": self.spp, "clpt:seed": self.seed, "clpt:max_depth": self.max_depth,
+                "clpt:rr_depth": self.rr_depth, "clpt:device": "; ".join(self.devices),
+                "clpt:render_seconds": round(self.stats.render_seconds, 4),
+                "clpt:kernel": self.features.describe(), "clpt:interrupted": int(self.interrupted)}
+
+    def save(self, path, exposure: float = 0.0):
+        from .image import save_image
+        save_image(path, self.image, metadata=self.metadata(), exposure=exposure)
+
+
+class _DeviceState:
+    """Everything one device holds for one scene: program, kernel, buffers."""
+
+    def __init__(self, dctx: DeviceContext, packed: PackedScene, features: Features, use_cache: bool):
+        self.dctx = dctx
+        self.features = features
+        real = np.float64 if features.double else np.float32
+        generated = {}
+        if features.mode == "baked":
+            generated["<baked scene>"] = _baked_source(packed.records, features.double)
+        source = program.stitch(["trace.cl"], generated)
+        self.program, self.build = program.build(dctx, source, features.options(), use_cache=use_cache)
+        self.kernel = cl.Kernel(self.program, "trace_paths")
+        mf = cl.mem_flags
+        recs = np.ascontiguousarray(packed.records, dtype=real)
+        if recs.size == 0:
+            recs = np.zeros((1, 4), dtype=real)
+        self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
+        self.real = real
+        self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
+        self.launched = False
+
+    def allocate(self, n_pix: int):
+        ctx, q = self.dctx.context, self.dctx.queue
+        lanes = self.features.lanes
+        groups = -(-n_pix // lanes)
+        self.global_size = -(-groups // self.local) * self.local
+        need = n_pix * 40 + self.global_size * 16
+        dev = self.dctx.device
+        if n_pix * 32 > dev.max_mem_alloc_size or need > dev.global_mem_size:
+            raise DeviceError(f"{n_pix} pixels need {need / 2**20:.0f} MiB of accumulation buffers, more than "
+                              f"{self.dctx.label} offers ({dev.global_mem_size / 2**20:.0f} MiB, at most "
+                              f"{dev.max_mem_alloc_size / 2**20:.0f} MiB per buffer); render a smaller image")
+        try:
+            self.pix_sum = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 32)
+            self.pix_sq = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 8)
+            self.stats_buf = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, self.global_size * 16)
+            cl.enqueue_fill_buffer(q, self.pix_sum, np.float64(0), 0, n_pix * 32)
+            cl.enqueue_fill_buffer(q, self.pix_sq, np.float64(0), 0, n_pix * 8)
+            q.finish()
+        except cl.Error as e:
+            raise DeviceError(f"cannot allocate {need / 2**20:.0f} MiB on {self.dctx.label} for "
+                              f"{n_pix} pixels ({e}); render a smaller image") from None
+        self.stats_host = np.empty((self.global_size, 4), dtype=np.uint32)
+        self.n_pix = n_pix
+
+    def set_frame(self, packed: PackedScene, frame: CameraFrame, width: int, height: int, max_depth: int,
+                  rr_depth: int, seed: int):
+        r4 = clt.make_double4 if self.features.double else clt.make_float4
+        c = packed.counts
+        eps_abs = packed.extent * (1e-13 if self.features.double else 2e-6)
+        self.args = [self.scene_buf, clt.make_uint8(c[0], c[1], c[2], c[3], c[4], c[5], 0, 0),
+                     self.real(eps_abs), r4(*frame.origin, 0), r4(*frame.corner, 0), r4(*frame.dx, 0),
+                     r4(*frame.dy, 0), np.uint32(width), np.uint32(height), np.uint32(0)]
+        self.tail = [np.uint32(min(max_depth, 2**31)), np.uint32(min(rr_depth, 2**31)), np.uint32(seed),
+                     self.pix_sum, self.pix_sq, self.stats_buf]
+
+    def run(self, s0: int, n: int):
+        """Add samples [s0, s0 + n) to every pixel; returns (seconds, stats row sums)."""
+        q = self.dctx.queue
+        self.kernel.set_args(*self.args, np.uint32(s0), np.uint32(n), *self.tail)
+        t0 = time.perf_counter()
+        cl.enqueue_nd_range_kernel(q, self.kernel, (self.global_size,), (self.local,))
+        cl.enqueue_copy(q, self.stats_host, self.stats_buf)
+        seconds = time.perf_counter() - t0
+        return seconds, self.stats_host.sum(axis=0, dtype=np.uint64)
+
+    def read(self):
+        s = np.empty((self.n_pix, 4), dtype=np.float64)
+        sq = np.empty(self.n_pix, dtype=np.float64)
+        cl.enqueue_copy(self.dctx.queue, s, self.pix_sum)
+        cl.enqueue_copy(self.dctx.queue, sq, self.pix_sq)
+        self.dctx.queue.finish()
+        return s, sq
+
+
+def _baked_source(records: np.ndarray, double: bool) -> str:
+    t = "double4" if double else "float4"
+    fmt = "%.17g" if double else "%.9g"
+    rows = ",\n".join(f"    ({t})({', '.join(fmt % v for v in r)})" for r in records) or f"    ({t})(0)"
+    return f"__constant real4 clpt_scene[{max(1, len(records))}] = {{\n{rows}\n}};\n"
+
+
+class Renderer:
+    """A scene prepared for rendering on one or more devices.
+
+    Kernels are built (or loaded from the build cache) once, here; render()
+    can then be called any number of times with different settings.
+    """
+
+    def __init__(self, scene, *, device=None, lanes: int | None = None, precision: str = "float",
+                 kernel: str = "specialized", nee: bool = True, use_cache: bool = True):
+        if isinstance(scene, (str, Path)):
+            scene = load_scene(scene)
+        if not isinstance(scene, Scene):
+            raise TypeError(f"scene must be a clpt.Scene or a path, not {type(scene).__name__}")
+        if precision not in ("float", "double"):
+            raise ValueError(f"precision must be 'float' or 'double' (got {precision!r})")
+        self.scene = scene
+        self.packed = pack_scene(scene)
+        self.devices = [DeviceContext(d) for d in select_devices(device)]
+        self.states = []
+        for dctx in self.devices:
+            if not dctx.fp64:
+                raise DeviceError(f"{dctx.label} has no double precision (cl_khr_fp64), which clpt's "
+                                  f"sample accumulators need")
+            n_lanes = lanes or dctx.default_lanes()
+            feats = scene_features(self.packed, lanes=n_lanes, double=precision == "double", mode=kernel, nee=nee)
+            self.states.append(_DeviceState(dctx, self.packed, feats, use_cache))
+        self.features = self.states[0].features
+
+    @property
+    def build_seconds(self) -> float:
+        return sum(s.build.seconds for s in self.states)
+
+    def render(self, spp: int | None = None, *, seed: int | None = None, max_depth: int | None = None,
+               rr_depth: int | None = None, width: int | None = None, height: int | None = None,
+               progress=None, time_limit: float | None = None, pass_seconds: float = 0.25) -> RenderResult:
+        """Render; keywords override the scene's settings. progress(done_spp,
+        total_spp, elapsed_seconds, samples_per_second) is called after each pass.
+        Ctrl-C (KeyboardInterrupt) ends the render early with what is done."""
+        rs = self.scene.render
+        spp = rs.spp if spp is None else spp
+        seed = rs.seed if seed is None else seed
+        max_depth = rs.max_depth if max_depth is None else max_depth
+        rr_depth = rs.rr_depth if rr_depth is None else rr_depth
+        width = self.scene.camera.width if width is None else width
+        height = self.scene.camera.height if height is None else height
+        for name, v, lo in (("spp", spp, 1), ("seed", seed, 0), ("max_depth", max_depth, 0),
+                            ("rr_depth", rr_depth, 0), ("width", width, 1), ("height", height, 1)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+                raise SceneError(f"render: {name} must be an integer >= {lo} (got {v!r})")
+        if spp >= 2**32 or seed >= 2**32:
+            raise SceneError("render: spp and seed must be below 2^32")
+        frame = camera_frame(self.scene.camera, width, height)
+        n_pix = width * height
+        stats = RenderStats(build_seconds=self.build_seconds,
+                            cache_hits=sum(s.build.cache_hit for s in self.states))
+        for st in self.states:
+            st.allocate(n_pix)
+            st.set_frame(self.packed, frame, width, height, max_depth, rr_depth, seed)
+
+        lock = threading.Lock()
+        state = {"next": 0, "done": 0, "stop": False, "error": None}
+        t_start = time.perf_counter()
+
+        def take(st, per_spp):
+            with lock:
+                if state["stop"] or state["next"] >= spp:
+                    return None
+                s0 = state["next"]
+                n = 1 if per_spp is None else int(max(1, min(pass_seconds / max(per_spp, 1e-9), 1 << 16)))
+                if time_limit is not None:
+                    left = time_limit - (time.perf_counter() - t_start)
+                    if per_spp is not None and left < per_spp * 0.5:
+                        state["stop"] = True
+                        return None
+                    if per_spp is not None:
+                        n = max(1, min(n, int(left / per_spp)))
+                n = min(n, spp - s0)
+                state["next"] = s0 + n
+                return s0, n
+
+        def work(st):
+            per_spp = None
+            try:
+                while True:
+                    job = take(st, per_spp)
+                    if job is None:
+                        return
+                    s0, n = job
+                    seconds, row = st.run(s0, n)
+                    if st.launched:
+                        per_spp = seconds / n
+                    else:  # may include the device's own lazy compile: not a pass-size guide
+                        st.launched = True
+                        stats.first_launch_seconds += seconds
+                    with lock:
+                        state["done"] += n
+                        stats.nonfinite += int(row[0])
+                        stats.camera_rays += int(row[1])
+                        stats.bounce_rays += int(row[2])
+                        stats.shadow_rays += int(row[3])
+                        stats.passes.append((st.dctx.label, s0, n, seconds))
+                        done = state["done"]
+                    if progress is not None and len(self.states) == 1:
+                        el = time.perf_counter() - t_start
+                        progress(done, spp, el, done * n_pix / max(el, 1e-9))
+            except BaseException as e:  # noqa: BLE001 - handed to the main thread
+                with lock:
+                    state["error"] = e
+                    state["stop"] = True
+
+        interrupted = False
+        if len(self.states) == 1:
+            try:
+                work(self.states[0])
+            except KeyboardInterrupt:
+                interrupted = True
+            if isinstance(state["error"], KeyboardInterrupt):
+                interrupted = True
+                state["error"] = None
+        else:
+            threads = [threading.Thread(target=work, args=(st,), daemon=True) for st in self.states]
+            for t in threads:
+                t.start()
+            try:
+                last = -1
+                while any(t.is_alive() for t in threads):
+                    for t in threads:
+                        t.join(timeout=0.1)
+                    with lock:
+                        done = state["done"]
+                    if progress is not None and done != last:
+                        last = done
+                        el = time.perf_counter() - t_start
+                        progress(done, spp, el, done * n_pix / max(el, 1e-9))
+            except KeyboardInterrupt:
+                interrupted = True
+                with lock:
+                    state["stop"] = True
+                for t in threads:
+                    t.join()
+        if state["error"] is not None:
+            raise state["error"]
+        if time_limit is not None and state["done"] < spp:
+            interrupted = True
+
+        total = np.zeros((n_pix, 4), dtype=np.float64)
+        total_sq = np.zeros(n_pix, dtype=np.float64)
+        for st in self.states:
+            s, sq = st.read()
+            total += s
+            total_sq += sq
+        stats.render_seconds = time.perf_counter() - t_start
+        count = total[:, 3]
+        safe = np.maximum(count, 1.0)
+        mean = total[:, :3] / safe[:, None]
+        lum_mean = mean @ np.array([0.2126, 0.7152, 0.0722])
+        lum_var = np.maximum(total_sq / safe - lum_mean ** 2, 0.0) * (safe / np.maximum(safe - 1.0, 1.0))
+        image = mean.astype(np.float32).reshape(height, width, 3)
+        bad = ~np.isfinite(image)
+        if bad.any():  # the kernel drops non-finite samples; this is the last guard
+            warnings.warn(f"{int(bad.sum())} non-finite pixel values set to 0")
+            image[bad] = 0.0
+        return RenderResult(image=image, sample_count=count.reshape(height, width).astype(np.uint32),
+                            lum_var=lum_var.reshape(height, width).astype(np.float32),
+                            spp=int(count.max()) if n_pix else 0, seed=seed, max_depth=max_depth,
+                            rr_depth=rr_depth, devices=[s.dctx.label for s in self.states],
+                            features=self.features, stats=stats, interrupted=interrupted)
+
+
+def render(scene, *, spp: int | None = None, seed: int | None = None, max_depth: int | None = None,
+           width: int | None = None, height: int | None = None, device=None, **kw) -> np.ndarray:
+    """Render a scene (a Scene, a path, or a shipped scene's name) and return
+    linear RGB as a float32 H x W x 3 array. Keywords override the scene's
+    settings; other keywords go to Renderer (lanes, precision, kernel, nee) or
+    Renderer.render (rr_depth, progress, time_limit)."""
+    render_kw = {k: kw.pop(k) for k in ("rr_depth", "progress", "time_limit", "pass_seconds") if k in kw}
+    r = Renderer(scene, device=device, **kw)
+    return r.render(spp, seed=seed, max_depth=max_depth, width=width, height=height, **render_kw).image

@@ -1,0 +1,627 @@
+"""Scenes: the data model, the TOML scene format, and validation.
+
+A scene is a camera, named materials and a list of shapes; any shape with
+emission is an area light. The same classes are the Python API
+(``clpt.Scene(camera=..., shapes=[clpt.Sphere(...)])``) and what
+``load_scene`` builds from a TOML file (format: scenes/README.md).
+
+Every mistake in a user's scene is reported as a ``SceneError`` whose message
+names the file, the key path and the reason, e.g.::
+
+    scenes/bad.toml: shapes[3] "light".radius: must be > 0 (got -0.5)
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Union
+
+import numpy as np
+
+from .presets import PRESETS
+
+Vec3 = tuple[float, float, float]
+
+FOV_AXES = ("x", "y", "smaller", "larger")
+
+
+class SceneError(ValueError):
+    """A scene is invalid. The message names the source, key path and reason."""
+
+
+# --- data model --------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Material:
+    """The paper's material model, per RGB channel.
+
+    kd: diffuse albedo; ks and shininess: modified-Phong specular lobe
+    (f = ks (n+2)/(2 pi) cos^n alpha); kr: perfect mirror; kt and ior:
+    refraction through a dielectric interface with exact Fresnel. Absorption
+    is what remains, 1 - (kd + ks + kr + kt), which must not be negative.
+    emission is radiance leaving the surface (on the side its normal points
+    to, or both sides if two_sided).
+    """
+
+    kd: Vec3 = (0.0, 0.0, 0.0)
+    ks: Vec3 = (0.0, 0.0, 0.0)
+    shininess: float = 0.0
+    kr: Vec3 = (0.0, 0.0, 0.0)
+    kt: Vec3 = (0.0, 0.0, 0.0)
+    ior: float = 1.5
+    emission: Vec3 = (0.0, 0.0, 0.0)
+    two_sided: bool = False
+
+    @classmethod
+    def preset(cls, name: str, **overrides) -> "Material":
+        """A named preset (see clpt.presets.PRESETS), with fields overridden."""
+        if name not in PRESETS:
+            raise SceneError(f"unknown material preset {name!r}{_suggest(name, PRESETS)}")
+        return cls(**{**PRESETS[name], **overrides})
+
+    @property
+    def is_emissive(self) -> bool:
+        return max(self.emission) > 0.0
+
+    @property
+    def is_specular(self) -> bool:
+        """Has a delta lobe (mirror or refraction): a caustic caster."""
+        return max(self.kr) > 0.0 or max(self.kt) > 0.0
+
+
+MaterialRef = Union[str, Material]
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole camera looking from origin towards target.
+
+    fov is the full field of view in degrees along fov_axis: "x", "y", or the
+    "smaller"/"larger" image dimension (Mitsuba's convention).
+    """
+
+    origin: Vec3 = (0.0, 0.0, 3.9)
+    target: Vec3 = (0.0, 0.0, 0.0)
+    up: Vec3 = (0.0, 1.0, 0.0)
+    fov: float = 39.3077
+    fov_axis: str = "smaller"
+    width: int = 256
+    height: int = 256
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """Defaults a scene file may set; render() keywords override them.
+
+    max_depth counts scattering events (pbrt's convention): 0 shows emitters
+    only, 1 adds direct light. Mitsuba's max_depth is this plus one.
+    rr_depth is the depth from which Russian roulette may absorb a path.
+    """
+
+    spp: int = 64
+    max_depth: int = 8
+    seed: int = 0
+    rr_depth: int = 2
+
+
+@dataclass(frozen=True)
+class _ShapeBase:
+    material: MaterialRef = "white"
+    emission: Vec3 | None = None   # overrides the material's emission
+    two_sided: bool | None = None  # overrides the material's two_sided
+    name: str | None = None
+
+
+@dataclass(frozen=True)
+class Sphere(_ShapeBase):
+    center: Vec3 = (0.0, 0.0, 0.0)
+    radius: float = 1.0
+
+
+@dataclass(frozen=True)
+class Triangle(_ShapeBase):
+    """Triangle v0 v1 v2; its front face is given by the right-hand rule."""
+
+    vertices: tuple[Vec3, Vec3, Vec3] = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+
+
+@dataclass(frozen=True)
+class Quad(_ShapeBase):
+    """Parallelogram corner + a edge_u + b edge_v, a and b in [0, 1].
+
+    Its normal is edge_u x edge_v (the front face, for one-sided emitters).
+    """
+
+    corner: Vec3 = (0.0, 0.0, 0.0)
+    edge_u: Vec3 = (1.0, 0.0, 0.0)
+    edge_v: Vec3 = (0.0, 1.0, 0.0)
+
+    @classmethod
+    def from_vertices(cls, vertices, **kw) -> "Quad":
+        """From four corners in order around the quad (a parallelogram)."""
+        v = [tuple(float(c) for c in p) for p in vertices]
+        if len(v) != 4:
+            raise SceneError(f"a quad needs 4 vertices, got {len(v)}")
+        p0, p1, _, p3 = (np.array(p) for p in v)
+        return cls(corner=v[0], edge_u=tuple(p1 - p0), edge_v=tuple(p3 - p0), **kw)
+
+    def vertices(self):
+        c, u, v = (np.array(a, dtype=np.float64) for a in (self.corner, self.edge_u, self.edge_v))
+        return [c, c + u, c + u + v, c + v]
+
+
+@dataclass(frozen=True)
+class Plane(_ShapeBase):
+    """Infinite plane through point with the given normal. It cannot emit."""
+
+    point: Vec3 = (0.0, 0.0, 0.0)
+    normal: Vec3 = (0.0, 1.0, 0.0)
+
+
+@dataclass(frozen=True)
+class Box(_ShapeBase):
+    """Axis-aligned box of the given size, rotated (degrees, about x then y
+    then z) and moved to center: six quads facing out, or in if inward."""
+
+    center: Vec3 = (0.0, 0.0, 0.0)
+    size: Vec3 = (1.0, 1.0, 1.0)
+    rotation: Vec3 = (0.0, 0.0, 0.0)
+    inward: bool = False
+
+    def quads(self) -> list[Quad]:
+        rx, ry, rz = (math.radians(a) for a in self.rotation)
+        cx, sx, cy, sy, cz, sz = math.cos(rx), math.sin(rx), math.cos(ry), math.sin(ry), math.cos(rz), math.sin(rz)
+        mx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+        my = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+        mz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+        m = mz @ my @ mx
+        h = 0.5 * np.array(self.size, dtype=np.float64)
+        c = np.array(self.center, dtype=np.float64)
+        out = []
+        # For each axis and side: the face's corner and two edges, ordered so
+        # that edge_u x edge_v points out of the box.
+        for axis in range(3):
+            a1, a2 = (axis + 1) % 3, (axis + 2) % 3
+            for side in (-1.0, 1.0):
+                corner = np.zeros(3)
+                corner[axis] = side * h[axis]
+                corner[a1] = -h[a1]
+                corner[a2] = -h[a2]
+                eu = np.zeros(3)
+                ev = np.zeros(3)
+                eu[a1] = 2 * h[a1]
+                ev[a2] = 2 * h[a2]
+                if (side < 0) != self.inward:
+                    eu, ev = ev, eu
+                out.append(Quad(corner=tuple(m @ corner + c), edge_u=tuple(m @ eu), edge_v=tuple(m @ ev),
+                                material=self.material, emission=self.emission, two_sided=self.two_sided,
+                                name=self.name))
+        return out
+
+
+Shape = Union[Sphere, Triangle, Quad, Plane, Box]
+SHAPE_TYPES = {"sphere": Sphere, "triangle": Triangle, "quad": Quad, "plane": Plane, "box": Box}
+
+
+@dataclass
+class Scene:
+    """A camera, named materials, shapes, and default render settings."""
+
+    camera: Camera = field(default_factory=Camera)
+    shapes: list = field(default_factory=list)
+    materials: dict = field(default_factory=dict)
+    render: RenderSettings = field(default_factory=RenderSettings)
+    source: str = "<scene>"
+
+    def resolve_material(self, ref: MaterialRef) -> Material:
+        if isinstance(ref, Material):
+            return ref
+        if ref in self.materials:
+            return self.materials[ref]
+        if ref in PRESETS:
+            return Material.preset(ref)
+        raise SceneError(f"unknown material {ref!r}{_suggest(ref, list(self.materials) + list(PRESETS))}")
+
+    def surface(self, shape) -> Material:
+        """The shape's material with the shape's emission overrides applied."""
+        m = self.resolve_material(shape.material)
+        if shape.emission is not None:
+            m = replace(m, emission=tuple(float(c) for c in shape.emission))
+        if shape.two_sided is not None:
+            m = replace(m, two_sided=bool(shape.two_sided))
+        return m
+
+    def primitives(self):
+        """(index of the shape in self.shapes, primitive) with boxes expanded."""
+        for i, s in enumerate(self.shapes):
+            if isinstance(s, Box):
+                for q in s.quads():
+                    yield i, q
+            else:
+                yield i, s
+
+    def bounds(self):
+        """Axis-aligned bounds of the finite geometry and the camera."""
+        pts = [np.array(self.camera.origin, dtype=np.float64)]
+        for _, p in self.primitives():
+            if isinstance(p, Sphere):
+                c = np.array(p.center, dtype=np.float64)
+                pts += [c - p.radius, c + p.radius]
+            elif isinstance(p, Triangle):
+                pts += [np.array(v, dtype=np.float64) for v in p.vertices]
+            elif isinstance(p, Quad):
+                pts += p.vertices()
+            elif isinstance(p, Plane):
+                pts.append(np.array(p.point, dtype=np.float64))
+        pts = np.array(pts)
+        return pts.min(axis=0), pts.max(axis=0)
+
+    def extent(self) -> float:
+        lo, hi = self.bounds()
+        return float(np.linalg.norm(hi - lo)) or 1.0
+
+    def check(self) -> "Scene":
+        """Raise SceneError for the first problem found; return self."""
+        check_scene(self)
+        return self
+
+
+# --- validation of the model ---------------------------------------------------
+
+
+def _suggest(name, choices) -> str:
+    close = difflib.get_close_matches(str(name), [str(c) for c in choices], n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _fail(source, path, reason):
+    raise SceneError(f"{source}: {path}: {reason}" if path else f"{source}: {reason}")
+
+
+def _finite_vec(source, path, v, nonneg=False):
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != (3,):
+        _fail(source, path, f"must be 3 numbers (got {v!r})")
+    if not np.isfinite(a).all():
+        _fail(source, path, f"must be finite (got {list(v)})")
+    if nonneg and (a < 0).any():
+        _fail(source, path, f"must not be negative (got {list(v)})")
+    return a
+
+
+def _finite(source, path, x, lo=None, lo_open=True, hi=None, hi_open=True):
+    if isinstance(x, bool) or not isinstance(x, (int, float, np.floating, np.integer)):
+        _fail(source, path, f"must be a number (got {x!r})")
+    if not math.isfinite(x):
+        _fail(source, path, f"must be finite (got {x})")
+    if lo is not None and (x <= lo if lo_open else x < lo):
+        _fail(source, path, f"must be {'>' if lo_open else '>='} {lo} (got {x})")
+    if hi is not None and (x >= hi if hi_open else x > hi):
+        _fail(source, path, f"must be {'<' if hi_open else '<='} {hi} (got {x})")
+    return float(x)
+
+
+def check_material(source, path, m: Material):
+    total = np.zeros(3)
+    for key in ("kd", "ks", "kr", "kt"):
+        total += _finite_vec(source, f"{path}.{key}", getattr(m, key), nonneg=True)
+    _finite_vec(source, f"{path}.emission", m.emission, nonneg=True)
+    _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False)
+    _finite(source, f"{path}.ior", m.ior, lo=0.0)
+    if (total > 1.0 + 1e-6).any():
+        c = "rgb"[int(np.argmax(total))]
+        _fail(source, path, f"not energy conserving: kd + ks + kr + kt = {total.max():.6g} > 1 "
+                            f"in the {c} channel (absorption would be negative)")
+
+
+def _shape_path(i, s):
+    return f"shapes[{i}]" + (f" {s.name!r}" if s.name else "")
+
+
+def check_scene(scene: Scene):
+    src = scene.source
+    cam = scene.camera
+    o = _finite_vec(src, "camera.origin", cam.origin)
+    t = _finite_vec(src, "camera.target", cam.target)
+    up = _finite_vec(src, "camera.up", cam.up)
+    fwd = t - o
+    if np.linalg.norm(fwd) == 0.0:
+        _fail(src, "camera.target", "must differ from camera.origin")
+    if np.linalg.norm(up) == 0.0:
+        _fail(src, "camera.up", "must not be zero")
+    if np.linalg.norm(np.cross(fwd / np.linalg.norm(fwd), up / np.linalg.norm(up))) < 1e-6:
+        _fail(src, "camera.up", "is parallel to the view direction (target - origin); choose another up vector")
+    _finite(src, "camera.fov", cam.fov, lo=0.0, hi=180.0)
+    if cam.fov_axis not in FOV_AXES:
+        _fail(src, "camera.fov_axis", f"must be one of {', '.join(FOV_AXES)} (got {cam.fov_axis!r})")
+    for key in ("width", "height"):
+        v = getattr(cam, key)
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 1 << 16:
+            _fail(src, f"camera.{key}", f"must be an integer from 1 to 65536 (got {v!r})")
+
+    for name, m in scene.materials.items():
+        if not isinstance(m, Material):
+            _fail(src, f"materials.{name}", f"must be a Material (got {type(m).__name__})")
+        check_material(src, f"materials.{name}", m)
+
+    if not scene.shapes:
+        _fail(src, "shapes", "the scene has no shapes")
+    power = 0.0
+    for i, s in enumerate(scene.shapes):
+        path = _shape_path(i, s)
+        if not isinstance(s, tuple(SHAPE_TYPES.values())):
+            _fail(src, path, f"is not a shape (got {type(s).__name__})")
+        try:
+            m = scene.surface(s)
+        except SceneError as e:
+            _fail(src, f"{path}.material", str(e))
+        if s.emission is not None:
+            _finite_vec(src, f"{path}.emission", s.emission, nonneg=True)
+        if isinstance(s.material, Material):
+            check_material(src, f"{path}.material", m)
+        emissive = m.is_emissive
+        if isinstance(s, Sphere):
+            _finite_vec(src, f"{path}.center", s.center)
+            _finite(src, f"{path}.radius", s.radius, lo=0.0)
+            area = 4 * math.pi * s.radius ** 2
+        elif isinstance(s, Triangle):
+            if len(s.vertices) != 3:
+                _fail(src, f"{path}.vertices", f"must be 3 points (got {len(s.vertices)})")
+            v = [_finite_vec(src, f"{path}.vertices[{k}]", p) for k, p in enumerate(s.vertices)]
+            area = _planar_area(src, path, v[1] - v[0], v[2] - v[0], "triangle") / 2
+        elif isinstance(s, Quad):
+            c = _finite_vec(src, f"{path}.corner", s.corner)
+            u = _finite_vec(src, f"{path}.edge_u", s.edge_u)
+            v = _finite_vec(src, f"{path}.edge_v", s.edge_v)
+            area = _planar_area(src, path, u, v, "quad")
+        elif isinstance(s, Plane):
+            _finite_vec(src, f"{path}.point", s.point)
+            if np.linalg.norm(_finite_vec(src, f"{path}.normal", s.normal)) == 0.0:
+                _fail(src, f"{path}.normal", "must not be zero")
+            if emissive:
+                _fail(src, f"{path}.emission", "an infinite plane cannot be a light; use a quad")
+            area = 0.0
+        else:  # Box
+            _finite_vec(src, f"{path}.center", s.center)
+            _finite_vec(src, f"{path}.rotation", s.rotation)
+            size = _finite_vec(src, f"{path}.size", s.size)
+            if (size <= 0).any():
+                _fail(src, f"{path}.size", f"must be > 0 in every axis (got {list(s.size)})")
+            area = 2 * (size[0] * size[1] + size[1] * size[2] + size[0] * size[2])
+        if emissive:
+            power += area * float(np.mean(m.emission))
+    if power <= 0.0:
+        _fail(src, "shapes", "the scene has no light: give at least one shape (quad, triangle, sphere "
+                             "or box) a positive emission")
+
+
+def _planar_area(src, path, u, v, what):
+    lu, lv = np.linalg.norm(u), np.linalg.norm(v)
+    area = float(np.linalg.norm(np.cross(u, v)))
+    if lu == 0.0 or lv == 0.0 or area <= 1e-9 * lu * lv:
+        _fail(src, path, f"degenerate {what}: its edges are zero or parallel (area {area:.3g})")
+    return area
+
+
+# --- the TOML format --------------------------------------------------------------
+
+
+class _Reader:
+    """Typed access to a parsed TOML table, with key paths in every error."""
+
+    def __init__(self, source: str):
+        self.source = source
+
+    def fail(self, path, reason):
+        _fail(self.source, path, reason)
+
+    def table(self, d, path, allowed):
+        if not isinstance(d, dict):
+            self.fail(path, f"must be a table (got {_tname(d)})")
+        for k in d:
+            if k not in allowed:
+                self.fail(f"{path}.{k}" if path else k, f"unknown key{_suggest(k, allowed)}; "
+                                                        f"allowed: {', '.join(sorted(allowed))}")
+        return d
+
+    def require(self, d, path, key):
+        if key not in d:
+            self.fail(path or "(top level)", f"missing required key {key!r}")
+        return d[key]
+
+    def number(self, v, path):
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            self.fail(path, f"must be a number (got {_tname(v)} {v!r})")
+        if not math.isfinite(v):
+            self.fail(path, f"must be finite (got {v})")
+        return float(v)
+
+    def integer(self, v, path, lo=None):
+        if isinstance(v, bool) or not isinstance(v, int):
+            self.fail(path, f"must be an integer (got {_tname(v)} {v!r})")
+        if lo is not None and v < lo:
+            self.fail(path, f"must be >= {lo} (got {v})")
+        return v
+
+    def boolean(self, v, path):
+        if not isinstance(v, bool):
+            self.fail(path, f"must be true or false (got {_tname(v)} {v!r})")
+        return v
+
+    def string(self, v, path):
+        if not isinstance(v, str):
+            self.fail(path, f"must be a string (got {_tname(v)} {v!r})")
+        return v
+
+    def vec3(self, v, path):
+        if isinstance(v, (int, float)) and not isinstance(v, bool):
+            x = self.number(v, path)  # a grey value
+            return (x, x, x)
+        if not isinstance(v, list) or len(v) != 3:
+            self.fail(path, f"must be a list of 3 numbers (got {_tname(v)} {v!r})")
+        return tuple(self.number(x, f"{path}[{i}]") for i, x in enumerate(v))
+
+
+def _tname(v):
+    return {bool: "boolean", int: "integer", float: "float", str: "string", list: "array",
+            dict: "table"}.get(type(v), type(v).__name__)
+
+
+_MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided"}
+_COMMON_SHAPE_KEYS = {"type", "material", "emission", "two_sided", "name"}
+_SHAPE_KEYS = {
+    "sphere": {"center", "radius"},
+    "triangle": {"vertices"},
+    "quad": {"vertices", "corner", "edge_u", "edge_v"},
+    "plane": {"point", "normal"},
+    "box": {"center", "size", "rotation", "inward"},
+}
+
+
+def _read_material(r: _Reader, d, path) -> Material:
+    r.table(d, path, _MATERIAL_KEYS)
+    base = {}
+    if "preset" in d:
+        name = r.string(d["preset"], f"{path}.preset")
+        if name not in PRESETS:
+            r.fail(f"{path}.preset", f"unknown preset {name!r}{_suggest(name, PRESETS)}; "
+                                     f"presets: {', '.join(PRESETS)}")
+        base = dict(PRESETS[name])
+    for k in ("kd", "ks", "kr", "kt", "emission"):
+        if k in d:
+            base[k] = r.vec3(d[k], f"{path}.{k}")
+    for k in ("shininess", "ior"):
+        if k in d:
+            base[k] = r.number(d[k], f"{path}.{k}")
+    if "two_sided" in d:
+        base["two_sided"] = r.boolean(d["two_sided"], f"{path}.two_sided")
+    m = Material(**base)
+    check_material(r.source, path, m)
+    return m
+
+
+def _read_shape(r: _Reader, d, path, materials):
+    if not isinstance(d, dict):
+        r.fail(path, f"must be a table (got {_tname(d)})")
+    kind = r.string(r.require(d, path, "type"), f"{path}.type")
+    if kind not in SHAPE_TYPES:
+        r.fail(f"{path}.type", f"unknown shape type {kind!r}{_suggest(kind, SHAPE_TYPES)}; "
+                               f"types: {', '.join(SHAPE_TYPES)}")
+    if "name" in d:
+        path = f"{path} {r.string(d['name'], f'{path}.name')!r}"
+    r.table(d, path, _COMMON_SHAPE_KEYS | _SHAPE_KEYS[kind])
+    kw = {}
+    if "name" in d:
+        kw["name"] = d["name"]
+    mat = r.require(d, path, "material")
+    if isinstance(mat, dict):
+        kw["material"] = _read_material(r, mat, f"{path}.material")
+    else:
+        name = r.string(mat, f"{path}.material")
+        if name not in materials and name not in PRESETS:
+            r.fail(f"{path}.material", f"unknown material {name!r}"
+                                       f"{_suggest(name, list(materials) + list(PRESETS))}; define it "
+                                       f"under [materials] or use a preset ({', '.join(PRESETS)})")
+        kw["material"] = name
+    if "emission" in d:
+        kw["emission"] = r.vec3(d["emission"], f"{path}.emission")
+    if "two_sided" in d:
+        kw["two_sided"] = r.boolean(d["two_sided"], f"{path}.two_sided")
+
+    def vec(key, default=None):
+        if key not in d:
+            if default is None:
+                r.fail(path, f"missing required key {key!r}")
+            return default
+        return r.vec3(d[key], f"{path}.{key}")
+
+    def points(key, n):
+        v = r.require(d, path, key)
+        if not isinstance(v, list) or len(v) != n:
+            r.fail(f"{path}.{key}", f"must be a list of {n} points (got {_tname(v)} {v!r})")
+        return tuple(r.vec3(p, f"{path}.{key}[{k}]") for k, p in enumerate(v))
+
+    if kind == "sphere":
+        return Sphere(center=vec("center"), radius=r.number(r.require(d, path, "radius"), f"{path}.radius"), **kw)
+    if kind == "triangle":
+        return Triangle(vertices=points("vertices", 3), **kw)
+    if kind == "quad":
+        if "vertices" in d:
+            if {"corner", "edge_u", "edge_v"} & set(d):
+                r.fail(path, "give either vertices or corner/edge_u/edge_v, not both")
+            v = [np.array(p) for p in points("vertices", 4)]
+            ext = max(np.linalg.norm(a - b) for a in v for b in v)
+            if np.linalg.norm(v[0] + v[2] - v[1] - v[3]) > 1e-6 * ext:
+                r.fail(f"{path}.vertices", "the 4 corners are not a parallelogram "
+                                           "(v0 + v2 must equal v1 + v3); split it into triangles")
+            return Quad.from_vertices(v, **kw)
+        return Quad(corner=vec("corner"), edge_u=vec("edge_u"), edge_v=vec("edge_v"), **kw)
+    if kind == "plane":
+        return Plane(point=vec("point"), normal=vec("normal"), **kw)
+    return Box(center=vec("center"), size=vec("size"), rotation=vec("rotation", (0.0, 0.0, 0.0)),
+               inward=r.boolean(d.get("inward", False), f"{path}.inward"), **kw)
+
+
+def parse_scene(text: str, source: str = "<string>") -> Scene:
+    """Build and check a Scene from TOML text; errors name `source`."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{source}: TOML syntax error: {e}") from None
+    r = _Reader(source)
+    r.table(doc, "", {"camera", "materials", "shapes", "render"})
+    cd = r.table(r.require(doc, "", "camera"), "camera",
+                 {"origin", "target", "up", "fov", "fov_axis", "width", "height"})
+    cam = Camera(
+        origin=r.vec3(r.require(cd, "camera", "origin"), "camera.origin"),
+        target=r.vec3(r.require(cd, "camera", "target"), "camera.target"),
+        up=r.vec3(cd.get("up", [0.0, 1.0, 0.0]), "camera.up"),
+        fov=r.number(r.require(cd, "camera", "fov"), "camera.fov"),
+        fov_axis=r.string(cd.get("fov_axis", "smaller"), "camera.fov_axis"),
+        width=r.integer(cd.get("width", 256), "camera.width", lo=1),
+        height=r.integer(cd.get("height", 256), "camera.height", lo=1),
+    )
+    rd = r.table(doc.get("render", {}), "render", {"spp", "max_depth", "seed", "rr_depth"})
+    defaults = RenderSettings()
+    settings = RenderSettings(
+        spp=r.integer(rd.get("spp", defaults.spp), "render.spp", lo=1),
+        max_depth=r.integer(rd.get("max_depth", defaults.max_depth), "render.max_depth", lo=0),
+        seed=r.integer(rd.get("seed", defaults.seed), "render.seed", lo=0),
+        rr_depth=r.integer(rd.get("rr_depth", defaults.rr_depth), "render.rr_depth", lo=0),
+    )
+    mats = {}
+    md = doc.get("materials", {})
+    if not isinstance(md, dict):
+        r.fail("materials", f"must be a table (got {_tname(md)})")
+    for name, m in md.items():
+        mats[name] = _read_material(r, m, f"materials.{name}")
+    sd = r.require(doc, "", "shapes")
+    if not isinstance(sd, list):
+        r.fail("shapes", f"must be an array of tables ([[shapes]]), got {_tname(sd)}")
+    shapes = [_read_shape(r, s, f"shapes[{i}]", mats) for i, s in enumerate(sd)]
+    scene = Scene(camera=cam, shapes=shapes, materials=mats, render=settings, source=source)
+    check_scene(scene)
+    return scene
+
+
+def load_scene(path) -> Scene:
+    """Read a TOML scene file (or a shipped scene's name, e.g. "cornell_box")."""
+    p = Path(path)
+    if not p.exists() and p.suffix == "" and len(p.parts) == 1:
+        from .resources import scene_path
+        shipped = scene_path(str(path))
+        if shipped is not None:
+            p = shipped
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SceneError(f"{path}: no such scene file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise SceneError(f"{path}: cannot read the scene file: {e}") from None
+    return parse_scene(text, source=str(path))
+

@@ -1,0 +1,29 @@
+// features.h: every CLPT_* flag the host must define (clpt/features.py), each
+// as 0 or 1 (or a count), tested with #if. A missing flag is a build error
+// here rather than a silently disabled feature.
+
+
+#if !defined(CLPT_LANES) || !defined(CLPT_DOUBLE) || !defined(CLPT_GENERIC) || !defined(CLPT_BAKED) \
+    || !defined(CLPT_NEE)
+#error "clpt: CLPT_LANES, CLPT_DOUBLE, CLPT_GENERIC, CLPT_BAKED and CLPT_NEE must be defined"
+#endif
+#if !defined(CLPT_HAS_SPHERES) || !defined(CLPT_HAS_QUADS) || !defined(CLPT_HAS_TRIANGLES) \
+    || !defined(CLPT_HAS_PLANES)
+#error "clpt: every CLPT_HAS_<shape> flag must be defined"
+#endif
+#if !defined(CLPT_HAS_PHONG) || !defined(CLPT_HAS_MIRROR) || !defined(CLPT_HAS_GLASS)
+#error "clpt: every CLPT_HAS_<lobe> flag must be defined"
+#endif
+#if !defined(CLPT_HAS_TRIANGLE_LIGHTS) || !defined(CLPT_HAS_SPHERE_LIGHTS)
+#error "clpt: every CLPT_HAS_<kind>_LIGHTS flag must be defined"
+#endif
+#if !CLPT_GENERIC && (!defined(CLPT_NUM_MATERIALS) || !defined(CLPT_NUM_SPHERES) || !defined(CLPT_NUM_QUADS) \
+    || !defined(CLPT_NUM_TRIANGLES) || !defined(CLPT_NUM_PLANES) || !defined(CLPT_NUM_LIGHTS))
+#error "clpt: a specialized build needs every CLPT_NUM_* count"
+#endif
+
+#if CLPT_BAKED
+#define SCENE_SPACE __constant
+#else
+#define SCENE_SPACE __global
+#endif

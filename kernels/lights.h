@@ -1,0 +1,93 @@
+// lights.h: next event estimation. Every emissive quad, triangle or sphere is
+// an area light; one light is picked per lane by the power-proportional table
+// the host built, then a point on it is drawn:
+//   quad, triangle  uniformly by area (pdf_sa = dist^2 / (area |cos_l|))
+//   sphere          uniformly in the cone it subtends (pdf_sa = 1 / (2 pi (1 - cos_max)))
+//                   or, from inside it, uniformly by area.
+// Emission leaves the side the normal points to, or both sides if two_sided.
+
+typedef struct {
+    V3 wi;        // unit direction from the shading point to the light point
+    vreal dist;   // distance to the light point
+    V3 Le;        // emitted radiance towards the shading point
+    vreal pdf;    // solid-angle pdf of wi, times the pick probability
+    vmask valid;  // a usable sample (emitting side faces the point, pdf > 0)
+} LightSample;
+
+inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, vreal u2)
+{
+    LightSample ls;
+    ls.wi = v3_zero();
+    ls.Le = v3_zero();
+    ls.dist = (vreal)R(0);
+    ls.pdf = (vreal)R(0);
+    ls.valid = (vreal)R(0) != (vreal)R(0);
+    vmask taken = ls.valid;
+    for (uint i = 0; i < NUM_LIGHTS; i++) {
+        uint r = OFF_LIGHTS + LIGHT_STRIDE * i;
+        real4 info = scene_rec(sc, r + 4);  // area, pick probability, cdf, material
+        vmask pick = !taken && (u_pick < info.z || i + 1 == NUM_LIGHTS);
+        taken = taken || pick;
+        if (!VANY(pick)) continue;
+        real4 p = scene_rec(sc, r);
+        int kind = (int)p.w;
+        V3 wi, Le;
+        vreal dist, pdf_sa, cos_l;
+        real4 m = scene_rec(sc, MAT_STRIDE * (uint)info.w + 4);  // Le.rgb, two_sided
+        vmask emits;
+#if CLPT_HAS_SPHERE_LIGHTS
+        if (kind == LIGHT_KIND_SPHERE) {
+            real rad = scene_rec(sc, r + 1).x;
+            V3 dc = v3_sub(v3_splat(p), x);
+            vreal d2 = v3_dot(dc, dc);
+            vmask outside = d2 > rad * rad;
+            // Cone towards the centre; 1 - cos(theta_max) without cancellation.
+            vreal sin2 = fmin(rad * rad / d2, R(1));
+            vreal omc = sin2 / (R(1) + vsafe_sqrt(R(1) - sin2));
+            V3 axis = v3_scale(dc, rsqrt(d2));
+            V3 lc = sample_uniform_cone(u1, u2, omc);
+            V3 wc = frame_to_world(axis, lc.x, lc.y, lc.z);
+            vreal tc = intersect_sphere(p, x, wc);
+            // Grazing cone-edge directions may round to a miss: take the tangent point.
+            tc = VSEL(tc, v3_dot(dc, wc), isinf(tc));
+            // From inside: a uniform point on the sphere, seen from within.
+            V3 ls_dir = sample_uniform_sphere(u1, u2);
+            V3 y = v3_fma(ls_dir, (vreal)rad, v3_splat(p));
+            V3 wy = v3_sub(y, x);
+            vreal dy2 = v3_dot(wy, wy);
+            vreal dy = sqrt(dy2);
+            wy = v3_scale(wy, R(1) / dy);
+            vreal cos_in = -v3_dot(ls_dir, wy);  // < 0: the inside faces the point
+            vreal area = info.x;
+            wi = v3_sel(wy, wc, outside);
+            dist = VSEL(dy, tc, outside);
+            pdf_sa = VSEL(dy2 / (area * fabs(cos_in)), uniform_cone_pdf(omc), outside);
+            cos_l = VSEL(cos_in, (vreal)R(1), outside);
+        } else
+#endif
+        {
+            real4 u = scene_rec(sc, r + 1), v = scene_rec(sc, r + 2), n = scene_rec(sc, r + 3);
+            vreal a = u1, b = u2;
+#if CLPT_HAS_TRIANGLE_LIGHTS
+            if (kind == LIGHT_KIND_TRIANGLE)
+                sample_uniform_triangle(u1, u2, &a, &b);
+#endif
+            V3 y = v3(p.x + a * u.x + b * v.x, p.y + a * u.y + b * v.y, p.z + a * u.z + b * v.z);
+            V3 w = v3_sub(y, x);
+            vreal d2 = v3_dot(w, w);
+            dist = sqrt(d2);
+            wi = v3_scale(w, R(1) / dist);
+            cos_l = -v3_dot4(wi, n);
+            pdf_sa = d2 / (info.x * fabs(cos_l));
+        }
+        emits = cos_l > R(0) || (m.w != R(0) && cos_l < R(0));
+        Le = v3_splat(m);
+        vmask ok = pick && emits && pdf_sa > R(0) && pdf_sa < R(INFINITY);
+        ls.wi = v3_sel(ls.wi, wi, pick);
+        ls.dist = VSEL(ls.dist, dist, pick);
+        ls.Le = v3_sel(ls.Le, Le, pick);
+        ls.pdf = VSEL(ls.pdf, pdf_sa * info.y, pick);
+        ls.valid = ls.valid || ok;
+    }
+    return ls;
+}

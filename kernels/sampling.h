@@ -1,0 +1,110 @@
+// sampling.h: warps from uniform numbers to directions and points, each
+// sample_* beside the pdf it draws from. Local frames have +z along the axis.
+
+// Orthonormal frame (t, b, n) around unit n, without branches
+// (Duff et al., "Building an Orthonormal Basis, Revisited", JCGT 2017).
+inline void frame_from_z(V3 n, V3 *t, V3 *b)
+{
+    vreal s = copysign((vreal)R(1), n.z);
+    vreal a = R(-1) / (s + n.z);
+    vreal c = n.x * n.y * a;
+    *t = v3(R(1) + s * n.x * n.x * a, s * c, -s * n.x);
+    *b = v3(c, s + n.y * n.y * a, -n.y);
+}
+
+// Local direction (x, y, z) in the frame around n, to world space.
+inline V3 frame_to_world(V3 n, vreal x, vreal y, vreal z)
+{
+    V3 t, b;
+    frame_from_z(n, &t, &b);
+    return v3(x * t.x + y * b.x + z * n.x, x * t.y + y * b.y + z * n.y, x * t.z + y * b.z + z * n.z);
+}
+
+// Direction around the z axis with cos(theta) = c and sin(theta) = s, at azimuth 2 pi u.
+inline V3 spherical_local(vreal c, vreal s, vreal u)
+{
+    vreal cphi;
+    vreal sphi = sincos(R(2 * M_PI) * u, &cphi);
+    return v3(s * cphi, s * sphi, c);
+}
+
+// --- cosine-weighted hemisphere: theta = acos(sqrt(u1)), phi = 2 pi u2 ---
+inline V3 sample_cosine_hemisphere(vreal u1, vreal u2)
+{
+    return spherical_local(sqrt(u1), vsafe_sqrt(R(1) - u1), u2);
+}
+inline vreal cosine_hemisphere_pdf(vreal cos_theta) { return fmax(cos_theta, R(0)) * R(M_1_PI); }
+
+// --- Phong lobe: alpha = acos(u1^(1/(n+1))) around the lobe axis ----------
+// pdf_sa = (n + 1) / (2 pi) cos^n(alpha). 1 - cos(alpha) is formed with expm1
+// so that the lobe stays accurate (and distinct from a mirror) for n ~ 1e6.
+inline V3 sample_phong_lobe(vreal u1, vreal u2, vreal n)
+{
+    vreal lg = log(fmax(u1, R(1e-30))) / (n + R(1));
+    vreal one_minus_c = -expm1(lg);
+    vreal c = R(1) - one_minus_c;
+    vreal s = vsafe_sqrt(one_minus_c * (R(2) - one_minus_c));
+    return spherical_local(c, s, u2);
+}
+// cos^n for cos in [0, 1], as exp(n log cos): PoCL's vector pow is ~6x slower.
+inline vreal phong_cos_pow(vreal cos_alpha, vreal n)
+{
+    vreal c = fmax(cos_alpha, R(0));
+    vreal p = exp(n * log(fmax(c, R(1e-30))));
+    return VSEL(p, (vreal)R(0), c <= R(0));
+}
+inline vreal phong_lobe_pdf(vreal cos_alpha, vreal n)
+{
+    return (n + R(1)) * R(0.5 * M_1_PI) * phong_cos_pow(cos_alpha, n);
+}
+
+// --- cone of directions around z with 1 - cos(theta_max) = omc -------------
+// pdf_sa = 1 / (2 pi omc). Taking 1 - cos(theta_max) as the input keeps tiny
+// cones (a far or tiny sphere light) exact instead of rounding to zero.
+inline V3 sample_uniform_cone(vreal u1, vreal u2, vreal omc)
+{
+    vreal k = u1 * omc;  // 1 - cos(theta)
+    return spherical_local(R(1) - k, vsafe_sqrt(k * (R(2) - k)), u2);
+}
+inline vreal uniform_cone_pdf(vreal omc) { return R(0.5 * M_1_PI) / omc; }
+
+// --- uniform point on a triangle, as barycentrics (b1, b2) of edges e1, e2 --
+inline void sample_uniform_triangle(vreal u1, vreal u2, vreal *b1, vreal *b2)
+{
+    vreal su = sqrt(u1);
+    *b1 = R(1) - su;
+    *b2 = u2 * su;
+}
+
+// --- uniform direction on the unit sphere (pdf_sa = 1 / 4 pi) ---------------
+inline V3 sample_uniform_sphere(vreal u1, vreal u2)
+{
+    vreal c = R(1) - R(2) * u1;
+    return spherical_local(c, vsafe_sqrt(R(1) - c * c), u2);
+}
+
+// --- dielectric interface --------------------------------------------------
+// Unpolarized Fresnel reflectance for light meeting the interface at
+// cos_i >= 0 from the side of index 1 with relative index eta = n_t / n_i.
+// Total internal reflection gives 1. cos_t is returned for the refraction.
+inline vreal fresnel_dielectric(vreal cos_i, vreal eta, vreal *cos_t)
+{
+    vreal sin2_t = (R(1) - cos_i * cos_i) / (eta * eta);
+    vmask tir = sin2_t >= R(1);
+    vreal ct = vsafe_sqrt(R(1) - sin2_t);
+    vreal r_par = (eta * cos_i - ct) / (eta * cos_i + ct);
+    vreal r_perp = (cos_i - eta * ct) / (cos_i + eta * ct);
+    vreal f = R(0.5) * (r_par * r_par + r_perp * r_perp);
+    *cos_t = ct;
+    // eta = 1 is no interface at all; 0/0 at cos_i = 0 there is caught here too.
+    f = VSEL(f, (vreal)R(0), eta == R(1));
+    return VSEL(f, (vreal)R(1), tir);
+}
+
+// Refracted direction for incoming unit d, unit normal n on the incident side
+// (dot(d, n) = -cos_i) and relative index eta = n_t / n_i (no TIR assumed).
+inline V3 refract_dir(V3 d, V3 n, vreal cos_i, vreal cos_t, vreal eta)
+{
+    vreal inv = R(1) / eta;
+    return v3_fma(n, cos_i * inv - cos_t, v3_scale(d, inv));
+}

@@ -1,0 +1,258 @@
+// scene.h: the packed scene and ray queries against it.
+//
+// The scene is one array of real4 records (float4, or double4 when
+// CLPT_DOUBLE), in sections whose order and
+// strides clpt/pack.py defines (and this file mirrors):
+//   materials  MAT_STRIDE records each
+//     0 kd.rgb, p_diffuse     1 ks.rgb, p_phong     2 kr.rgb, p_mirror
+//     3 kt.rgb, p_refract     4 Le.rgb, two_sided   5 shininess, ior, nondelta, emissive
+//   spheres    2 records: center.xyz, radius | material, 0, 0, 0
+//   quads      4 records: corner.xyz, material | n.xyz, 0 | wu.xyz, 0 | wv.xyz, 0
+//   triangles  4 records, as quads (corner = v0)
+//   planes     2 records: point.xyz, material | n.xyz, 0
+//   lights     5 records: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, 0 |
+//              area, pick probability, cumulative probability, material
+// wu and wv are the dual vectors of the edges u, v in the plane: for a point
+// q relative to the corner, (dot(q, wu), dot(q, wv)) are its coordinates
+// along u and v, so quads and triangles share one test and one record shape.
+// Material ids are small integers stored as floats (exact below 2^24).
+//
+// Section sizes come from CLPT_NUM_* (specialized builds: loops with compile-
+// time trip counts) or, when CLPT_GENERIC, from the Scene counts at run time.
+
+#define MAT_STRIDE 6
+#define SPHERE_STRIDE 2
+#define PLANAR_STRIDE 4
+#define PLANE_STRIDE 2
+#define LIGHT_STRIDE 5
+
+#define LIGHT_KIND_QUAD 0
+#define LIGHT_KIND_TRIANGLE 1
+#define LIGHT_KIND_SPHERE 2
+
+typedef struct {
+    SCENE_SPACE const real4 *rec;
+    uint n_materials, n_spheres, n_quads, n_triangles, n_planes, n_lights;
+    real eps_abs;  // absolute part of the ray-origin offset (scene size * k eps)
+} Scene;
+
+#if CLPT_GENERIC
+#define NUM_MATERIALS (sc->n_materials)
+#define NUM_SPHERES (sc->n_spheres)
+#define NUM_QUADS (sc->n_quads)
+#define NUM_TRIANGLES (sc->n_triangles)
+#define NUM_PLANES (sc->n_planes)
+#define NUM_LIGHTS (sc->n_lights)
+#else
+#define NUM_MATERIALS CLPT_NUM_MATERIALS
+#define NUM_SPHERES CLPT_NUM_SPHERES
+#define NUM_QUADS CLPT_NUM_QUADS
+#define NUM_TRIANGLES CLPT_NUM_TRIANGLES
+#define NUM_PLANES CLPT_NUM_PLANES
+#define NUM_LIGHTS CLPT_NUM_LIGHTS
+#endif
+
+#define OFF_SPHERES (MAT_STRIDE * NUM_MATERIALS)
+#define OFF_QUADS (OFF_SPHERES + SPHERE_STRIDE * NUM_SPHERES)
+#define OFF_TRIANGLES (OFF_QUADS + PLANAR_STRIDE * NUM_QUADS)
+#define OFF_PLANES (OFF_TRIANGLES + PLANAR_STRIDE * NUM_TRIANGLES)
+#define OFF_LIGHTS (OFF_PLANES + PLANE_STRIDE * NUM_PLANES)
+
+inline real4 scene_rec(const Scene *sc, uint i) { return sc->rec[i]; }
+
+// --- offsetting ray origins ----------------------------------------------
+// A new ray starts a little off the surface, along the side it leaves by.
+// The offset is relative to the point's magnitude (positions carry rounding
+// error proportional to it) plus a scene-relative floor, so that the same
+// scene scaled by 1e-4 or 1e4, or moved far from the origin, renders alike.
+#if CLPT_DOUBLE
+#define OFFSET_REL R(1e-12)
+#else
+#define OFFSET_REL R(2e-6)
+#endif
+inline V3 offset_origin(const Scene *sc, V3 p, V3 n_side)
+{
+    vreal m = fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z)));
+    return v3_fma(n_side, m * OFFSET_REL + sc->eps_abs, p);
+}
+
+// --- primitive tests --------------------------------------------------------
+// Each returns the ray parameter of the hit or +inf; NaNs from rays parallel
+// to a plane fail every comparison and so never count as hits.
+
+// Quad (planar_tri = 0) or triangle (planar_tri = 1) at records i..i+3.
+inline vreal intersect_planar(const Scene *sc, uint i, V3 o, V3 d, int planar_tri, real4 *n_out)
+{
+    real4 p = scene_rec(sc, i), n = scene_rec(sc, i + 1);
+    real4 wu = scene_rec(sc, i + 2), wv = scene_rec(sc, i + 3);
+    V3 op = v3_sub4(o, p);  // relative to the corner first: no cancellation far from the origin
+    vreal t = -v3_dot4(op, n) / v3_dot4(d, n);
+    V3 q = v3_fma(d, t, op);
+    vreal a = v3_dot4(q, wu), b = v3_dot4(q, wv);
+    vmask in = planar_tri ? (a >= R(0) && b >= R(0) && a + b <= R(1))
+                          : (a >= R(0) && b >= R(0) && a <= R(1) && b <= R(1));
+    *n_out = n;
+    return VSEL((vreal)R(INFINITY), t, in && t > R(0));
+}
+
+inline vreal intersect_plane(const Scene *sc, uint i, V3 o, V3 d)
+{
+    real4 p = scene_rec(sc, i), n = scene_rec(sc, i + 1);
+    vreal t = -v3_dot4(v3_sub4(o, p), n) / v3_dot4(d, n);
+    return VSEL((vreal)R(INFINITY), t, t > R(0));
+}
+
+// Nearest root > 0 of |o + t d - c| = r for unit d. The discriminant uses the
+// closest-approach vector (Haines et al., Ray Tracing Gems ch. 7), which stays
+// accurate for small spheres far away; q avoids cancellation in the roots.
+inline vreal intersect_sphere(real4 cr, V3 o, V3 d)
+{
+    V3 oc = v3_sub4(o, cr);
+    vreal b = v3_dot(oc, d);
+    V3 f = v3_fma(d, -b, oc);
+    vreal r2 = cr.w * cr.w;
+    vreal disc = r2 - v3_dot(f, f);
+    vreal c = v3_dot(oc, oc) - r2;
+    vreal q = -b - copysign(sqrt(fmax(disc, R(0))), b);
+    vreal t0 = c / q, t1 = q;
+    vreal tn = fmin(t0, t1), tf = fmax(t0, t1);
+    vreal t = VSEL(tf, tn, tn > R(0));
+    return VSEL((vreal)R(INFINITY), t, disc >= R(0) && t > R(0));
+}
+
+// --- closest hit ---------------------------------------------------------------
+typedef struct {
+    vreal t;    // +inf where the ray escaped
+    V3 ng;      // unit geometric normal (sphere: outward; planar: winding)
+    vreal mat;  // material id
+} Hit;
+
+inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
+{
+    Hit h;
+    h.t = (vreal)R(INFINITY);
+    h.ng = v3_zero();
+    h.mat = (vreal)R(0);
+#if CLPT_HAS_SPHERES
+    for (uint i = 0; i < NUM_SPHERES; i++) {
+        uint r = OFF_SPHERES + SPHERE_STRIDE * i;
+        real4 cr = scene_rec(sc, r);
+        vreal t = intersect_sphere(cr, o, d);
+        vmask closer = t < h.t;
+        h.t = VSEL(h.t, t, closer);
+        // The normal is formed now, from the ray's origin relative to the centre.
+        V3 n = v3_scale(v3_fma(d, t, v3_sub4(o, cr)), (vreal)(R(1) / cr.w));
+        h.ng = v3_sel(h.ng, n, closer);
+        h.mat = VSEL(h.mat, (vreal)scene_rec(sc, r + 1).x, closer);
+    }
+#endif
+#if CLPT_HAS_QUADS
+    for (uint i = 0; i < NUM_QUADS; i++) {
+        uint r = OFF_QUADS + PLANAR_STRIDE * i;
+        real4 n;
+        vreal t = intersect_planar(sc, r, o, d, 0, &n);
+        vmask closer = t < h.t;
+        h.t = VSEL(h.t, t, closer);
+        h.ng = v3_sel4(h.ng, n, closer);
+        h.mat = VSEL(h.mat, (vreal)scene_rec(sc, r).w, closer);
+    }
+#endif
+#if CLPT_HAS_TRIANGLES
+    for (uint i = 0; i < NUM_TRIANGLES; i++) {
+        uint r = OFF_TRIANGLES + PLANAR_STRIDE * i;
+        real4 n;
+        vreal t = intersect_planar(sc, r, o, d, 1, &n);
+        vmask closer = t < h.t;
+        h.t = VSEL(h.t, t, closer);
+        h.ng = v3_sel4(h.ng, n, closer);
+        h.mat = VSEL(h.mat, (vreal)scene_rec(sc, r).w, closer);
+    }
+#endif
+#if CLPT_HAS_PLANES
+    for (uint i = 0; i < NUM_PLANES; i++) {
+        uint r = OFF_PLANES + PLANE_STRIDE * i;
+        vreal t = intersect_plane(sc, r, o, d);
+        vmask closer = t < h.t;
+        h.t = VSEL(h.t, t, closer);
+        h.ng = v3_sel4(h.ng, scene_rec(sc, r + 1), closer);
+        h.mat = VSEL(h.mat, (vreal)scene_rec(sc, r).w, closer);
+    }
+#endif
+    return h;
+}
+
+// --- shadow rays -----------------------------------------------------------------
+// Mask of lanes (among `test`) whose segment o + t d, 0 < t < tmax, is blocked.
+// Stops early once every tested lane is known to be blocked.
+inline vmask scene_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask test)
+{
+    vmask occ = !test;  // untested lanes count as settled
+#if CLPT_HAS_SPHERES
+    for (uint i = 0; i < NUM_SPHERES; i++) {
+        vreal t = intersect_sphere(scene_rec(sc, OFF_SPHERES + SPHERE_STRIDE * i), o, d);
+        occ = occ || t < tmax;
+    }
+    if (VALL(occ)) return test;
+#endif
+#if CLPT_HAS_QUADS
+    for (uint i = 0; i < NUM_QUADS; i++) {
+        real4 n;
+        occ = occ || intersect_planar(sc, OFF_QUADS + PLANAR_STRIDE * i, o, d, 0, &n) < tmax;
+    }
+    if (VALL(occ)) return test;
+#endif
+#if CLPT_HAS_TRIANGLES
+    for (uint i = 0; i < NUM_TRIANGLES; i++) {
+        real4 n;
+        occ = occ || intersect_planar(sc, OFF_TRIANGLES + PLANAR_STRIDE * i, o, d, 1, &n) < tmax;
+    }
+#endif
+#if CLPT_HAS_PLANES
+    for (uint i = 0; i < NUM_PLANES; i++)
+        occ = occ || intersect_plane(sc, OFF_PLANES + PLANE_STRIDE * i, o, d) < tmax;
+#endif
+    return occ && test;
+}
+
+// --- materials -------------------------------------------------------------------
+typedef struct {
+    V3 kd, ks, kr, kt, Le;
+    vreal p_d, p_s, p_r, p_t;  // lobe probabilities (absorption takes the rest)
+    vreal shininess, ior;
+    vreal two_sided;           // emission on both sides (else the normal's side)
+    vreal nondelta;            // 1 if kd or ks is nonzero (light sampling applies)
+} Material;
+
+// Per-lane material by selecting over the (few) materials: cheaper on a CPU
+// than eight scattered loads per field.
+inline Material material_fetch(const Scene *sc, vreal id)
+{
+    Material m;
+    m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
+    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.nondelta = (vreal)R(0);
+    m.ior = (vreal)R(1);
+    for (uint i = 0; i < NUM_MATERIALS; i++) {
+        uint r = MAT_STRIDE * i;
+        vmask is = id == (real)i;
+        if (!VANY(is)) continue;
+        real4 a = scene_rec(sc, r), f = scene_rec(sc, r + 4), g = scene_rec(sc, r + 5);
+        m.kd = v3_sel4(m.kd, a, is); m.p_d = VSEL(m.p_d, (vreal)a.w, is);
+#if CLPT_HAS_PHONG
+        real4 b = scene_rec(sc, r + 1);
+        m.ks = v3_sel4(m.ks, b, is); m.p_s = VSEL(m.p_s, (vreal)b.w, is);
+        m.shininess = VSEL(m.shininess, (vreal)g.x, is);
+#endif
+#if CLPT_HAS_MIRROR
+        real4 c = scene_rec(sc, r + 2);
+        m.kr = v3_sel4(m.kr, c, is); m.p_r = VSEL(m.p_r, (vreal)c.w, is);
+#endif
+#if CLPT_HAS_GLASS
+        real4 e = scene_rec(sc, r + 3);
+        m.kt = v3_sel4(m.kt, e, is); m.p_t = VSEL(m.p_t, (vreal)e.w, is);
+        m.ior = VSEL(m.ior, (vreal)g.y, is);
+#endif
+        m.Le = v3_sel4(m.Le, f, is); m.two_sided = VSEL(m.two_sided, (vreal)f.w, is);
+        m.nondelta = VSEL(m.nondelta, (vreal)g.z, is);
+    }
+    return m;
+}

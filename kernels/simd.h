@@ -1,0 +1,130 @@
+// simd.h: the lane abstraction every kernel is written in.
+//
+// One work-item traces CLPT_LANES independent paths at once, in explicit
+// OpenCL vector types (float8 on an AVX2 CPU). PoCL does not vectorize a path
+// tracer's loop body across work-items, but it compiles float8 arithmetic to
+// AVX2 directly; CLPT_LANES = 1 gives plain scalar code for GPUs, where the
+// hardware vectorizes across work-items.
+//
+// Conventions:
+//   vreal  per-lane real (float, or double when CLPT_DOUBLE)
+//   vmask  per-lane truth value from comparing vreals: combine masks with
+//          && || ! only (they give -1/0 on vectors and 1/0 on scalars, and
+//          VSEL/VANY accept both); never with & | ~.
+//   vuint  per-lane 32-bit unsigned, used by the RNG and for indices.
+// Per-lane integers that take part in masked updates (depth, primitive or
+// material ids) are kept as vreal, so one select type serves all state.
+
+#if CLPT_DOUBLE
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double real;
+typedef double4 real4;
+#define REAL_EPS 2.220446049250313e-16
+#else
+typedef float real;
+typedef float4 real4;
+#define REAL_EPS 1.1920929e-07f
+#endif
+#define R(x) ((real)(x))
+
+#define CLPT_CAT_(a, b) a##b
+#define CLPT_CAT(a, b) CLPT_CAT_(a, b)
+
+#if CLPT_LANES == 1
+typedef real vreal;
+typedef uint vuint;
+typedef int vmask;
+typedef double vdouble;
+#define VSEL(a, b, m) ((m) ? (b) : (a))
+#define VANY(m) ((m) != 0)
+#define VALL(m) ((m) != 0)
+#define VREAL(x) ((real)(x))
+#define VUINT(x) ((uint)(x))
+#define VDOUBLE(x) ((double)(x))
+#define VMASK_D(m) (m)
+#define VLANE_IDS ((uint)0)
+typedef int mask_elem;
+#define VLANE_R(v, l) (v)
+#define VLANE_U(v, l) (v)
+#define VLANE_M(v, l) (v)
+#define VLANE_D(v, l) (v)
+#else
+#if CLPT_DOUBLE
+typedef CLPT_CAT(double, CLPT_LANES) vreal;
+typedef CLPT_CAT(long, CLPT_LANES) vmask;
+typedef long mask_elem;
+#define VREAL(x) CLPT_CAT(convert_double, CLPT_LANES)(x)
+#define VMASK_D(m) (m)
+#else
+typedef CLPT_CAT(float, CLPT_LANES) vreal;
+typedef CLPT_CAT(int, CLPT_LANES) vmask;
+typedef int mask_elem;
+#define VREAL(x) CLPT_CAT(convert_float, CLPT_LANES)(x)
+#define VMASK_D(m) CLPT_CAT(convert_long, CLPT_LANES)(m)
+#endif
+typedef CLPT_CAT(uint, CLPT_LANES) vuint;
+typedef CLPT_CAT(double, CLPT_LANES) vdouble;
+#define VSEL(a, b, m) select((a), (b), (m))
+#define VANY(m) any(m)
+#define VALL(m) all(m)
+#define VUINT(x) CLPT_CAT(convert_uint, CLPT_LANES)(x)
+#define VDOUBLE(x) CLPT_CAT(convert_double, CLPT_LANES)(x)
+// Lane l of a vector, through its private storage (l need not be constant).
+#define VLANE_R(v, l) (((private real *)&(v))[l])
+#define VLANE_U(v, l) (((private uint *)&(v))[l])
+#define VLANE_M(v, l) (((private mask_elem *)&(v))[l])
+#define VLANE_D(v, l) (((private double *)&(v))[l])
+#if CLPT_LANES == 2
+#define VLANE_IDS ((vuint)(0, 1))
+#elif CLPT_LANES == 4
+#define VLANE_IDS ((vuint)(0, 1, 2, 3))
+#elif CLPT_LANES == 8
+#define VLANE_IDS ((vuint)(0, 1, 2, 3, 4, 5, 6, 7))
+#elif CLPT_LANES == 16
+#define VLANE_IDS ((vuint)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#else
+#error "CLPT_LANES must be 1, 2, 4, 8 or 16"
+#endif
+#endif
+
+// Number of lanes whose mask is set.
+inline uint vpopcount(vmask m)
+{
+    uint n = 0;
+    for (int l = 0; l < CLPT_LANES; l++)
+        n += VLANE_M(m, l) != 0;
+    return n;
+}
+
+// --- three-component vectors of lanes (structure of arrays) ----------------
+typedef struct { vreal x, y, z; } V3;
+
+inline V3 v3(vreal x, vreal y, vreal z) { V3 r; r.x = x; r.y = y; r.z = z; return r; }
+inline V3 v3_splat(real4 a) { return v3((vreal)a.x, (vreal)a.y, (vreal)a.z); }
+inline V3 v3_zero(void) { return v3((vreal)R(0), (vreal)R(0), (vreal)R(0)); }
+inline V3 v3_add(V3 a, V3 b) { return v3(a.x + b.x, a.y + b.y, a.z + b.z); }
+inline V3 v3_sub(V3 a, V3 b) { return v3(a.x - b.x, a.y - b.y, a.z - b.z); }
+inline V3 v3_mul(V3 a, V3 b) { return v3(a.x * b.x, a.y * b.y, a.z * b.z); }
+inline V3 v3_scale(V3 a, vreal s) { return v3(a.x * s, a.y * s, a.z * s); }
+inline V3 v3_neg(V3 a) { return v3(-a.x, -a.y, -a.z); }
+inline V3 v3_fma(V3 a, vreal s, V3 b) { return v3(mad(a.x, s, b.x), mad(a.y, s, b.y), mad(a.z, s, b.z)); }
+inline vreal v3_dot(V3 a, V3 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+inline vreal v3_dot4(V3 a, real4 b) { return a.x * b.x + a.y * b.y + a.z * b.z; }
+inline V3 v3_sub4(V3 a, real4 b) { return v3(a.x - b.x, a.y - b.y, a.z - b.z); }
+inline V3 v3_mul4(V3 a, real4 b) { return v3(a.x * b.x, a.y * b.y, a.z * b.z); }
+inline V3 v3_cross(V3 a, V3 b)
+{
+    return v3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
+}
+inline V3 v3_normalize(V3 a) { return v3_scale(a, rsqrt(v3_dot(a, a))); }
+inline V3 v3_sel(V3 a, V3 b, vmask m) { return v3(VSEL(a.x, b.x, m), VSEL(a.y, b.y, m), VSEL(a.z, b.z, m)); }
+inline V3 v3_sel4(V3 a, real4 b, vmask m)
+{
+    return v3(VSEL(a.x, (vreal)b.x, m), VSEL(a.y, (vreal)b.y, m), VSEL(a.z, (vreal)b.z, m));
+}
+inline vreal v3_max_comp(V3 a) { return fmax(a.x, fmax(a.y, a.z)); }
+inline vreal v3_luminance(V3 a) { return R(0.2126) * a.x + R(0.7152) * a.y + R(0.0722) * a.z; }
+// Reflect incoming direction d about normal n (both unit): d - 2 (d.n) n.
+inline V3 v3_reflect(V3 d, V3 n) { return v3_fma(n, R(-2) * v3_dot(d, n), d); }
+
+inline vreal vsafe_sqrt(vreal x) { return sqrt(fmax(x, R(0))); }

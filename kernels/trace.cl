@@ -1,0 +1,272 @@
+// trace.cl: trace_paths, the path-tracing pass.
+//
+// Computes, for each pixel of a range, samples [sample_begin, sample_begin +
+// n_samples) of the pixel's radiance estimate, and adds them one by one, in
+// sample order, to the pixel's double-precision sums. The order of additions
+// never depends on how samples are split into launches or on the work-group
+// size, so an image is bit-identical however it was scheduled.
+//
+// Launch: one work-item per group of CLPT_LANES consecutive pixels (row-major
+// index group * CLPT_LANES + lane); global size = number of groups in the
+// range, any local size. Each lane starts a new path as soon as its previous
+// one ends, so lanes stay busy while paths have different lengths.
+//
+// Buffers:
+//   scene     in   packed scene records (scene.h); unused when CLPT_BAKED
+//   pix_sum   in/out  per pixel: sum r, sum g, sum b, sample count
+//   pix_sq    in/out  per pixel: sum of squared luminance
+//   stats     out  per work-item: non-finite samples dropped, camera rays,
+//                  bounce rays, shadow rays (this launch)
+//
+// Estimator: path tracing with next event estimation at every vertex with a
+// non-delta lobe (CLPT_NEE). Emission found by a bounce counts only from the
+// camera or after a mirror/refraction vertex, which light sampling cannot
+// reach. A material's lobe is chosen by Russian roulette over kd, ks, kr, kt
+// and absorption, as in the paper; before depth rr_depth the absorption
+// branch is left out (lobe probabilities renormalized).
+//
+// Flags: CLPT_LANES, CLPT_DOUBLE, CLPT_GENERIC, CLPT_BAKED, CLPT_NEE,
+//   CLPT_HAS_{SPHERES,QUADS,TRIANGLES,PLANES}, CLPT_HAS_{PHONG,MIRROR,GLASS},
+//   CLPT_HAS_{TRIANGLE,SPHERE}_LIGHTS, CLPT_NUM_* (when not generic).
+
+typedef struct {
+    V3 o, d;         // current ray
+    V3 beta;         // path throughput
+    V3 L;            // radiance gathered so far by this sample
+    vreal depth;     // scattering events so far
+    vmask specular;  // last vertex was the camera or a delta lobe
+} PathState;
+
+// Path throughput after choosing and sampling one lobe of m at a hit.
+// Returns the mask of lanes whose path goes on; writes the new ray and flags.
+inline vmask scatter(const Scene *sc, const Material *m, PathState *ps, V3 x, V3 n, vmask front,
+                     vmask go, Rand4 r, vmask no_absorb)
+{
+    // --- Russian roulette over the lobes --------------------------------------
+    vreal p_d = m->p_d, p_s = m->p_s, p_r = m->p_r, p_t = m->p_t;
+    vreal p_sum = p_d + p_s + p_r + p_t;
+    vreal renorm = VSEL((vreal)R(1), R(1) / p_sum, no_absorb && p_sum > R(0));
+    p_d *= renorm; p_s *= renorm; p_r *= renorm; p_t *= renorm;
+    vreal c = r.a;
+    vmask is_d = c < p_d;
+    vmask is_s = !is_d && c < p_d + p_s;
+    vmask is_r = !is_d && !is_s && c < p_d + p_s + p_r;
+    vmask is_t = !is_d && !is_s && !is_r && c < p_d + p_s + p_r + p_t;
+    V3 d = ps->d;
+
+    // --- diffuse: cosine-weighted; f cos / pdf = kd ---------------------------
+    V3 lc = sample_cosine_hemisphere(r.b, r.c);
+    V3 wi = frame_to_world(n, lc.x, lc.y, lc.z);
+    V3 w = v3_scale(m->kd, R(1) / p_d);
+    vmask up = go;  // the new ray leaves on the normal's side
+#if CLPT_HAS_PHONG
+    // --- Phong lobe around the mirror direction --------------------------------
+    // f = ks (n+2)/(2 pi) cos^n(alpha), pdf = (n+1)/(2 pi) cos^n(alpha):
+    // f cos_i / pdf = ks (n+2)/(n+1) cos_i; directions below the surface are lost.
+    if (VANY(is_s)) {
+        V3 rdir = v3_reflect(d, n);
+        V3 ll = sample_phong_lobe(r.b, r.c, m->shininess);
+        V3 ws = frame_to_world(rdir, ll.x, ll.y, ll.z);
+        vreal cos_i = v3_dot(ws, n);
+        vreal k = (m->shininess + R(2)) / (m->shininess + R(1)) * fmax(cos_i, R(0)) / p_s;
+        wi = v3_sel(wi, ws, is_s);
+        w = v3_sel(w, v3_scale(m->ks, k), is_s);
+        is_s = is_s && cos_i > R(0);
+    }
+#endif
+#if CLPT_HAS_MIRROR
+    // --- perfect mirror ------------------------------------------------------------
+    wi = v3_sel(wi, v3_reflect(d, n), is_r);
+    w = v3_sel(w, v3_scale(m->kr, R(1) / p_r), is_r);
+#endif
+#if CLPT_HAS_GLASS
+    // --- dielectric: Fresnel picks reflection or refraction ----------------------
+    // eta = n_t / n_i: entering through the front face, or leaving through the back.
+    if (VANY(is_t)) {
+        vreal eta = VSEL(R(1) / m->ior, m->ior, front);
+        vreal cos_i = -v3_dot(d, n);
+        vreal cos_t;
+        vreal F = fresnel_dielectric(cos_i, eta, &cos_t);
+        vmask refl = r.d < F;
+        V3 wt = refract_dir(d, n, cos_i, cos_t, eta);
+        wi = v3_sel(wi, v3_sel(wt, v3_reflect(d, n), refl), is_t);
+        // Radiance is scaled by 1/eta^2 across the interface (pbrt, sec. 9.5.2).
+        vreal k = VSEL(R(1) / (eta * eta), (vreal)R(1), refl) / p_t;
+        w = v3_sel(w, v3_scale(m->kt, k), is_t);
+        up = up && !(is_t && !refl);
+    }
+#endif
+    vmask cont = go && (is_d || is_s || is_r || is_t);
+    ps->beta = v3_sel(ps->beta, v3_mul(ps->beta, w), cont);
+    ps->o = v3_sel(ps->o, offset_origin(sc, x, v3_sel(v3_neg(n), n, up)), cont);
+    ps->d = v3_sel(ps->d, v3_normalize(wi), cont);
+    ps->specular = VSEL(ps->specular, is_r || is_t, cont);
+    return cont && v3_max_comp(ps->beta) > R(0);
+}
+
+// f(wo, wi) of the non-delta lobes, for incoming direction d and shading
+// normal n on the side of -d.
+inline V3 brdf_eval(const Material *m, V3 d, V3 n, V3 wi)
+{
+    V3 f = v3_scale(m->kd, (vreal)R(M_1_PI));
+#if CLPT_HAS_PHONG
+    vreal ca = v3_dot(v3_reflect(d, n), wi);
+    vreal k = (m->shininess + R(2)) * R(0.5 * M_1_PI) * phong_cos_pow(ca, m->shininess);
+    f = v3_fma(m->ks, k, f);
+#endif
+    return f;
+}
+
+inline void accumulate(vmask done, V3 L, vdouble *sr, vdouble *sg, vdouble *sb, vdouble *sn, vdouble *sq,
+                       uint *nonfinite)
+{
+    vreal lum = v3_luminance(L);
+    vmask bad = done && !isfinite(L.x + L.y + L.z);
+    *nonfinite += vpopcount(bad);
+    vmask ok = done && !bad;
+    // Masks in double lanes are long lanes.
+#if CLPT_LANES == 1
+    int okd = ok;
+    int dd = done;
+#else
+    CLPT_CAT(long, CLPT_LANES) okd = VMASK_D(ok);
+    CLPT_CAT(long, CLPT_LANES) dd = VMASK_D(done);
+#endif
+    *sr = VSEL(*sr, *sr + VDOUBLE(L.x), okd);
+    *sg = VSEL(*sg, *sg + VDOUBLE(L.y), okd);
+    *sb = VSEL(*sb, *sb + VDOUBLE(L.z), okd);
+    *sq = VSEL(*sq, *sq + VDOUBLE(lum * lum), okd);
+    *sn = VSEL(*sn, *sn + 1.0, dd);
+}
+
+__kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_abs,
+                          real4 cam_o, real4 corner, real4 dx, real4 dy,
+                          uint width, uint height, uint group_offset,
+                          uint sample_begin, uint n_samples, uint max_depth, uint rr_depth, uint seed,
+                          __global double4 *pix_sum, __global double *pix_sq, __global uint4 *stats)
+{
+    Scene scd;
+#if CLPT_BAKED
+    scd.rec = clpt_scene;
+#else
+    scd.rec = scene;
+#endif
+    scd.n_materials = counts.s0; scd.n_spheres = counts.s1; scd.n_quads = counts.s2;
+    scd.n_triangles = counts.s3; scd.n_planes = counts.s4; scd.n_lights = counts.s5;
+    scd.eps_abs = eps_abs;
+    const Scene *sc = &scd;
+
+    uint gid = get_global_id(0);
+    uint n_pix = width * height;
+    vuint pixel = (vuint)((group_offset + gid) * CLPT_LANES) + VLANE_IDS;
+    vreal pxr = VREAL(pixel % width), pyr = VREAL(pixel / width);
+
+    // Per-lane sums, read from and written back to this pixel's buffers.
+    vdouble sr = 0.0, sg = 0.0, sb = 0.0, sn = 0.0, sq = 0.0;
+    for (int l = 0; l < CLPT_LANES; l++) {
+        uint p = VLANE_U(pixel, l);
+        if (p < n_pix) {
+            double4 s = pix_sum[p];
+            VLANE_D(sr, l) = s.x; VLANE_D(sg, l) = s.y; VLANE_D(sb, l) = s.z; VLANE_D(sn, l) = s.w;
+            VLANE_D(sq, l) = pix_sq[p];
+        }
+    }
+
+    uint nonfinite = 0, n_camera = 0, n_bounce = 0, n_shadow = 0;
+    vreal done_count = (vreal)R(0);  // samples finished per lane
+    vreal zero = (vreal)R(0);
+    uint first = (group_offset + gid) * CLPT_LANES;
+    vmask pix_ok = VREAL(VLANE_IDS) < (real)(first < n_pix ? min(n_pix - first, (uint)CLPT_LANES) : 0u);
+    vmask active = pix_ok && (real)n_samples > zero;
+    vmask restart = active;
+
+    PathState ps;
+    ps.o = ps.d = ps.beta = ps.L = v3_zero();
+    ps.depth = zero;
+    ps.specular = active;
+
+    while (VANY(active)) {
+        // --- start new paths in lanes whose previous path ended ----------------
+        if (VANY(restart)) {
+            vuint sample = (vuint)sample_begin + VUINT(done_count);
+            Rand4 rc = rng_uniform4(seed, pixel, sample, (vuint)0);
+            V3 dcam = camera_ray(corner, dx, dy, pxr + rc.a, pyr + rc.b);
+            ps.o = v3_sel(ps.o, v3_splat(cam_o), restart);
+            ps.d = v3_sel(ps.d, dcam, restart);
+            ps.beta = v3_sel(ps.beta, v3((vreal)R(1), (vreal)R(1), (vreal)R(1)), restart);
+            ps.L = v3_sel(ps.L, v3_zero(), restart);
+            ps.depth = VSEL(ps.depth, zero, restart);
+            ps.specular = ps.specular || restart;
+            n_camera += vpopcount(restart);
+        }
+        vuint sample = (vuint)sample_begin + VUINT(done_count);
+
+        // --- closest hit --------------------------------------------------------------
+        Hit h = scene_intersect(sc, ps.o, ps.d);
+        vmask hit = active && h.t < R(INFINITY);
+        Material m = material_fetch(sc, h.mat);
+        V3 x = v3_fma(ps.d, h.t, ps.o);
+        vmask front = v3_dot(h.ng, ps.d) < R(0);
+        V3 n = v3_sel(v3_neg(h.ng), h.ng, front);  // faces the incoming ray
+
+        // --- emission ---------------------------------------------------------------------
+        vmask sees = hit && (front || m.two_sided != R(0));
+#if CLPT_NEE
+        sees = sees && ps.specular;
+#endif
+        ps.L = v3_sel(ps.L, v3_add(ps.L, v3_mul(ps.beta, m.Le)), sees);
+
+        vmask go = hit && ps.depth < (real)max_depth;
+        vuint group = VUINT(ps.depth) * 2u + 1u;
+
+#if CLPT_NEE
+        // --- next event estimation ---------------------------------------------------
+        vmask nee = go && m.nondelta != R(0);
+        if (VANY(nee)) {
+            Rand4 rl = rng_uniform4(seed, pixel, sample, group);
+            LightSample ls = light_sample(sc, x, rl.a, rl.b, rl.c);
+            vreal cos_x = v3_dot(n, ls.wi);
+            nee = nee && ls.valid && cos_x > R(0);
+            if (VANY(nee)) {
+                V3 f = brdf_eval(&m, ps.d, n, ls.wi);
+                V3 c = v3_mul(v3_mul(ps.beta, f), v3_scale(ls.Le, cos_x / ls.pdf));
+                V3 so = offset_origin(sc, x, n);
+                vreal tmax = ls.dist * R(0.9999);
+                vmask blocked = scene_occluded(sc, so, ls.wi, tmax, nee);
+                n_shadow += vpopcount(nee);
+                ps.L = v3_sel(ps.L, v3_add(ps.L, c), nee && !blocked);
+            }
+        }
+#endif
+
+        // --- scattering ------------------------------------------------------------------
+        vmask cont = go;
+        if (VANY(go)) {
+            Rand4 rs = rng_uniform4(seed, pixel, sample, group + 1u);
+            vmask no_absorb = ps.depth < (real)rr_depth;
+            cont = scatter(sc, &m, &ps, x, n, front, go, rs, no_absorb);
+            ps.depth = VSEL(ps.depth, ps.depth + R(1), cont);
+            n_bounce += vpopcount(cont);
+        }
+
+        // --- finished samples --------------------------------------------------------
+        vmask done = active && !cont;
+        if (VANY(done)) {
+            accumulate(done, ps.L, &sr, &sg, &sb, &sn, &sq, &nonfinite);
+            done_count = VSEL(done_count, done_count + R(1), done);
+            restart = done && done_count < (real)n_samples;
+            active = (active && !done) || restart;
+        } else {
+            restart = zero != zero;
+        }
+    }
+
+    for (int l = 0; l < CLPT_LANES; l++) {
+        uint p = VLANE_U(pixel, l);
+        if (p < n_pix) {
+            pix_sum[p] = (double4)(VLANE_D(sr, l), VLANE_D(sg, l), VLANE_D(sb, l), VLANE_D(sn, l));
+            pix_sq[p] = VLANE_D(sq, l);
+        }
+    }
+    stats[gid] = (uint4)(nonfinite, n_camera, n_bounce, n_shadow);
+}

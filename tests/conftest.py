@@ -1,0 +1,90 @@
+"""Shared fixtures: one OpenCL device per test session (PoCL by default; set
+CLPT_TEST_DEVICE to a `--device` selection to test another), an isolated
+kernel build cache, and probe programs that expose kernel library functions."""
+
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+# An isolated build cache: tests must not depend on (or fill) the user's.
+os.environ.setdefault("CLPT_CACHE_DIR", tempfile.mkdtemp(prefix="clpt-test-cache-"))
+
+import pyopencl as cl  # noqa: E402
+
+from clpt.device import DeviceContext, select_devices  # noqa: E402
+from clpt.features import Features  # noqa: E402
+from clpt import program  # noqa: E402
+
+TESTS = Path(__file__).resolve().parent
+sys.path.insert(0, str(TESTS))
+
+
+@pytest.fixture(scope="session")
+def device_spec():
+    return os.environ.get("CLPT_TEST_DEVICE") or None
+
+
+@pytest.fixture(scope="session")
+def dctx(device_spec):
+    return DeviceContext(select_devices(device_spec)[0])
+
+
+class Probe:
+    """The probe program for one lane width and precision."""
+
+    def __init__(self, dctx, lanes, double):
+        self.dctx = dctx
+        self.lanes = lanes
+        self.real = np.float64 if double else np.float32
+        feats = Features(lanes=lanes, double=double, mode="generic")
+        src = program.stitch([str(TESTS / "kernels" / "probes.cl")])
+        self.program, _ = program.build(dctx, src, feats.options())
+        self.kernels = {}
+
+    def run(self, name, inputs, n_out, scalars=(), scalars_after=(), out_dtype=None, prefix=()):
+        """Launch probe `name` over len(inputs[0]) elements (padded to the lane
+        width); returns n_out output arrays."""
+        ctx, q = self.dctx.context, self.dctx.queue
+        n = len(inputs[0]) if inputs else self.lanes
+        pad = -(-n // self.lanes) * self.lanes
+        mf = cl.mem_flags
+        bufs = []
+        for a in inputs:
+            a = np.asarray(a)
+            dt = np.uint32 if a.dtype.kind in "ui" else self.real
+            h = np.zeros(pad, dtype=dt)
+            h[:n] = a
+            bufs.append(cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=h))
+        outs = [np.zeros(pad, dtype=out_dtype or self.real) for _ in range(n_out)]
+        obufs = [cl.Buffer(ctx, mf.WRITE_ONLY, o.nbytes) for o in outs]
+        k = self.kernels.get(name) or self.kernels.setdefault(name, cl.Kernel(self.program, name))
+        k.set_args(*prefix, *scalars, *bufs, *scalars_after, *obufs)
+        cl.enqueue_nd_range_kernel(q, k, (pad // self.lanes,), None)
+        for o, b in zip(outs, obufs):
+            cl.enqueue_copy(q, o, b)
+        q.finish()
+        return [o[:n] for o in outs]
+
+    def scene_args(self, packed):
+        import pyopencl.cltypes as clt
+        recs = np.ascontiguousarray(packed.records, dtype=self.real)
+        buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=recs)
+        c = packed.counts
+        return (buf, clt.make_uint8(c[0], c[1], c[2], c[3], c[4], c[5], 0, 0))
+
+
+@pytest.fixture(scope="session")
+def probes(dctx):
+    cache = {}
+
+    def get(lanes=1, double=False):
+        key = (lanes, double)
+        if key not in cache:
+            cache[key] = Probe(dctx, lanes, double)
+        return cache[key]
+
+    return get

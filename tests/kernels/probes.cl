@@ -1,0 +1,149 @@
+// probes.cl: thin kernels exposing kernels/*.h functions to the tests. Built
+// only by tests/conftest.py, with the library files stitched in front.
+// One work-item handles CLPT_LANES consecutive elements of each array.
+
+#if CLPT_LANES == 1
+#define LD(p, i) ((p)[i])
+#define ST(v, p, i) ((p)[i] = (v))
+#define LDU(p, i) ((p)[i])
+#else
+#define LD(p, i) CLPT_CAT(vload, CLPT_LANES)(i, p)
+#define ST(v, p, i) CLPT_CAT(vstore, CLPT_LANES)(v, i, p)
+#define LDU(p, i) CLPT_CAT(vload, CLPT_LANES)(i, p)
+#endif
+#define ST3(v, px, py, pz, i) do { ST((v).x, px, i); ST((v).y, py, i); ST((v).z, pz, i); } while (0)
+#define LD3(px, py, pz, i) v3(LD(px, i), LD(py, i), LD(pz, i))
+
+__kernel void probe_layout(__global int *out)
+{
+    out[0] = MAT_STRIDE; out[1] = SPHERE_STRIDE; out[2] = PLANAR_STRIDE; out[3] = PLANE_STRIDE;
+    out[4] = LIGHT_STRIDE; out[5] = LIGHT_KIND_QUAD; out[6] = LIGHT_KIND_TRIANGLE; out[7] = LIGHT_KIND_SPHERE;
+}
+
+__kernel void probe_rng(uint seed, __global const uint *pixel, __global const uint *sample,
+                        __global const uint *group, __global real *a, __global real *b, __global real *c,
+                        __global real *d)
+{
+    size_t i = get_global_id(0);
+    Rand4 r = rng_uniform4(seed, LDU(pixel, i), LDU(sample, i), LDU(group, i));
+    ST(r.a, a, i); ST(r.b, b, i); ST(r.c, c, i); ST(r.d, d, i);
+}
+
+__kernel void probe_cosine_hemisphere(__global const real *u1, __global const real *u2,
+                                      __global real *x, __global real *y, __global real *z, __global real *pdf)
+{
+    size_t i = get_global_id(0);
+    V3 w = sample_cosine_hemisphere(LD(u1, i), LD(u2, i));
+    ST3(w, x, y, z, i);
+    ST(cosine_hemisphere_pdf(w.z), pdf, i);
+}
+
+__kernel void probe_phong_lobe(__global const real *u1, __global const real *u2, real n,
+                               __global real *x, __global real *y, __global real *z, __global real *pdf)
+{
+    size_t i = get_global_id(0);
+    V3 w = sample_phong_lobe(LD(u1, i), LD(u2, i), (vreal)n);
+    ST3(w, x, y, z, i);
+    ST(phong_lobe_pdf(w.z, (vreal)n), pdf, i);
+}
+
+__kernel void probe_uniform_cone(__global const real *u1, __global const real *u2, real omc,
+                                 __global real *x, __global real *y, __global real *z)
+{
+    size_t i = get_global_id(0);
+    V3 w = sample_uniform_cone(LD(u1, i), LD(u2, i), (vreal)omc);
+    ST3(w, x, y, z, i);
+}
+
+__kernel void probe_uniform_sphere(__global const real *u1, __global const real *u2,
+                                   __global real *x, __global real *y, __global real *z)
+{
+    size_t i = get_global_id(0);
+    V3 w = sample_uniform_sphere(LD(u1, i), LD(u2, i));
+    ST3(w, x, y, z, i);
+}
+
+__kernel void probe_uniform_triangle(__global const real *u1, __global const real *u2,
+                                     __global real *b1, __global real *b2)
+{
+    size_t i = get_global_id(0);
+    vreal a, b;
+    sample_uniform_triangle(LD(u1, i), LD(u2, i), &a, &b);
+    ST(a, b1, i); ST(b, b2, i);
+}
+
+__kernel void probe_frame(__global const real *nx, __global const real *ny, __global const real *nz,
+                          __global real *tx, __global real *ty, __global real *tz,
+                          __global real *bx, __global real *by, __global real *bz)
+{
+    size_t i = get_global_id(0);
+    V3 t, b;
+    frame_from_z(LD3(nx, ny, nz, i), &t, &b);
+    ST3(t, tx, ty, tz, i);
+    ST3(b, bx, by, bz, i);
+}
+
+__kernel void probe_fresnel(__global const real *cos_i, __global const real *eta, __global real *f,
+                            __global real *cos_t)
+{
+    size_t i = get_global_id(0);
+    vreal ct;
+    ST(fresnel_dielectric(LD(cos_i, i), LD(eta, i), &ct), f, i);
+    ST(ct, cos_t, i);
+}
+
+__kernel void probe_refract(__global const real *dx, __global const real *dy, __global const real *dz,
+                            __global const real *nx, __global const real *ny, __global const real *nz,
+                            __global const real *eta, __global real *wx, __global real *wy, __global real *wz)
+{
+    size_t i = get_global_id(0);
+    V3 d = LD3(dx, dy, dz, i), n = LD3(nx, ny, nz, i);
+    vreal e = LD(eta, i);
+    vreal cos_i = -v3_dot(d, n), cos_t;
+    fresnel_dielectric(cos_i, e, &cos_t);
+    ST3(refract_dir(d, n, cos_i, cos_t, e), wx, wy, wz, i);
+}
+
+inline Scene probe_scene(__global const real4 *rec, uint8 counts)
+{
+    Scene s;
+    s.rec = rec;
+    s.n_materials = counts.s0; s.n_spheres = counts.s1; s.n_quads = counts.s2;
+    s.n_triangles = counts.s3; s.n_planes = counts.s4; s.n_lights = counts.s5;
+    s.eps_abs = R(0);
+    return s;
+}
+
+__kernel void probe_intersect(__global const real4 *rec, uint8 counts,
+                              __global const real *ox, __global const real *oy, __global const real *oz,
+                              __global const real *dx, __global const real *dy, __global const real *dz,
+                              __global real *t, __global real *nx, __global real *ny, __global real *nz,
+                              __global real *mat, __global real *occluded)
+{
+    size_t i = get_global_id(0);
+    Scene s = probe_scene(rec, counts);
+    V3 o = LD3(ox, oy, oz, i), d = LD3(dx, dy, dz, i);
+    Hit h = scene_intersect(&s, o, d);
+    ST(h.t, t, i);
+    ST3(h.ng, nx, ny, nz, i);
+    ST(h.mat, mat, i);
+    vmask all = h.t == h.t || h.t != h.t;
+    vmask occ = scene_occluded(&s, o, d, (vreal)R(INFINITY), all);
+    ST(VSEL((vreal)R(0), (vreal)R(1), occ), occluded, i);
+}
+
+__kernel void probe_light_sample(__global const real4 *rec, uint8 counts,
+                                 __global const real *px, __global const real *py, __global const real *pz,
+                                 __global const real *u0, __global const real *u1, __global const real *u2,
+                                 __global real *wx, __global real *wy, __global real *wz, __global real *dist,
+                                 __global real *le, __global real *pdf, __global real *valid)
+{
+    size_t i = get_global_id(0);
+    Scene s = probe_scene(rec, counts);
+    LightSample ls = light_sample(&s, LD3(px, py, pz, i), LD(u0, i), LD(u1, i), LD(u2, i));
+    ST3(ls.wi, wx, wy, wz, i);
+    ST(ls.dist, dist, i);
+    ST(ls.Le.x, le, i);
+    ST(ls.pdf, pdf, i);
+    ST(VSEL((vreal)R(0), (vreal)R(1), ls.valid), valid, i);
+}
