@@ -40,7 +40,9 @@ inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, v
             real rad = scene_rec(sc, r + 1).x;
             V3 dc = v3_sub(v3_splat(p), x);
             vreal d2 = v3_dot(dc, dc);
-            vmask outside = d2 > rad * rad;
+            // Cone sampling needs the point clearly outside; on or near the
+            // surface (a sphere light lit by itself) area sampling is used.
+            vmask outside = d2 > rad * rad * R(1.001);
             // Cone towards the centre; 1 - cos(theta_max) without cancellation.
             vreal sin2 = fmin(rad * rad / d2, R(1));
             vreal omc = sin2 / (R(1) + vsafe_sqrt(R(1) - sin2));

@@ -1,0 +1,86 @@
+"""The command line: images written with metadata, clean errors with exit
+codes, Ctrl-C writing what was rendered, `python -m clpt`."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+import clpt
+from clpt.cli import main
+from clpt.image import read_metadata
+
+
+def test_render_png_and_exr(tmp_path, device_spec, capsys):
+    dev = ["--device", device_spec] if device_spec else []
+    png, exr = tmp_path / "a.png", tmp_path / "sub" / "a.exr"
+    assert main(["render", "--spp", "2", "--width", "20", "--height", "10", "-o", str(png), "-q", *dev]) == 0
+    assert main(["render", "cornell_box", "--spp", "3", "--width", "20", "--height", "10", "--seed", "5",
+                 "--max-depth", "4", "-o", str(exr), "-v", *dev]) == 0
+    err = capsys.readouterr().err
+    assert "kernel: specialized" in err and "rays:" in err and "wrote" in err
+    p = clpt.load_image(png)
+    assert p.shape == (10, 20, 3) and 0 < p.mean() < 1
+    e = clpt.load_image(exr)
+    assert e.shape == (10, 20, 3) and np.isfinite(e).all()
+    meta = read_metadata(exr)
+    assert meta["clpt:spp"] == 3 and meta["clpt:seed"] == 5 and meta["clpt:max_depth"] == 4
+    assert "clpt:device" in meta and "clpt:render_seconds" in meta
+
+
+def test_scene_mistake_is_one_line_exit_2(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[camera]\norigin = [0,0,1]\ntarget = [0,0,0]\nfov = 40\n[[shapes]]\ntype = "sphere"\n'
+                   'material = "white"\ncenter = [0,0,0]\nradius = -1\nemission = 1\n')
+    assert main(["render", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"clpt: error: {bad}: shapes[0].radius: must be > 0.0 (got -1.0)"
+    assert main(["render", str(tmp_path / "missing.toml")]) == 2
+    assert "no such scene file" in capsys.readouterr().err
+    assert main(["check", str(bad)]) == 2
+
+
+def test_unknown_device_exit_1(capsys):
+    assert main(["render", "--device", "no-such-device-xyz", "--spp", "1"]) == 1
+    err = capsys.readouterr().err
+    assert "no OpenCL device matches 'no-such-device-xyz'" in err and "Traceback" not in err
+
+
+def test_devices_scenes_check_cache(capsys):
+    assert main(["devices"]) == 0
+    assert "[0]" in capsys.readouterr().out
+    assert main(["scenes"]) == 0
+    assert "cornell_box" in capsys.readouterr().out
+    assert main(["check", "cornell_box_caustics"]) == 0
+    assert "spheres 2" in capsys.readouterr().out
+    assert main(["cache"]) == 0
+
+
+def test_python_m_and_ctrl_c_writes_partial_image(tmp_path, device_spec):
+    """Ctrl-C stops after the pass in flight and still writes the image."""
+    out = tmp_path / "int.png"
+    cmd = [sys.executable, "-m", "clpt", "render", "--spp", "1000000", "--width", "32", "--height", "32",
+           "-o", str(out), "--progress"] + (["--device", device_spec] if device_spec else [])
+    p = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True, env=dict(os.environ))
+    buf = ""
+    deadline = time.time() + 120
+    while "spp" not in buf and time.time() < deadline:  # wait for the first progress line
+        buf += p.stderr.read(1)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert "interrupted after" in err and "Traceback" not in err
+    img = clpt.load_image(out)
+    assert img.shape == (32, 32, 3) and img.mean() > 0
+
+
+def test_time_limit(tmp_path, device_spec):
+    dev = ["--device", device_spec] if device_spec else []
+    t0 = time.time()
+    assert main(["render", "--spp", "1000000", "--width", "32", "--height", "32", "--time-limit", "1.5",
+                 "-o", str(tmp_path / "t.png"), "-q", *dev]) == 0
+    assert time.time() - t0 < 30
