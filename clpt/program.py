@@ -89,7 +89,9 @@ def _dump(source: str, options, key: str) -> Path:
 
 def build(dctx, source: str, options, use_cache: bool = True):
     """Build `source` for one DeviceContext; returns (cl.Program, BuildInfo)."""
-    options = list(options)
+    # -w: compilers' remarks (PoCL's on wide-vector ABIs, printed to stderr at
+    # its lazy device compile) are not the user's business; errors still show.
+    options = list(options) + ["-w"]
     key = _key(source, options, dctx.identity())
     if os.environ.get("CLPT_DUMP_KERNELS"):
         _dump(source, options, key)

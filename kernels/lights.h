@@ -8,6 +8,7 @@
 
 typedef struct {
     V3 wi;        // unit direction from the shading point to the light point
+    V3 p;         // the light point
     vreal dist;   // distance to the light point
     V3 Le;        // emitted radiance towards the shading point
     vreal pdf;    // solid-angle pdf of wi, times the pick probability
@@ -17,7 +18,7 @@ typedef struct {
 inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, vreal u2)
 {
     LightSample ls;
-    ls.wi = v3_zero();
+    ls.wi = ls.p = v3_zero();
     ls.Le = v3_zero();
     ls.dist = (vreal)R(0);
     ls.pdf = (vreal)R(0);
@@ -49,7 +50,8 @@ inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, v
             V3 axis = v3_scale(dc, rsqrt(d2));
             V3 lc = sample_uniform_cone(u1, u2, omc);
             V3 wc = frame_to_world(axis, lc.x, lc.y, lc.z);
-            vreal tc = intersect_sphere(p, x, wc);
+            real4 sphere = (real4)(p.x, p.y, p.z, rad);
+            vreal tc = intersect_sphere(sphere, x, wc);
             // Grazing cone-edge directions may round to a miss: take the tangent point.
             tc = VSEL(tc, v3_dot(dc, wc), isinf(tc));
             // From inside: a uniform point on the sphere, seen from within.
@@ -86,6 +88,7 @@ inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, v
         Le = v3_splat(m);
         vmask ok = pick && emits && pdf_sa > R(0) && pdf_sa < R(INFINITY);
         ls.wi = v3_sel(ls.wi, wi, pick);
+        ls.p = v3_sel(ls.p, v3_fma(wi, dist, x), pick);
         ls.dist = VSEL(ls.dist, dist, pick);
         ls.Le = v3_sel(ls.Le, Le, pick);
         ls.pdf = VSEL(ls.pdf, pdf_sa * info.y, pick);

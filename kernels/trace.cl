@@ -230,9 +230,13 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
             if (VANY(nee)) {
                 V3 f = brdf_eval(&m, ps.d, n, ls.wi);
                 V3 c = v3_mul(v3_mul(ps.beta, f), v3_scale(ls.Le, cos_x / ls.pdf));
+                // The shadow ray runs from the offset origin to the light point
+                // itself: aimed along wi from there instead, it would cut into a
+                // sphere light near its silhouette and see the light block itself.
                 V3 so = offset_origin(sc, x, n);
-                vreal tmax = ls.dist * R(0.9999);
-                vmask blocked = scene_occluded(sc, so, ls.wi, tmax, nee);
+                V3 to = v3_sub(ls.p, so);
+                vreal len = sqrt(v3_dot(to, to));
+                vmask blocked = scene_occluded(sc, so, v3_scale(to, R(1) / len), len * R(0.9999), nee);
                 n_shadow += vpopcount(nee);
                 ps.L = v3_sel(ps.L, v3_add(ps.L, c), nee && !blocked);
             }

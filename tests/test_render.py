@@ -116,3 +116,33 @@ def test_quad_light_over_diffuse_plane(device_spec):
     assert np.all((z < 6) | (np.abs(res.image[..., 0] - expected) < 2e-3 * expected.max()))
     sigma = np.sqrt(var_pix.sum()) / var_pix.size
     assert_mean_within(res.image[..., 0].mean(), expected.mean(), sigma + 1e-4 * expected.mean())
+
+
+def test_sphere_light_over_diffuse_plane(device_spec):
+    """Direct light only: a sphere light of radius r and radiance Le whose centre
+    is at distance D from a floor point, seen at angle theta from the floor's
+    normal (and wholly above its horizon), gives E = pi Le (r/D)^2 cos(theta)."""
+    rho, le, r, c = 0.7, 40.0, 0.15, np.array([0.2, 0.8, -0.1])
+    floor = clpt.Quad(corner=(-3, 0, -3), edge_u=(0, 0, 6), edge_v=(6, 0, 0), material=clpt.Material(kd=(rho,) * 3))
+    bulb = clpt.Sphere(center=tuple(c), radius=r, material="black", emission=(le, le, le))
+    w = h = 16
+    cam = clpt.Camera(origin=(0.0, 0.5, 1.2), target=(0.0, 0.0, -0.2), fov=50, width=w, height=h)
+    res = clpt.Renderer(clpt.Scene(camera=cam, shapes=[floor, bulb]), device=device_spec).render(512, max_depth=1)
+    fr = camera_frame(cam, w, h)
+    o = np.array(cam.origin)
+    sub = (np.arange(6) + 0.5) / 6
+    px = (np.arange(w)[:, None] + sub[None, :]).ravel()
+    X, Y = np.meshgrid(px, px)
+    d = fr.corner + X[..., None] * fr.dx + Y[..., None] * fr.dy
+    t = -o[1] / d[..., 1]
+    p = o + t[..., None] * d
+    to_c = c - p
+    dist = np.linalg.norm(to_c, axis=-1)
+    e = math.pi * le * (r / dist) ** 2 * (to_c[..., 1] / dist)
+    on_floor = (t > 0) & (np.abs(p[..., 0]) < 3) & (np.abs(p[..., 2]) < 3)
+    expected = (rho / math.pi * np.where(on_floor, e, 0.0)).reshape(h, 6, w, 6).mean(axis=(1, 3))
+    var_pix = res.lum_var / res.sample_count
+    z = np.abs(res.image[..., 0] - expected) / np.sqrt(var_pix + 1e-12)
+    assert z.max() < 6, f"pixel off by {z.max():.1f} sigma"
+    sigma = np.sqrt(var_pix.sum()) / var_pix.size
+    assert_mean_within(res.image[..., 0].mean(), expected.mean(), sigma + 1e-4 * expected.mean())

@@ -144,13 +144,19 @@ def lambert_irradiance(x, n, verts):
     return abs(total) / 2
 
 
-def estimate_irradiance(probe, scene, x, n, count=200_000, seed=5):
+def estimate_irradiance(probe, scene, x, n, count=200_000, seed=5, surface=None):
+    """Mean and standard error of Le cos / pdf over light samples at x; if
+    surface(points) is given, the sampled light points must lie on it."""
     rng = np.random.default_rng(seed)
     u = rng.random((3, count), dtype=np.float32)
     px, py, pz = (np.full(count, c) for c in x)
     wx, wy, wz, dist, le, pdf, valid = probe.run("probe_light_sample", [px, py, pz, u[0], u[1], u[2]], 7,
                                                  prefix=probe.scene_args(pack_scene(scene)))
     w = np.stack([wx, wy, wz], 1).astype(np.float64)
+    if surface is not None:
+        y = np.asarray(x) + w * dist[:, None]
+        off = np.abs(surface(y[valid > 0])) / dist[valid > 0]
+        assert off.max() < 1e-5, f"light sample points are off the light by {off.max():.3g} of the distance"
     cos = np.maximum(w @ n, 0)
     f = np.where(valid > 0, le * cos / np.where(valid > 0, pdf, 1), 0.0)
     return f.mean(), f.std() / math.sqrt(count), le, valid
@@ -167,7 +173,8 @@ def test_planar_light_irradiance(probes, kind, x):
         light = clpt.Triangle(vertices=tuple(verts), material="black", emission=(1, 1, 1))
     # Winding makes the light face down (-y), towards the points below it.
     n = np.array([0.0, 1.0, 0.0])
-    e, sigma, _, _ = estimate_irradiance(probes(8), scene_of(light), np.array(x), n)
+    e, sigma, _, _ = estimate_irradiance(probes(8), scene_of(light), np.array(x), n,
+                                         surface=lambda y: y[:, 1] - 1.0)
     ref = lambert_irradiance(np.array(x), n, verts)
     assert abs(e - ref) < 5 * sigma + 1e-6, f"E = {e:.5f} +- {sigma:.5f}, analytic {ref:.5f}"
 
@@ -183,7 +190,8 @@ def test_one_sided_light_is_dark_behind(probes):
 def test_sphere_light_irradiance(probes, radius):
     light = clpt.Sphere(center=(0, 2.0, 0), radius=radius, material="black", emission=(1, 1, 1))
     n = np.array([0.0, 1.0, 0.0])
-    e, sigma, _, _ = estimate_irradiance(probes(8), scene_of(light), np.zeros(3), n)
+    on_sphere = lambda y: np.linalg.norm(y - [0, 2.0, 0], axis=1) - radius
+    e, sigma, _, _ = estimate_irradiance(probes(8), scene_of(light), np.zeros(3), n, surface=on_sphere)
     ref = math.pi * (radius / 2.0) ** 2  # a sphere seen fully above the horizon
     assert abs(e - ref) < 5 * sigma + 1e-7 * ref, f"E = {e:.6g} +- {sigma:.3g}, analytic {ref:.6g}"
 
@@ -191,7 +199,8 @@ def test_sphere_light_irradiance(probes, radius):
 def test_inside_two_sided_sphere_light(probes):
     light = clpt.Sphere(center=(0, 0, 0), radius=3.0, material="black", emission=(1, 1, 1), two_sided=True)
     e, sigma, _, _ = estimate_irradiance(probes(8), scene_of(light), np.array([0.5, -1.0, 0.2]),
-                                         np.array([0.0, 0.6, 0.8]))
+                                         np.array([0.0, 0.6, 0.8]),
+                                         surface=lambda y: np.linalg.norm(y, axis=1) - 3.0)
     assert abs(e - math.pi) < 5 * sigma
 
 
