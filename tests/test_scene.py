@@ -168,3 +168,15 @@ def test_light_table_is_a_distribution():
     # power = pi * area * mean(Le) per emitting side: quad 1 x 4, sphere 4 pi 0.25 x 2
     pq, ps = math.pi * 1 * 4, math.pi * 4 * math.pi * 0.25 * 2
     assert lights[:, 1] == pytest.approx([pq / (pq + ps), ps / (pq + ps)])
+
+
+def test_format_documentation_example_renders(device_spec):
+    """The example in scenes/README.md parses, and its light faces the room."""
+    from clpt.resources import scene_dir
+    text = (scene_dir() / "README.md").read_text()
+    example = text.split("## Example", 1)[1].split("```toml", 1)[1].split("```", 1)[0]
+    sc = clpt.parse_scene(example, source="scenes/README.md")
+    light = sc.shapes[0]
+    assert np.cross(light.edge_u, light.edge_v)[1] < 0
+    img = clpt.render(sc, spp=4, width=16, height=16, device=device_spec)
+    assert img.mean() > 0.05
