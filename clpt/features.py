@@ -22,6 +22,7 @@ KERNEL_MODES = ("specialized", "generic", "baked")
 class Features:
     lanes: int = 8
     double: bool = False
+    accum_double: bool = True  # per-pixel sums in fp64, else Kahan-compensated float
     mode: str = "specialized"
     nee: bool = True
     spheres: bool = True
@@ -39,6 +40,7 @@ class Features:
         d = {
             "CLPT_LANES": self.lanes,
             "CLPT_DOUBLE": int(self.double),
+            "CLPT_ACCUM_DOUBLE": int(self.accum_double),
             "CLPT_GENERIC": int(self.mode == "generic"),
             "CLPT_BAKED": int(self.mode == "baked"),
             "CLPT_NEE": int(self.nee),
@@ -61,22 +63,23 @@ class Features:
         return sorted(f"-D{k}={v}" for k, v in self.defines().items())
 
     def describe(self) -> str:
-        on = [k for k, v in asdict(self).items() if v is True and k not in ("double",)]
+        on = [k for k, v in asdict(self).items() if v is True and k not in ("double", "accum_double")]
         counts = ""
         if self.counts:
             counts = " counts=" + ",".join(str(c) for c in self.counts)
         return (f"{self.mode} lanes={self.lanes} {'double' if self.double else 'float'} "
+                f"sums={'double' if self.accum_double else 'kahan-float'} "
                 f"features={'+'.join(on) or 'none'}{counts}")
 
 
-def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False, mode: str = "specialized",
-                   nee: bool = True) -> Features:
+def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False, accum_double: bool = True,
+                   mode: str = "specialized", nee: bool = True) -> Features:
     if mode not in KERNEL_MODES:
         raise ValueError(f"kernel mode must be one of {', '.join(KERNEL_MODES)} (got {mode!r})")
     if mode == "generic":
-        return Features(lanes=lanes, double=double, mode=mode, nee=nee)
+        return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee)
     return Features(
-        lanes=lanes, double=double, mode=mode, nee=nee,
+        lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
         spheres=packed.count("spheres") > 0,
         quads=packed.count("quads") > 0,
         triangles=packed.count("triangles") > 0,

@@ -112,8 +112,8 @@ class _DeviceState:
             self.pix_sum = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 32)
             self.pix_sq = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 8)
             self.stats_buf = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, self.global_size * 16)
-            cl.enqueue_fill_buffer(q, self.pix_sum, np.float64(0), 0, n_pix * 32)
-            cl.enqueue_fill_buffer(q, self.pix_sq, np.float64(0), 0, n_pix * 8)
+            cl.enqueue_fill_buffer(q, self.pix_sum, np.float32(0), 0, n_pix * 32)
+            cl.enqueue_fill_buffer(q, self.pix_sq, np.float32(0), 0, n_pix * 8)
             q.finish()
         except cl.Error as e:
             raise DeviceError(f"cannot allocate {need / 2**20:.0f} MiB on {self.dctx.label} for "
@@ -143,12 +143,23 @@ class _DeviceState:
         return seconds, self.stats_host.sum(axis=0, dtype=np.uint64)
 
     def read(self):
-        s = np.empty((self.n_pix, 4), dtype=np.float64)
-        sq = np.empty(self.n_pix, dtype=np.float64)
-        cl.enqueue_copy(self.dctx.queue, s, self.pix_sum)
-        cl.enqueue_copy(self.dctx.queue, sq, self.pix_sq)
-        self.dctx.queue.finish()
-        return s, sq
+        """Per-pixel (r, g, b, count) sums and sums of squared luminance, float64."""
+        q = self.dctx.queue
+        if self.features.accum_double:
+            s = np.empty((self.n_pix, 4), dtype=np.float64)
+            sq = np.empty(self.n_pix, dtype=np.float64)
+            cl.enqueue_copy(q, s, self.pix_sum)
+            cl.enqueue_copy(q, sq, self.pix_sq)
+            q.finish()
+            return s, sq
+        # Kahan pairs: the compensation is what the float sum holds in excess.
+        s = np.empty((self.n_pix, 8), dtype=np.float32)
+        sq = np.empty((self.n_pix, 2), dtype=np.float32)
+        cl.enqueue_copy(q, s, self.pix_sum)
+        cl.enqueue_copy(q, sq, self.pix_sq)
+        q.finish()
+        s64, sq64 = s.astype(np.float64), sq.astype(np.float64)
+        return s64[:, :4] - s64[:, 4:], sq64[:, 0] - sq64[:, 1]
 
 
 def _baked_source(records: np.ndarray, double: bool) -> str:
@@ -166,7 +177,7 @@ class Renderer:
     """
 
     def __init__(self, scene, *, device=None, lanes: int | None = None, precision: str = "float",
-                 kernel: str = "specialized", nee: bool = True, use_cache: bool = True):
+                 kernel: str = "specialized", nee: bool = True, use_cache: bool = True, accumulate: str = "auto"):
         if isinstance(scene, (str, Path)):
             scene = load_scene(scene)
         if not isinstance(scene, Scene):
@@ -177,12 +188,16 @@ class Renderer:
         self.packed = pack_scene(scene)
         self.devices = [DeviceContext(d) for d in select_devices(device)]
         self.states = []
+        if accumulate not in ("auto", "double", "kahan"):
+            raise ValueError(f"accumulate must be 'auto', 'double' or 'kahan' (got {accumulate!r})")
         for dctx in self.devices:
-            if not dctx.fp64:
-                raise DeviceError(f"{dctx.label} has no double precision (cl_khr_fp64), which clpt's "
-                                  f"sample accumulators need")
+            if (precision == "double" or accumulate == "double") and not dctx.fp64:
+                raise DeviceError(f"{dctx.label} has no double precision (cl_khr_fp64); "
+                                  f"render with precision='float'")
+            acc_double = dctx.fp64 if accumulate == "auto" else accumulate == "double"
             n_lanes = lanes or dctx.default_lanes()
-            feats = scene_features(self.packed, lanes=n_lanes, double=precision == "double", mode=kernel, nee=nee)
+            feats = scene_features(self.packed, lanes=n_lanes, double=precision == "double",
+                                   accum_double=acc_double or precision == "double", mode=kernel, nee=nee)
             self.states.append(_DeviceState(dctx, self.packed, feats, use_cache))
         self.features = self.states[0].features
 

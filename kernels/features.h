@@ -3,9 +3,12 @@
 // here rather than a silently disabled feature.
 
 
-#if !defined(CLPT_LANES) || !defined(CLPT_DOUBLE) || !defined(CLPT_GENERIC) || !defined(CLPT_BAKED) \
-    || !defined(CLPT_NEE)
-#error "clpt: CLPT_LANES, CLPT_DOUBLE, CLPT_GENERIC, CLPT_BAKED and CLPT_NEE must be defined"
+#if !defined(CLPT_LANES) || !defined(CLPT_DOUBLE) || !defined(CLPT_ACCUM_DOUBLE) || !defined(CLPT_GENERIC) \
+    || !defined(CLPT_BAKED) || !defined(CLPT_NEE)
+#error "clpt: CLPT_LANES, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC, CLPT_BAKED and CLPT_NEE must be defined"
+#endif
+#if CLPT_DOUBLE && !CLPT_ACCUM_DOUBLE
+#error "clpt: double-precision kernels accumulate in double"
 #endif
 #if !defined(CLPT_HAS_SPHERES) || !defined(CLPT_HAS_QUADS) || !defined(CLPT_HAS_TRIANGLES) \
     || !defined(CLPT_HAS_PLANES)

@@ -15,8 +15,10 @@
 // Per-lane integers that take part in masked updates (depth, primitive or
 // material ids) are kept as vreal, so one select type serves all state.
 
-#if CLPT_DOUBLE
+#if CLPT_DOUBLE || CLPT_ACCUM_DOUBLE
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
+#endif
+#if CLPT_DOUBLE
 typedef double real;
 typedef double4 real4;
 #define REAL_EPS 2.220446049250313e-16
@@ -34,7 +36,9 @@ typedef float4 real4;
 typedef real vreal;
 typedef uint vuint;
 typedef int vmask;
+#if CLPT_ACCUM_DOUBLE
 typedef double vdouble;
+#endif
 #define VSEL(a, b, m) ((m) ? (b) : (a))
 #define VANY(m) ((m) != 0)
 #define VALL(m) ((m) != 0)
@@ -63,7 +67,9 @@ typedef int mask_elem;
 #define VMASK_D(m) CLPT_CAT(convert_long, CLPT_LANES)(m)
 #endif
 typedef CLPT_CAT(uint, CLPT_LANES) vuint;
+#if CLPT_ACCUM_DOUBLE
 typedef CLPT_CAT(double, CLPT_LANES) vdouble;
+#endif
 #define VSEL(a, b, m) select((a), (b), (m))
 #define VANY(m) any(m)
 #define VALL(m) all(m)
@@ -73,7 +79,9 @@ typedef CLPT_CAT(double, CLPT_LANES) vdouble;
 #define VLANE_R(v, l) (((private real *)&(v))[l])
 #define VLANE_U(v, l) (((private uint *)&(v))[l])
 #define VLANE_M(v, l) (((private mask_elem *)&(v))[l])
+#if CLPT_ACCUM_DOUBLE
 #define VLANE_D(v, l) (((private double *)&(v))[l])
+#endif
 #if CLPT_LANES == 2
 #define VLANE_IDS ((vuint)(0, 1))
 #elif CLPT_LANES == 4

@@ -2,7 +2,7 @@
 //
 // Computes, for each pixel of a range, samples [sample_begin, sample_begin +
 // n_samples) of the pixel's radiance estimate, and adds them one by one, in
-// sample order, to the pixel's double-precision sums. The order of additions
+// sample order, to the pixel's sums (accum.h). The order of additions
 // never depends on how samples are split into launches or on the work-group
 // size, so an image is bit-identical however it was scheduled.
 //
@@ -13,7 +13,7 @@
 //
 // Buffers:
 //   scene     in   packed scene records (scene.h); unused when CLPT_BAKED
-//   pix_sum   in/out  per pixel: sum r, sum g, sum b, sample count
+//   pix_sum   in/out  per pixel: sum r, sum g, sum b, sample count (accum.h)
 //   pix_sq    in/out  per pixel: sum of squared luminance
 //   stats     out  per work-item: non-finite samples dropped, camera rays,
 //                  bounce rays, shadow rays (this launch)
@@ -25,7 +25,7 @@
 // and absorption, as in the paper; before depth rr_depth the absorption
 // branch is left out (lobe probabilities renormalized).
 //
-// Flags: CLPT_LANES, CLPT_DOUBLE, CLPT_GENERIC, CLPT_BAKED, CLPT_NEE,
+// Flags: CLPT_LANES, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC, CLPT_BAKED, CLPT_NEE,
 //   CLPT_HAS_{SPHERES,QUADS,TRIANGLES,PLANES}, CLPT_HAS_{PHONG,MIRROR,GLASS},
 //   CLPT_HAS_{TRIANGLE,SPHERE}_LIGHTS, CLPT_NUM_* (when not generic).
 
@@ -117,33 +117,26 @@ inline V3 brdf_eval(const Material *m, V3 d, V3 n, V3 wi)
     return f;
 }
 
-inline void accumulate(vmask done, V3 L, vdouble *sr, vdouble *sg, vdouble *sb, vdouble *sn, vdouble *sq,
-                       uint *nonfinite)
+// Adds finished samples (lanes in `done`) to the pixel sums. A sample that is
+// not finite is counted and left out: it never reaches the sums.
+inline void accumulate(vmask done, V3 L, PixelAcc *acc, uint *nonfinite)
 {
     vreal lum = v3_luminance(L);
     vmask bad = done && !isfinite(L.x + L.y + L.z);
     *nonfinite += vpopcount(bad);
     vmask ok = done && !bad;
-    // Masks in double lanes are long lanes.
-#if CLPT_LANES == 1
-    int okd = ok;
-    int dd = done;
-#else
-    CLPT_CAT(long, CLPT_LANES) okd = VMASK_D(ok);
-    CLPT_CAT(long, CLPT_LANES) dd = VMASK_D(done);
-#endif
-    *sr = VSEL(*sr, *sr + VDOUBLE(L.x), okd);
-    *sg = VSEL(*sg, *sg + VDOUBLE(L.y), okd);
-    *sb = VSEL(*sb, *sb + VDOUBLE(L.z), okd);
-    *sq = VSEL(*sq, *sq + VDOUBLE(lum * lum), okd);
-    *sn = VSEL(*sn, *sn + 1.0, dd);
+    acc_add(&acc->r, L.x, ok);
+    acc_add(&acc->g, L.y, ok);
+    acc_add(&acc->b, L.z, ok);
+    acc_add(&acc->sq, lum * lum, ok);
+    acc_add(&acc->n, (vreal)R(1), done);
 }
 
 __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_abs,
                           real4 cam_o, real4 corner, real4 dx, real4 dy,
                           uint width, uint height, uint group_offset,
                           uint sample_begin, uint n_samples, uint max_depth, uint rr_depth, uint seed,
-                          __global double4 *pix_sum, __global double *pix_sq, __global uint4 *stats)
+                          __global pix_sum_t *pix_sum, __global pix_sq_t *pix_sq, __global uint4 *stats)
 {
     Scene scd;
 #if CLPT_BAKED
@@ -162,14 +155,12 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
     vreal pxr = VREAL(pixel % width), pyr = VREAL(pixel / width);
 
     // Per-lane sums, read from and written back to this pixel's buffers.
-    vdouble sr = 0.0, sg = 0.0, sb = 0.0, sn = 0.0, sq = 0.0;
+    PixelAcc acc;
+    pixel_acc_zero(&acc);
     for (int l = 0; l < CLPT_LANES; l++) {
         uint p = VLANE_U(pixel, l);
-        if (p < n_pix) {
-            double4 s = pix_sum[p];
-            VLANE_D(sr, l) = s.x; VLANE_D(sg, l) = s.y; VLANE_D(sb, l) = s.z; VLANE_D(sn, l) = s.w;
-            VLANE_D(sq, l) = pix_sq[p];
-        }
+        if (p < n_pix)
+            pixel_acc_load(&acc, l, pix_sum, pix_sq, p);
     }
 
     uint nonfinite = 0, n_camera = 0, n_bounce = 0, n_shadow = 0;
@@ -256,7 +247,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         // --- finished samples --------------------------------------------------------
         vmask done = active && !cont;
         if (VANY(done)) {
-            accumulate(done, ps.L, &sr, &sg, &sb, &sn, &sq, &nonfinite);
+            accumulate(done, ps.L, &acc, &nonfinite);
             done_count = VSEL(done_count, done_count + R(1), done);
             restart = done && done_count < (real)n_samples;
             active = (active && !done) || restart;
@@ -267,10 +258,8 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 
     for (int l = 0; l < CLPT_LANES; l++) {
         uint p = VLANE_U(pixel, l);
-        if (p < n_pix) {
-            pix_sum[p] = (double4)(VLANE_D(sr, l), VLANE_D(sg, l), VLANE_D(sb, l), VLANE_D(sn, l));
-            pix_sq[p] = VLANE_D(sq, l);
-        }
+        if (p < n_pix)
+            pixel_acc_store(&acc, l, pix_sum, pix_sq, p);
     }
     stats[gid] = (uint4)(nonfinite, n_camera, n_bounce, n_shadow);
 }

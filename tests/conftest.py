@@ -36,11 +36,11 @@ def dctx(device_spec):
 class Probe:
     """The probe program for one lane width and precision."""
 
-    def __init__(self, dctx, lanes, double):
+    def __init__(self, dctx, lanes, double, accum_double=True):
         self.dctx = dctx
         self.lanes = lanes
         self.real = np.float64 if double else np.float32
-        feats = Features(lanes=lanes, double=double, mode="generic")
+        feats = Features(lanes=lanes, double=double, accum_double=accum_double, mode="generic")
         src = program.stitch([str(TESTS / "kernels" / "probes.cl")])
         self.program, _ = program.build(dctx, src, feats.options())
         self.kernels = {}
@@ -81,10 +81,10 @@ class Probe:
 def probes(dctx):
     cache = {}
 
-    def get(lanes=1, double=False):
-        key = (lanes, double)
+    def get(lanes=1, double=False, accum_double=True):
+        key = (lanes, double, accum_double)
         if key not in cache:
-            cache[key] = Probe(dctx, lanes, double)
+            cache[key] = Probe(dctx, lanes, double, accum_double)
         return cache[key]
 
     return get

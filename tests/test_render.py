@@ -146,3 +146,12 @@ def test_sphere_light_over_diffuse_plane(device_spec):
     assert z.max() < 6, f"pixel off by {z.max():.1f} sigma"
     sigma = np.sqrt(var_pix.sum()) / var_pix.size
     assert_mean_within(res.image[..., 0].mean(), expected.mean(), sigma + 1e-4 * expected.mean())
+
+
+def test_kahan_sums_match_double_sums(device_spec):
+    """Devices without fp64 keep Kahan-compensated float sums: same image to float precision."""
+    a = clpt.Renderer("cornell_box", device=device_spec, accumulate="double").render(32, width=16, height=16)
+    b = clpt.Renderer("cornell_box", device=device_spec, accumulate="kahan").render(32, width=16, height=16)
+    assert not b.features.accum_double
+    assert np.allclose(a.image, b.image, rtol=1e-6, atol=1e-7)
+    assert np.allclose(a.lum_var, b.lum_var, rtol=1e-5, atol=1e-7)

@@ -147,3 +147,20 @@ __kernel void probe_light_sample(__global const real4 *rec, uint8 counts,
     ST(ls.pdf, pdf, i);
     ST(VSEL((vreal)R(0), (vreal)R(1), ls.valid), valid, i);
 }
+
+// Adds x[lane] n times to fresh pixel sums, as the trace kernel adds samples.
+__kernel void probe_accumulate(__global const real *x, uint n, __global pix_sum_t *ps, __global pix_sq_t *pq)
+{
+    size_t i = get_global_id(0);
+    PixelAcc a;
+    pixel_acc_zero(&a);
+    vreal v = LD(x, i);
+    vmask all = v == v || v != v;
+    for (uint k = 0; k < n; k++) {
+        acc_add(&a.r, v, all);
+        acc_add(&a.n, (vreal)R(1), all);
+        acc_add(&a.sq, v * v, all);
+    }
+    for (int l = 0; l < CLPT_LANES; l++)
+        pixel_acc_store(&a, l, ps, pq, i * CLPT_LANES + l);
+}

@@ -1,0 +1,38 @@
+"""Per-pixel sums (kernels/accum.h) stay accurate over 10^6 samples: in
+double, and in Kahan-compensated float on devices without fp64."""
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+
+@pytest.mark.parametrize("accum_double", [True, False])
+def test_a_million_samples_sum_exactly_enough(probes, accum_double):
+    n = 1_000_000
+    probe = probes(8, False, accum_double)
+    x = np.array([0.1, 1 / 3, 1e-6, 7.25, 123.456, 1e4, 0.0, 2.0 ** -20], dtype=np.float32)
+    ctx, q = probe.dctx.context, probe.dctx.queue
+    xb = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=x)
+    ps, pq = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 8 * 32), cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 8 * 8)
+    k = cl.Kernel(probe.program, "probe_accumulate")
+    k(q, (1,), None, xb, np.uint32(n), ps, pq)
+    if accum_double:
+        s, sq = np.empty((8, 4)), np.empty(8)
+    else:
+        s, sq = np.empty((8, 8), np.float32), np.empty((8, 2), np.float32)
+    cl.enqueue_copy(q, s, ps)
+    cl.enqueue_copy(q, sq, pq)
+    q.finish()
+    if not accum_double:  # sum minus compensation, as the host reads them
+        s = s[:, :4].astype(np.float64) - s[:, 4:].astype(np.float64)
+        sq = sq[:, 0].astype(np.float64) - sq[:, 1].astype(np.float64)
+    exact = x.astype(np.float64) * n
+    exact_sq = (x.astype(np.float64) ** 2).astype(np.float32).astype(np.float64) * n
+    tol = 1e-12 if accum_double else 2e-7  # a naive float sum is off by ~1e-3 here
+    assert np.allclose(s[:, 0], exact, rtol=tol, atol=0)
+    assert (s[:, 3] == n).all()
+    assert np.allclose(sq, exact_sq, rtol=tol, atol=0)
+    naive = np.float32(0)
+    for _ in range(20000):  # the problem being solved, at 1/50 of the count
+        naive += np.float32(0.1)
+    assert abs(naive - 2000.0) / 2000.0 > 10 * 2e-7
