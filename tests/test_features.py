@@ -1,0 +1,53 @@
+"""Scene-specialized kernels: the feature description, the build cache, and
+that specialization changes nothing in the image."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+import clpt
+from clpt.features import Features, scene_features
+from clpt.pack import pack_scene
+from clpt.resources import shipped_scenes
+
+
+def test_features_follow_the_scene():
+    f = scene_features(pack_scene(clpt.load_scene("cornell_box")))
+    assert (f.quads, f.spheres, f.triangles, f.planes) == (True, False, False, False)
+    assert (f.phong, f.mirror, f.glass, f.sphere_lights, f.triangle_lights) == (False,) * 5
+    assert f.counts == (4, 0, 18, 0, 0, 1)
+    g = scene_features(pack_scene(clpt.load_scene("cornell_box_caustics")))
+    assert g.spheres and g.mirror and g.glass and not g.phong
+    assert hash(f) != hash(g) and f.options() != g.options()
+    assert f.options() == sorted(f.options())  # the options string doubles as a cache key
+    assert "CLPT_NUM_QUADS=18" in " ".join(f.options())
+    assert "specialized" in f.describe() and "quads" in f.describe()
+    generic = scene_features(pack_scene(clpt.load_scene("cornell_box")), mode="generic")
+    assert generic == Features(mode="generic") and "CLPT_NUM_QUADS" not in " ".join(generic.options())
+
+
+def test_a_material_change_rebuilds_and_a_repeat_hits_the_cache(device_spec, tmp_path, monkeypatch):
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    scene = clpt.load_scene("cornell_box")
+    first = clpt.Renderer(scene, device=device_spec)
+    again = clpt.Renderer(scene, device=device_spec)
+    assert not first.states[0].build.cache_hit and again.states[0].build.cache_hit
+    assert again.states[0].build.seconds < 0.5
+    # The tall box turns from white to glass: a new feature (refraction), a new build.
+    glassy = clpt.load_scene("cornell_box")
+    glassy.shapes = [replace(s, material="glass") if s.name.startswith("large-box") else s for s in glassy.shapes]
+    g = clpt.Renderer(glassy, device=device_spec)
+    assert g.features.glass and not first.features.glass
+    assert not g.states[0].build.cache_hit
+    assert len(list((tmp_path / "kernels").glob("*.bin"))) == 2
+    assert clpt.clear_cache() == 2 and not list(tmp_path.glob("kernels/*.bin"))
+
+
+@pytest.mark.parametrize("name", shipped_scenes())
+def test_specialized_generic_and_baked_images_are_identical(device_spec, name):
+    """Same code, same IEEE operations in the same order, whether counts and
+    records are constants or read at run time: the same bits."""
+    imgs = [clpt.render(name, spp=2, width=16, height=16, device=device_spec, kernel=k)
+            for k in ("specialized", "generic", "baked")]
+    assert np.array_equal(imgs[0], imgs[1]) and np.array_equal(imgs[0], imgs[2])
