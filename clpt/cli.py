@@ -171,14 +171,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("bench", help="measure samples/s, rays/s and kernel build times")
-    p.add_argument("scene", nargs="?", default="cornell_box")
+    p.add_argument("scene", nargs="*", default=["cornell_box"], help="scenes to measure ('all': every shipped "
+                                                                      "scene; default cornell_box)")
     p.add_argument("--width", type=int, default=256)
     p.add_argument("--height", type=int, default=256)
     p.add_argument("--max-depth", type=int, default=8)
-    p.add_argument("--seconds", type=float, default=3.0, help="steady-state time to measure per device")
+    p.add_argument("--rounds", type=int, default=5, help="timed passes per configuration, taken in turn")
     p.add_argument("--no-cold", action="store_true", help="skip the cold-build measurement (a subprocess)")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
-    _add_render_options(p)
+    p.add_argument("--device", "-d", default=None, help="as for render")
+    p.add_argument("--lanes", default=None, help="paths per work-item, or a comma list to compare (1,4,8)")
+    p.add_argument("--kernel", default="specialized", help="specialized, generic, baked, or a comma list")
+    p.add_argument("--precision", choices=("float", "double"), default="float")
+    p.add_argument("--no-nee", action="store_true")
     p.set_defaults(func=cmd_bench)
 
     p = sub.add_parser("devices", help="list the OpenCL devices")
