@@ -25,6 +25,7 @@ class Features:
     accum_double: bool = True  # per-pixel sums in fp64, else Kahan-compensated float
     mode: str = "specialized"
     nee: bool = True
+    photons: bool = True       # caustic photon map (only for scenes with caustic casters)
     spheres: bool = True
     quads: bool = True
     triangles: bool = True
@@ -34,7 +35,7 @@ class Features:
     glass: bool = True
     triangle_lights: bool = True
     sphere_lights: bool = True
-    counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights (not generic)
+    counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights, casters (not generic)
 
     def defines(self) -> dict[str, int]:
         d = {
@@ -44,6 +45,7 @@ class Features:
             "CLPT_GENERIC": int(self.mode == "generic"),
             "CLPT_BAKED": int(self.mode == "baked"),
             "CLPT_NEE": int(self.nee),
+            "CLPT_PHOTONS": int(self.photons),
             "CLPT_HAS_SPHERES": int(self.spheres),
             "CLPT_HAS_QUADS": int(self.quads),
             "CLPT_HAS_TRIANGLES": int(self.triangles),
@@ -55,7 +57,8 @@ class Features:
             "CLPT_HAS_SPHERE_LIGHTS": int(self.sphere_lights),
         }
         if self.mode != "generic":
-            for name, n in zip(("MATERIALS", "SPHERES", "QUADS", "TRIANGLES", "PLANES", "LIGHTS"), self.counts):
+            for name, n in zip(("MATERIALS", "SPHERES", "QUADS", "TRIANGLES", "PLANES", "LIGHTS", "CAUSTICS"),
+                               self.counts):
                 d[f"CLPT_NUM_{name}"] = n
         return d
 
@@ -73,13 +76,16 @@ class Features:
 
 
 def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False, accum_double: bool = True,
-                   mode: str = "specialized", nee: bool = True) -> Features:
+                   mode: str = "specialized", nee: bool = True, photons: bool | None = None) -> Features:
+    """photons: None turns them on exactly when the scene has caustic casters."""
     if mode not in KERNEL_MODES:
         raise ValueError(f"kernel mode must be one of {', '.join(KERNEL_MODES)} (got {mode!r})")
+    use_photons = packed.has_caustics if photons is None else bool(photons) and packed.has_caustics
     if mode == "generic":
-        return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee)
+        return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
+                        photons=use_photons)
     return Features(
-        lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
+        lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons,
         spheres=packed.count("spheres") > 0,
         quads=packed.count("quads") > 0,
         triangles=packed.count("triangles") > 0,

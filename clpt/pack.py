@@ -18,18 +18,21 @@ SPHERE_STRIDE = 2
 PLANAR_STRIDE = 4
 PLANE_STRIDE = 2
 LIGHT_STRIDE = 5
+CAUSTIC_STRIDE = 1
 
 LIGHT_KIND_QUAD, LIGHT_KIND_TRIANGLE, LIGHT_KIND_SPHERE = 0, 1, 2
-COUNT_NAMES = ("materials", "spheres", "quads", "triangles", "planes", "lights")
+COUNT_NAMES = ("materials", "spheres", "quads", "triangles", "planes", "lights", "caustics")
 
 
 @dataclass(frozen=True)
 class PackedScene:
     records: np.ndarray          # (n, 4) float64; cast to the kernel's real type on upload
-    counts: tuple                # materials, spheres, quads, triangles, planes, lights
+    counts: tuple                # materials, spheres, quads, triangles, planes, lights, caustic objects
     materials: tuple             # the distinct surfaces, in material-id order
     light_kinds: frozenset       # {"quad", "triangle", "sphere"}
-    extent: float                # diagonal of the scene's bounds
+    extent: float                # diagonal of the scene's bounds, camera included
+    size: float                  # diagonal of the geometry's bounds: the unit of relative photon radii
+    max_flux: float              # total emitted power (pi * area * max Le * sides), for photon sum scales
 
     def count(self, name: str) -> int:
         return self.counts[COUNT_NAMES.index(name)]
@@ -45,6 +48,15 @@ class PackedScene:
     @property
     def has_glass(self) -> bool:
         return any(max(m.kt) > 0 for m in self.materials)
+
+    @property
+    def has_caustics(self) -> bool:
+        return self.count("caustics") > 0
+
+    @property
+    def max_brdf(self) -> float:
+        """Largest value the non-delta lobes of any material can take."""
+        return max(max(m.kd) / math.pi + max(m.ks) * (m.shininess + 2) / (2 * math.pi) for m in self.materials)
 
 
 def lobe_probabilities(m: Material):
@@ -76,6 +88,43 @@ def _planar_records(corner, u, v, mat_id):
     wu = np.cross(v, n_raw) / nn
     wv = np.cross(n_raw, u) / nn
     return [(*corner, mat_id), (*n, 0.0), (*wu, 0.0), (*wv, 0.0)], n, math.sqrt(nn)
+
+
+def is_caustic_caster(m: Material) -> bool:
+    """Purely specular (mirror and/or refraction, no diffuse or Phong part):
+    the surfaces photons pass through on their way to a caustic. Surfaces
+    that mix in a diffuse or Phong part are left to the path tracer."""
+    return (max(m.kr) > 0 or max(m.kt) > 0) and max(m.kd) == 0 and max(m.ks) == 0
+
+
+def _caustic_objects(scene: Scene):
+    """Bounding spheres (center, radius) of the caustic casters, one per shape
+    (a box is one object); radius -1 marks an unbounded one (a plane)."""
+    groups: dict[int, list] = {}
+    for i, p in scene.primitives():
+        if is_caustic_caster(scene.surface(p)):
+            groups.setdefault(i, []).append(p)
+    out = []
+    for prims in groups.values():
+        if any(isinstance(p, Plane) for p in prims):
+            out.append((0.0, 0.0, 0.0, -1.0))
+            continue
+        if len(prims) == 1 and isinstance(prims[0], Sphere):
+            out.append((*prims[0].center, prims[0].radius))
+            continue
+        pts = []
+        for p in prims:
+            if isinstance(p, Sphere):
+                c = np.array(p.center, dtype=np.float64)
+                pts += [c - p.radius, c + p.radius]
+            elif isinstance(p, Triangle):
+                pts += [np.array(v, dtype=np.float64) for v in p.vertices]
+            else:
+                pts += p.vertices()
+        pts = np.array(pts)
+        c = 0.5 * (pts.min(0) + pts.max(0))
+        out.append((*c, float(np.linalg.norm(pts - c, axis=1).max()) * (1 + 1e-6)))
+    return out
 
 
 def pack_scene(scene: Scene) -> PackedScene:
@@ -124,14 +173,18 @@ def pack_scene(scene: Scene) -> PackedScene:
     for (sides, area, m, recs, mid), pr, cd in zip(lights, probs, cdf):
         light_recs += recs + [(area, pr, cd, mid)]
 
+    caustics = _caustic_objects(scene)
     mat_recs = [r for m in surfaces for r in _material_records(m)]
-    records = np.array(mat_recs + spheres + quads + tris + planes + light_recs, dtype=np.float64).reshape(-1, 4)
+    records = np.array(mat_recs + spheres + quads + tris + planes + light_recs + caustics,
+                       dtype=np.float64).reshape(-1, 4)
     counts = (len(surfaces), len(spheres) // SPHERE_STRIDE, len(quads) // PLANAR_STRIDE,
-              len(tris) // PLANAR_STRIDE, len(planes) // PLANE_STRIDE, len(lights))
+              len(tris) // PLANAR_STRIDE, len(planes) // PLANE_STRIDE, len(lights), len(caustics))
     kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere"}
+    lo, hi = scene.bounds(camera=False)
+    flux = sum(sides * math.pi * area * max(m.emission) for sides, area, m, _, _ in lights)
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
                        light_kinds=frozenset(kinds[int(r[0][3])] for _, _, _, r, _ in lights),
-                       extent=scene.extent())
+                       extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux)
 
 
 @dataclass(frozen=True)

@@ -5,6 +5,11 @@ A pass adds samples [s0, s0 + n) to every pixel. Samples are keyed by
 order: on one device the image is bit-identical however the samples were
 split; with several devices each pulls the next sample range when it is free
 and the host adds their sums at the end.
+
+Scenes with caustic casters also get a photon map (photons.py): built once
+per render from the seed, or once per iteration of spp_per_map samples when
+progressive. Online, every sample gathers from it; offline, a pre-pass fills
+a per-pixel caustic buffer that is added to the path-traced image.
 """
 
 from __future__ import annotations
@@ -23,10 +28,12 @@ from . import program
 from .device import DeviceContext, DeviceError, select_devices
 from .features import Features, scene_features
 from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
+from .photons import PM_OFF, PM_OFFLINE, PM_ONLINE, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
 from .scene import Scene, SceneError, load_scene
 
 LOCAL_SIZE_CPU = 16
 LOCAL_SIZE_GPU = 64
+PREPASS_SEED_SALT = 0x2545F491
 
 
 @dataclass
@@ -40,6 +47,8 @@ class RenderStats:
     first_launch_seconds: float = 0.0  # includes a lazy device compile (PoCL)
     render_seconds: float = 0.0
     passes: list = field(default_factory=list)  # (device label, first sample, samples, seconds)
+    photon_maps: list = field(default_factory=list)  # per build: stored, radius, trace/grid device seconds
+    launches: dict = field(default_factory=dict)  # kernel name -> launches, all devices
 
     @property
     def rays(self) -> int:
@@ -50,7 +59,7 @@ class RenderStats:
 class RenderResult:
     image: np.ndarray          # H x W x 3 float32, linear RGB
     sample_count: np.ndarray   # H x W samples per pixel
-    lum_var: np.ndarray        # H x W variance of one sample's luminance
+    lum_var: np.ndarray        # H x W variance of one sample's luminance (lum_var / count: of the mean)
     spp: int
     seed: int
     max_depth: int
@@ -58,6 +67,7 @@ class RenderResult:
     devices: list
     features: Features
     stats: RenderStats
+    photons: PhotonSettings | None = None
     interrupted: bool = False
 
     @property
@@ -65,87 +75,36 @@ class RenderResult:
         return int(self.sample_count.sum())
 
     def metadata(self) -> dict:
-        return {"clpt:spp": self.spp, "clpt:seed": self.seed, "clpt:max_depth": self.max_depth,
+        meta = {"clpt:spp": self.spp, "clpt:seed": self.seed, "clpt:max_depth": self.max_depth,
                 "clpt:rr_depth": self.rr_depth, "clpt:device": "; ".join(self.devices),
                 "clpt:render_seconds": round(self.stats.render_seconds, 4),
                 "clpt:kernel": self.features.describe(), "clpt:interrupted": int(self.interrupted)}
+        if self.photons is not None:
+            p = self.photons
+            meta["clpt:photons"] = (f"{p.count} photons, radius {p.radius}{'' if p.radius_absolute else ' x size'}, "
+                                    f"k {p.cone_k}, {p.mode}{', progressive alpha %g' % p.alpha if p.progressive else ''}")
+        return meta
 
     def save(self, path, exposure: float = 0.0):
         from .image import save_image
         save_image(path, self.image, metadata=self.metadata(), exposure=exposure)
 
 
-class _DeviceState:
-    """Everything one device holds for one scene: program, kernel, buffers."""
+class _Sums:
+    """Per-pixel sums on a device (accum.h's layout)."""
 
-    def __init__(self, dctx: DeviceContext, packed: PackedScene, features: Features, use_cache: bool):
-        self.dctx = dctx
-        self.features = features
-        real = np.float64 if features.double else np.float32
-        generated = {}
-        if features.mode == "baked":
-            generated["<baked scene>"] = _baked_source(packed.records, features.double)
-        source = program.stitch(["trace.cl"], generated)
-        self.program, self.build = program.build(dctx, source, features.options(), use_cache=use_cache)
-        self.kernel = cl.Kernel(self.program, "trace_paths")
-        mf = cl.mem_flags
-        recs = np.ascontiguousarray(packed.records, dtype=real)
-        if recs.size == 0:
-            recs = np.zeros((1, 4), dtype=real)
-        self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
-        self.real = real
-        self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
-        self.launched = False
-
-    def allocate(self, n_pix: int):
-        ctx, q = self.dctx.context, self.dctx.queue
-        lanes = self.features.lanes
-        groups = -(-n_pix // lanes)
-        self.global_size = -(-groups // self.local) * self.local
-        need = n_pix * 40 + self.global_size * 16
-        dev = self.dctx.device
-        if n_pix * 32 > dev.max_mem_alloc_size or need > dev.global_mem_size:
-            raise DeviceError(f"{n_pix} pixels need {need / 2**20:.0f} MiB of accumulation buffers, more than "
-                              f"{self.dctx.label} offers ({dev.global_mem_size / 2**20:.0f} MiB, at most "
-                              f"{dev.max_mem_alloc_size / 2**20:.0f} MiB per buffer); render a smaller image")
-        try:
-            self.pix_sum = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 32)
-            self.pix_sq = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 8)
-            self.stats_buf = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, self.global_size * 16)
-            cl.enqueue_fill_buffer(q, self.pix_sum, np.float32(0), 0, n_pix * 32)
-            cl.enqueue_fill_buffer(q, self.pix_sq, np.float32(0), 0, n_pix * 8)
-            q.finish()
-        except cl.Error as e:
-            raise DeviceError(f"cannot allocate {need / 2**20:.0f} MiB on {self.dctx.label} for "
-                              f"{n_pix} pixels ({e}); render a smaller image") from None
-        self.stats_host = np.empty((self.global_size, 4), dtype=np.uint32)
-        self.n_pix = n_pix
-
-    def set_frame(self, packed: PackedScene, frame: CameraFrame, width: int, height: int, max_depth: int,
-                  rr_depth: int, seed: int):
-        r4 = clt.make_double4 if self.features.double else clt.make_float4
-        c = packed.counts
-        eps_abs = packed.extent * (1e-13 if self.features.double else 2e-6)
-        self.args = [self.scene_buf, clt.make_uint8(c[0], c[1], c[2], c[3], c[4], c[5], 0, 0),
-                     self.real(eps_abs), r4(*frame.origin, 0), r4(*frame.corner, 0), r4(*frame.dx, 0),
-                     r4(*frame.dy, 0), np.uint32(width), np.uint32(height), np.uint32(0)]
-        self.tail = [np.uint32(min(max_depth, 2**31)), np.uint32(min(rr_depth, 2**31)), np.uint32(seed),
-                     self.pix_sum, self.pix_sq, self.stats_buf]
-
-    def run(self, s0: int, n: int):
-        """Add samples [s0, s0 + n) to every pixel; returns (seconds, stats row sums)."""
-        q = self.dctx.queue
-        self.kernel.set_args(*self.args, np.uint32(s0), np.uint32(n), *self.tail)
-        t0 = time.perf_counter()
-        cl.enqueue_nd_range_kernel(q, self.kernel, (self.global_size,), (self.local,))
-        cl.enqueue_copy(q, self.stats_host, self.stats_buf)
-        seconds = time.perf_counter() - t0
-        return seconds, self.stats_host.sum(axis=0, dtype=np.uint64)
+    def __init__(self, dctx, n_pix: int, accum_double: bool):
+        self.dctx, self.n_pix, self.accum_double = dctx, n_pix, accum_double
+        ctx, q = dctx.context, dctx.queue
+        self.pix_sum = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 32)
+        self.pix_sq = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 8)
+        cl.enqueue_fill_buffer(q, self.pix_sum, np.float32(0), 0, n_pix * 32)
+        cl.enqueue_fill_buffer(q, self.pix_sq, np.float32(0), 0, n_pix * 8)
 
     def read(self):
-        """Per-pixel (r, g, b, count) sums and sums of squared luminance, float64."""
+        """(r, g, b, count) sums and sums of squared luminance, float64."""
         q = self.dctx.queue
-        if self.features.accum_double:
+        if self.accum_double:
             s = np.empty((self.n_pix, 4), dtype=np.float64)
             sq = np.empty(self.n_pix, dtype=np.float64)
             cl.enqueue_copy(q, s, self.pix_sum)
@@ -162,6 +121,94 @@ class _DeviceState:
         return s64[:, :4] - s64[:, 4:], sq64[:, 0] - sq64[:, 1]
 
 
+class _DeviceState:
+    """Everything one device holds for one scene: programs, kernels, buffers."""
+
+    def __init__(self, dctx: DeviceContext, packed: PackedScene, features: Features, use_cache: bool):
+        self.dctx = dctx
+        self.features = features
+        self.packed = packed
+        real = np.float64 if features.double else np.float32
+        generated = {}
+        if features.mode == "baked":
+            generated["<baked scene>"] = _baked_source(packed.records, features.double)
+        entries = ["trace.cl"] + (["photons.cl", "grid.cl"] if features.photons else [])
+        source = program.stitch(entries, generated)
+        self.program, self.build = program.build(dctx, source, features.options(), use_cache=use_cache)
+        self.kernel = cl.Kernel(self.program, "trace_paths")
+        mf = cl.mem_flags
+        recs = np.ascontiguousarray(packed.records, dtype=real)
+        if recs.size == 0:
+            recs = np.zeros((1, 4), dtype=real)
+        self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
+        self.counts = counts_arg(packed.counts)
+        self.eps_abs = packed.extent * (1e-13 if features.double else 2e-6)
+        self.real = real
+        self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
+        self.launched = False
+        self.pmap = PhotonMap(dctx, self.program, real) if features.photons else None
+        self.pm_args = None
+        self.launches = {}
+
+    def allocate(self, n_pix: int, caustic_buffer: bool):
+        lanes = self.features.lanes
+        groups = -(-n_pix // lanes)
+        self.global_size = -(-groups // self.local) * self.local
+        need = n_pix * 40 * (2 if caustic_buffer else 1) + self.global_size * 16
+        dev = self.dctx.device
+        if n_pix * 32 > dev.max_mem_alloc_size or need > dev.global_mem_size:
+            raise DeviceError(f"{n_pix} pixels need {need / 2**20:.0f} MiB of accumulation buffers, more than "
+                              f"{self.dctx.label} offers ({dev.global_mem_size / 2**20:.0f} MiB, at most "
+                              f"{dev.max_mem_alloc_size / 2**20:.0f} MiB per buffer); render a smaller image")
+        try:
+            self.main = _Sums(self.dctx, n_pix, self.features.accum_double)
+            self.caustic = _Sums(self.dctx, n_pix, self.features.accum_double) if caustic_buffer else None
+            self.stats_buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_WRITE, self.global_size * 16)
+            self.dctx.queue.finish()
+        except cl.Error as e:
+            raise DeviceError(f"cannot allocate {need / 2**20:.0f} MiB on {self.dctx.label} for "
+                              f"{n_pix} pixels ({e}); render a smaller image") from None
+        self.stats_host = np.empty((self.global_size, 4), dtype=np.uint32)
+        self.n_pix = n_pix
+
+    def set_frame(self, frame: CameraFrame, width: int, height: int, max_depth: int, rr_depth: int, seed: int):
+        r4 = clt.make_double4 if self.features.double else clt.make_float4
+        self.head = [self.scene_buf, self.counts, self.real(self.eps_abs), r4(*frame.origin, 0),
+                     r4(*frame.corner, 0), r4(*frame.dx, 0), r4(*frame.dy, 0), np.uint32(width),
+                     np.uint32(height), np.uint32(0)]
+        self.depths = [np.uint32(min(max_depth, 2**31)), np.uint32(min(rr_depth, 2**31))]
+        self.seed = seed
+
+    def build_photons(self, seed: int, settings: PhotonSettings, radius: float, mode: int):
+        info = self.pmap.build(self.scene_buf, self.counts, self.eps_abs, self.features.lanes, seed, settings,
+                               radius)
+        self.pm_settings = settings
+        self.pm_mode = mode
+        for k, v in self.pmap.launches.items():
+            self.launches[k] = self.launches.get(k, 0) + v
+        self.pmap.launches.clear()
+        return {**info, "radius": radius, "seed": seed}
+
+    def run(self, s0: int, n: int, prepass: bool = False):
+        """Add samples [s0, s0 + n) to every pixel (of the caustic buffer, for the
+        offline pre-pass); returns (seconds, stats row sums)."""
+        q = self.dctx.queue
+        sums = self.caustic if prepass else self.main
+        seed = (self.seed ^ PREPASS_SEED_SALT) if prepass else self.seed
+        args = [*self.head, np.uint32(s0), np.uint32(n), *self.depths, np.uint32(seed), sums.pix_sum, sums.pix_sq,
+                self.stats_buf]
+        if self.features.photons:
+            mode = PM_PREPASS if prepass else self.pm_mode
+            args += self.pmap.kernel_args(self.pm_settings, mode)
+        self.kernel.set_args(*args)
+        t0 = time.perf_counter()
+        cl.enqueue_nd_range_kernel(q, self.kernel, (self.global_size,), (self.local,))
+        cl.enqueue_copy(q, self.stats_host, self.stats_buf)
+        seconds = time.perf_counter() - t0
+        self.launches["trace_paths"] = self.launches.get("trace_paths", 0) + 1
+        return seconds, self.stats_host.sum(axis=0, dtype=np.uint64)
+
+
 def _baked_source(records: np.ndarray, double: bool) -> str:
     t = "double4" if double else "float4"
     fmt = "%.17g" if double else "%.9g"
@@ -169,27 +216,48 @@ def _baked_source(records: np.ndarray, double: bool) -> str:
     return f"__constant real4 clpt_scene[{max(1, len(records))}] = {{\n{rows}\n}};\n"
 
 
+def _combine(states, which: str, n_pix: int):
+    total = np.zeros((n_pix, 4), dtype=np.float64)
+    total_sq = np.zeros(n_pix, dtype=np.float64)
+    for st in states:
+        sums = getattr(st, which)
+        if sums is not None:
+            s, sq = sums.read()
+            total += s
+            total_sq += sq
+    count = total[:, 3]
+    safe = np.maximum(count, 1.0)
+    mean = total[:, :3] / safe[:, None]
+    lum_mean = mean @ np.array([0.2126, 0.7152, 0.0722])
+    var = np.maximum(total_sq / safe - lum_mean ** 2, 0.0) * (safe / np.maximum(safe - 1.0, 1.0))
+    return mean, var, count
+
+
 class Renderer:
     """A scene prepared for rendering on one or more devices.
 
     Kernels are built (or loaded from the build cache) once, here; render()
     can then be called any number of times with different settings.
+    photons: None (the default) turns caustic photon mapping on when the scene
+    has caustic casters (purely specular objects); False never compiles it.
     """
 
     def __init__(self, scene, *, device=None, lanes: int | None = None, precision: str = "float",
-                 kernel: str = "specialized", nee: bool = True, use_cache: bool = True, accumulate: str = "auto"):
+                 kernel: str = "specialized", nee: bool = True, photons: bool | None = None,
+                 use_cache: bool = True, accumulate: str = "auto"):
         if isinstance(scene, (str, Path)):
             scene = load_scene(scene)
         if not isinstance(scene, Scene):
             raise TypeError(f"scene must be a clpt.Scene or a path, not {type(scene).__name__}")
         if precision not in ("float", "double"):
             raise ValueError(f"precision must be 'float' or 'double' (got {precision!r})")
-        self.scene = scene
-        self.packed = pack_scene(scene)
-        self.devices = [DeviceContext(d) for d in select_devices(device)]
-        self.states = []
         if accumulate not in ("auto", "double", "kahan"):
             raise ValueError(f"accumulate must be 'auto', 'double' or 'kahan' (got {accumulate!r})")
+        self.scene = scene
+        self.packed = pack_scene(scene)
+        use_photons = self.packed.has_caustics and photons is not False
+        self.devices = [DeviceContext(d) for d in select_devices(device)]
+        self.states = []
         for dctx in self.devices:
             if (precision == "double" or accumulate == "double") and not dctx.fp64:
                 raise DeviceError(f"{dctx.label} has no double precision (cl_khr_fp64); "
@@ -197,7 +265,8 @@ class Renderer:
             acc_double = dctx.fp64 if accumulate == "auto" else accumulate == "double"
             n_lanes = lanes or dctx.default_lanes()
             feats = scene_features(self.packed, lanes=n_lanes, double=precision == "double",
-                                   accum_double=acc_double or precision == "double", mode=kernel, nee=nee)
+                                   accum_double=acc_double or precision == "double", mode=kernel, nee=nee,
+                                   photons=use_photons)
             self.states.append(_DeviceState(dctx, self.packed, feats, use_cache))
         self.features = self.states[0].features
 
@@ -207,7 +276,8 @@ class Renderer:
 
     def render(self, spp: int | None = None, *, seed: int | None = None, max_depth: int | None = None,
                rr_depth: int | None = None, width: int | None = None, height: int | None = None,
-               progress=None, time_limit: float | None = None, pass_seconds: float = 0.25) -> RenderResult:
+               photons: PhotonSettings | None = None, progress=None, time_limit: float | None = None,
+               pass_seconds: float = 0.25) -> RenderResult:
         """Render; keywords override the scene's settings. progress(done_spp,
         total_spp, elapsed_seconds, samples_per_second) is called after each pass.
         Ctrl-C (KeyboardInterrupt) ends the render early with what is done."""
@@ -224,30 +294,46 @@ class Renderer:
                 raise SceneError(f"render: {name} must be an integer >= {lo} (got {v!r})")
         if spp >= 2**32 or seed >= 2**32:
             raise SceneError("render: spp and seed must be below 2^32")
+        pset = (photons or PhotonSettings()).check() if self.features.photons else None
+        progressive = pset is not None and pset.progressive
+        offline = pset is not None and pset.mode == "offline" and not progressive
         frame = camera_frame(self.scene.camera, width, height)
         n_pix = width * height
         stats = RenderStats(build_seconds=self.build_seconds,
                             cache_hits=sum(s.build.cache_hit for s in self.states))
         for st in self.states:
-            st.allocate(n_pix)
-            st.set_frame(self.packed, frame, width, height, max_depth, rr_depth, seed)
+            st.allocate(n_pix, caustic_buffer=offline)
+            st.set_frame(frame, width, height, max_depth, rr_depth, seed)
+            st.launches = {}
 
         lock = threading.Lock()
         state = {"next": 0, "done": 0, "stop": False, "error": None}
         t_start = time.perf_counter()
+        mode = PM_OFFLINE if offline else PM_ONLINE  # progressive rendering gathers online
 
-        def take(st, per_spp):
+        def photon_map(st, iteration):
+            info = st.build_photons(photon_seed(seed, iteration), pset, pset.radius_for(self.packed.size, iteration),
+                                    mode)
+            with lock:
+                stats.photon_maps.append({"device": st.dctx.label, "iteration": iteration, **info})
+            if offline:  # the caustic buffer
+                st.run(0, min(pset.offline_spp, spp), prepass=True)
+
+        def take(per_spp):
             with lock:
                 if state["stop"] or state["next"] >= spp:
                     return None
                 s0 = state["next"]
-                n = 1 if per_spp is None else int(max(1, min(pass_seconds / max(per_spp, 1e-9), 1 << 16)))
-                if time_limit is not None:
+                if progressive:  # one photon map per spp_per_map samples
+                    n = pset.spp_per_map
+                else:
+                    n = 1 if per_spp is None else int(max(1, min(pass_seconds / max(per_spp, 1e-9), 1 << 16)))
+                if time_limit is not None and per_spp is not None:
                     left = time_limit - (time.perf_counter() - t_start)
-                    if per_spp is not None and left < per_spp * 0.5:
+                    if left < per_spp * 0.5:
                         state["stop"] = True
                         return None
-                    if per_spp is not None:
+                    if not progressive:
                         n = max(1, min(n, int(left / per_spp)))
                 n = min(n, spp - s0)
                 state["next"] = s0 + n
@@ -256,11 +342,15 @@ class Renderer:
         def work(st):
             per_spp = None
             try:
+                if pset is not None and not progressive:
+                    photon_map(st, 0)
                 while True:
-                    job = take(st, per_spp)
+                    job = take(per_spp)
                     if job is None:
                         return
                     s0, n = job
+                    if progressive:
+                        photon_map(st, s0 // pset.spp_per_map)
                     seconds, row = st.run(s0, n)
                     if st.launched:
                         per_spp = seconds / n
@@ -318,36 +408,37 @@ class Renderer:
         if time_limit is not None and state["done"] < spp:
             interrupted = True
 
-        total = np.zeros((n_pix, 4), dtype=np.float64)
-        total_sq = np.zeros(n_pix, dtype=np.float64)
-        for st in self.states:
-            s, sq = st.read()
-            total += s
-            total_sq += sq
+        mean, var, count = _combine(self.states, "main", n_pix)
+        if offline:
+            c_mean, c_var, c_count = _combine(self.states, "caustic", n_pix)
+            mean = mean + c_mean
+            # As the variance of one sample: the caustic mean's variance scaled to count samples.
+            var = var + c_var * np.maximum(count, 1.0) / np.maximum(c_count, 1.0)
         stats.render_seconds = time.perf_counter() - t_start
-        count = total[:, 3]
-        safe = np.maximum(count, 1.0)
-        mean = total[:, :3] / safe[:, None]
-        lum_mean = mean @ np.array([0.2126, 0.7152, 0.0722])
-        lum_var = np.maximum(total_sq / safe - lum_mean ** 2, 0.0) * (safe / np.maximum(safe - 1.0, 1.0))
+        for st in self.states:
+            for k, v in st.launches.items():
+                stats.launches[k] = stats.launches.get(k, 0) + v
         image = mean.astype(np.float32).reshape(height, width, 3)
         bad = ~np.isfinite(image)
-        if bad.any():  # the kernel drops non-finite samples; this is the last guard
+        if bad.any():  # the kernels drop non-finite samples; this is the last guard
             warnings.warn(f"{int(bad.sum())} non-finite pixel values set to 0")
             image[bad] = 0.0
         return RenderResult(image=image, sample_count=count.reshape(height, width).astype(np.uint32),
-                            lum_var=lum_var.reshape(height, width).astype(np.float32),
+                            lum_var=var.reshape(height, width).astype(np.float32),
                             spp=int(count.max()) if n_pix else 0, seed=seed, max_depth=max_depth,
                             rr_depth=rr_depth, devices=[s.dctx.label for s in self.states],
-                            features=self.features, stats=stats, interrupted=interrupted)
+                            features=self.features, stats=stats, photons=pset, interrupted=interrupted)
 
 
 def render(scene, *, spp: int | None = None, seed: int | None = None, max_depth: int | None = None,
            width: int | None = None, height: int | None = None, device=None, **kw) -> np.ndarray:
     """Render a scene (a Scene, a path, or a shipped scene's name) and return
     linear RGB as a float32 H x W x 3 array. Keywords override the scene's
-    settings; other keywords go to Renderer (lanes, precision, kernel, nee) or
-    Renderer.render (rr_depth, progress, time_limit)."""
+    settings; other keywords go to Renderer (lanes, precision, kernel, nee,
+    photons: bool) or Renderer.render (rr_depth, progress, time_limit;
+    photon_settings: a PhotonSettings)."""
     render_kw = {k: kw.pop(k) for k in ("rr_depth", "progress", "time_limit", "pass_seconds") if k in kw}
+    if "photon_settings" in kw:
+        render_kw["photons"] = kw.pop("photon_settings")
     r = Renderer(scene, device=device, **kw)
     return r.render(spp, seed=seed, max_depth=max_depth, width=width, height=height, **render_kw).image

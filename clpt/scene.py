@@ -245,9 +245,9 @@ class Scene:
             else:
                 yield i, s
 
-    def bounds(self):
-        """Axis-aligned bounds of the finite geometry and the camera."""
-        pts = [np.array(self.camera.origin, dtype=np.float64)]
+    def bounds(self, camera: bool = True):
+        """Axis-aligned bounds of the finite geometry (and the camera)."""
+        pts = [np.array(self.camera.origin, dtype=np.float64)] if camera else []
         for _, p in self.primitives():
             if isinstance(p, Sphere):
                 c = np.array(p.center, dtype=np.float64)
@@ -258,6 +258,8 @@ class Scene:
                 pts += p.vertices()
             elif isinstance(p, Plane):
                 pts.append(np.array(p.point, dtype=np.float64))
+        if not pts:
+            return np.zeros(3), np.zeros(3)
         pts = np.array(pts)
         return pts.min(axis=0), pts.max(axis=0)
 

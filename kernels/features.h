@@ -20,8 +20,12 @@
 #if !defined(CLPT_HAS_TRIANGLE_LIGHTS) || !defined(CLPT_HAS_SPHERE_LIGHTS)
 #error "clpt: every CLPT_HAS_<kind>_LIGHTS flag must be defined"
 #endif
+#if !defined(CLPT_PHOTONS)
+#error "clpt: CLPT_PHOTONS must be defined"
+#endif
 #if !CLPT_GENERIC && (!defined(CLPT_NUM_MATERIALS) || !defined(CLPT_NUM_SPHERES) || !defined(CLPT_NUM_QUADS) \
-    || !defined(CLPT_NUM_TRIANGLES) || !defined(CLPT_NUM_PLANES) || !defined(CLPT_NUM_LIGHTS))
+    || !defined(CLPT_NUM_TRIANGLES) || !defined(CLPT_NUM_PLANES) || !defined(CLPT_NUM_LIGHTS) \
+    || !defined(CLPT_NUM_CAUSTICS))
 #error "clpt: a specialized build needs every CLPT_NUM_* count"
 #endif
 

@@ -96,3 +96,54 @@ inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, v
     }
     return ls;
 }
+
+// A point on a light for a photon to leave from: light picked by power, point
+// uniform by area. pdf_area includes the pick probability.
+typedef struct {
+    V3 p, n;          // point and the light's normal there (outward for spheres)
+    V3 Le;
+    vmask two_sided;
+    vreal pdf_area;
+} LightPoint;
+
+inline LightPoint light_sample_point(const Scene *sc, vreal u_pick, vreal u1, vreal u2)
+{
+    LightPoint lp;
+    lp.p = lp.n = lp.Le = v3_zero();
+    lp.pdf_area = (vreal)R(0);
+    lp.two_sided = lp.pdf_area != lp.pdf_area;
+    vmask taken = lp.two_sided;
+    for (uint i = 0; i < NUM_LIGHTS; i++) {
+        uint r = OFF_LIGHTS + LIGHT_STRIDE * i;
+        real4 info = scene_rec(sc, r + 4);  // area, pick probability, cdf, material
+        vmask pick = !taken && (u_pick < info.z || i + 1 == NUM_LIGHTS);
+        taken = taken || pick;
+        if (!VANY(pick)) continue;
+        real4 p = scene_rec(sc, r);
+        int kind = (int)p.w;
+        V3 y, n;
+#if CLPT_HAS_SPHERE_LIGHTS
+        if (kind == LIGHT_KIND_SPHERE) {
+            n = sample_uniform_sphere(u1, u2);
+            y = v3_fma(n, (vreal)scene_rec(sc, r + 1).x, v3_splat(p));
+        } else
+#endif
+        {
+            real4 u = scene_rec(sc, r + 1), v = scene_rec(sc, r + 2);
+            vreal a = u1, b = u2;
+#if CLPT_HAS_TRIANGLE_LIGHTS
+            if (kind == LIGHT_KIND_TRIANGLE)
+                sample_uniform_triangle(u1, u2, &a, &b);
+#endif
+            y = v3(p.x + a * u.x + b * v.x, p.y + a * u.y + b * v.y, p.z + a * u.z + b * v.z);
+            n = v3_splat(scene_rec(sc, r + 3));
+        }
+        real4 m = scene_rec(sc, MAT_STRIDE * (uint)info.w + 4);  // Le.rgb, two_sided
+        lp.p = v3_sel(lp.p, y, pick);
+        lp.n = v3_sel(lp.n, n, pick);
+        lp.Le = v3_sel(lp.Le, v3_splat(m), pick);
+        lp.two_sided = lp.two_sided || (pick && (vreal)m.w != R(0));
+        lp.pdf_area = VSEL(lp.pdf_area, (vreal)(info.y / info.x), pick);
+    }
+    return lp;
+}

@@ -12,6 +12,8 @@
 //   planes     2 records: point.xyz, material | n.xyz, 0
 //   lights     5 records: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, 0 |
 //              area, pick probability, cumulative probability, material
+//   caustics   1 record: bounding sphere (centre.xyz, radius; radius < 0 if
+//              unbounded) of each purely specular object, for aiming photons
 // wu and wv are the dual vectors of the edges u, v in the plane: for a point
 // q relative to the corner, (dot(q, wu), dot(q, wv)) are its coordinates
 // along u and v, so quads and triangles share one test and one record shape.
@@ -32,7 +34,7 @@
 
 typedef struct {
     SCENE_SPACE const real4 *rec;
-    uint n_materials, n_spheres, n_quads, n_triangles, n_planes, n_lights;
+    uint n_materials, n_spheres, n_quads, n_triangles, n_planes, n_lights, n_caustics;
     real eps_abs;  // absolute part of the ray-origin offset (scene size * k eps)
 } Scene;
 
@@ -43,6 +45,7 @@ typedef struct {
 #define NUM_TRIANGLES (sc->n_triangles)
 #define NUM_PLANES (sc->n_planes)
 #define NUM_LIGHTS (sc->n_lights)
+#define NUM_CAUSTICS (sc->n_caustics)
 #else
 #define NUM_MATERIALS CLPT_NUM_MATERIALS
 #define NUM_SPHERES CLPT_NUM_SPHERES
@@ -50,6 +53,7 @@ typedef struct {
 #define NUM_TRIANGLES CLPT_NUM_TRIANGLES
 #define NUM_PLANES CLPT_NUM_PLANES
 #define NUM_LIGHTS CLPT_NUM_LIGHTS
+#define NUM_CAUSTICS CLPT_NUM_CAUSTICS
 #endif
 
 #define OFF_SPHERES (MAT_STRIDE * NUM_MATERIALS)
@@ -57,6 +61,7 @@ typedef struct {
 #define OFF_TRIANGLES (OFF_QUADS + PLANAR_STRIDE * NUM_QUADS)
 #define OFF_PLANES (OFF_TRIANGLES + PLANAR_STRIDE * NUM_TRIANGLES)
 #define OFF_LIGHTS (OFF_PLANES + PLANE_STRIDE * NUM_PLANES)
+#define OFF_CAUSTICS (OFF_LIGHTS + LIGHT_STRIDE * NUM_LIGHTS)
 
 inline real4 scene_rec(const Scene *sc, uint i) { return sc->rec[i]; }
 

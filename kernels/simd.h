@@ -20,11 +20,15 @@
 #endif
 #if CLPT_DOUBLE
 typedef double real;
+typedef double3 real3;
 typedef double4 real4;
+#define REAL3(v) convert_double3(v)
 #define REAL_EPS 2.220446049250313e-16
 #else
 typedef float real;
+typedef float3 real3;
 typedef float4 real4;
+#define REAL3(v) (v)
 #define REAL_EPS 1.1920929e-07f
 #endif
 #define R(x) ((real)(x))
@@ -44,6 +48,8 @@ typedef double vdouble;
 #define VALL(m) ((m) != 0)
 #define VREAL(x) ((real)(x))
 #define VUINT(x) ((uint)(x))
+#define VINT(x) ((int)(x))
+typedef int vint;
 #define VDOUBLE(x) ((double)(x))
 #define VMASK_D(m) (m)
 #define VLANE_IDS ((uint)0)
@@ -67,6 +73,7 @@ typedef int mask_elem;
 #define VMASK_D(m) CLPT_CAT(convert_long, CLPT_LANES)(m)
 #endif
 typedef CLPT_CAT(uint, CLPT_LANES) vuint;
+typedef CLPT_CAT(int, CLPT_LANES) vint;
 #if CLPT_ACCUM_DOUBLE
 typedef CLPT_CAT(double, CLPT_LANES) vdouble;
 #endif
@@ -74,6 +81,7 @@ typedef CLPT_CAT(double, CLPT_LANES) vdouble;
 #define VANY(m) any(m)
 #define VALL(m) all(m)
 #define VUINT(x) CLPT_CAT(convert_uint, CLPT_LANES)(x)
+#define VINT(x) CLPT_CAT(convert_int, CLPT_LANES)(x)
 #define VDOUBLE(x) CLPT_CAT(convert_double, CLPT_LANES)(x)
 // Lane l of a vector, through its private storage (l need not be constant).
 #define VLANE_R(v, l) (((private real *)&(v))[l])

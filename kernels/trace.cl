@@ -25,9 +25,29 @@
 // and absorption, as in the paper; before depth rr_depth the absorption
 // branch is left out (lobe probabilities renormalized).
 //
+// Caustic photons (CLPT_PHOTONS, pm_mode): the photon map owns exactly the
+// paths E S* x D S+ L where x is the first vertex from the camera with a
+// non-delta part, D is x's diffuse or Phong lobe and S+ are purely specular
+// surfaces (the paths trace_photons stores). pm_mode 1 (online) gathers at x
+// in every sample; 2 (offline) leaves that to a per-pixel caustic buffer the
+// host adds; in both, emission reached along an owned path is not added
+// again. pm_mode 3 is the offline pre-pass: follow the camera path to x,
+// gather there, and stop. pm_mode 0 ignores the photon map.
+//
 // Flags: CLPT_LANES, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC, CLPT_BAKED, CLPT_NEE,
-//   CLPT_HAS_{SPHERES,QUADS,TRIANGLES,PLANES}, CLPT_HAS_{PHONG,MIRROR,GLASS},
+//   CLPT_PHOTONS, CLPT_HAS_{SPHERES,QUADS,TRIANGLES,PLANES}, CLPT_HAS_{PHONG,MIRROR,GLASS},
 //   CLPT_HAS_{TRIANGLE,SPHERE}_LIGHTS, CLPT_NUM_* (when not generic).
+
+#define PM_OFF 0
+#define PM_ONLINE 1
+#define PM_OFFLINE 2
+#define PM_PREPASS 3
+
+// Where a path stands relative to the photon map's paths.
+#define OWN_BEFORE_X 0  // no vertex with a non-delta part yet
+#define OWN_AFTER_D 1   // x chose its non-delta lobe
+#define OWN_OWNED 2     // ... and one or more purely specular vertices followed
+#define OWN_NOT 3       // not a photon-map path
 
 typedef struct {
     V3 o, d;         // current ray
@@ -35,6 +55,7 @@ typedef struct {
     V3 L;            // radiance gathered so far by this sample
     vreal depth;     // scattering events so far
     vmask specular;  // last vertex was the camera or a delta lobe
+    vreal own;       // OWN_*: relation to the photon map's paths
 } PathState;
 
 // Path throughput after choosing and sampling one lobe of m at a hit.
@@ -83,13 +104,10 @@ inline vmask scatter(const Scene *sc, const Material *m, PathState *ps, V3 x, V3
     // --- dielectric: Fresnel picks reflection or refraction ----------------------
     // eta = n_t / n_i: entering through the front face, or leaving through the back.
     if (VANY(is_t)) {
-        vreal eta = VSEL(R(1) / m->ior, m->ior, front);
-        vreal cos_i = -v3_dot(d, n);
-        vreal cos_t;
-        vreal F = fresnel_dielectric(cos_i, eta, &cos_t);
-        vmask refl = r.d < F;
-        V3 wt = refract_dir(d, n, cos_i, cos_t, eta);
-        wi = v3_sel(wi, v3_sel(wt, v3_reflect(d, n), refl), is_t);
+        vmask refl;
+        vreal eta;
+        V3 wt = dielectric_sample(d, n, front, m->ior, r.d, &refl, &eta);
+        wi = v3_sel(wi, wt, is_t);
         // Radiance is scaled by 1/eta^2 across the interface (pbrt, sec. 9.5.2).
         vreal k = VSEL(R(1) / (eta * eta), (vreal)R(1), refl) / p_t;
         w = v3_sel(w, v3_scale(m->kt, k), is_t);
@@ -102,19 +120,6 @@ inline vmask scatter(const Scene *sc, const Material *m, PathState *ps, V3 x, V3
     ps->d = v3_sel(ps->d, v3_normalize(wi), cont);
     ps->specular = VSEL(ps->specular, is_r || is_t, cont);
     return cont && v3_max_comp(ps->beta) > R(0);
-}
-
-// f(wo, wi) of the non-delta lobes, for incoming direction d and shading
-// normal n on the side of -d.
-inline V3 brdf_eval(const Material *m, V3 d, V3 n, V3 wi)
-{
-    V3 f = v3_scale(m->kd, (vreal)R(M_1_PI));
-#if CLPT_HAS_PHONG
-    vreal ca = v3_dot(v3_reflect(d, n), wi);
-    vreal k = (m->shininess + R(2)) * R(0.5 * M_1_PI) * phong_cos_pow(ca, m->shininess);
-    f = v3_fma(m->ks, k, f);
-#endif
-    return f;
 }
 
 // Adds finished samples (lanes in `done`) to the pixel sums. A sample that is
@@ -136,7 +141,14 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
                           real4 cam_o, real4 corner, real4 dx, real4 dy,
                           uint width, uint height, uint group_offset,
                           uint sample_begin, uint n_samples, uint max_depth, uint rr_depth, uint seed,
-                          __global pix_sum_t *pix_sum, __global pix_sq_t *pix_sq, __global uint4 *stats)
+                          __global pix_sum_t *pix_sum, __global pix_sq_t *pix_sq, __global uint4 *stats
+#if CLPT_PHOTONS
+                          , __global const float4 *ph_pos, __global const float4 *ph_dir,
+                          __global const float4 *ph_pow, __global const uint *bucket_start,
+                          uint pm_mask, uint pm_max, uint pm_budget, real pm_radius,
+                          real pm_cone_k, uint pm_mode
+#endif
+                          )
 {
     Scene scd;
 #if CLPT_BAKED
@@ -145,9 +157,19 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
     scd.rec = scene;
 #endif
     scd.n_materials = counts.s0; scd.n_spheres = counts.s1; scd.n_quads = counts.s2;
-    scd.n_triangles = counts.s3; scd.n_planes = counts.s4; scd.n_lights = counts.s5;
+    scd.n_triangles = counts.s3; scd.n_planes = counts.s4; scd.n_lights = counts.s5; scd.n_caustics = counts.s6;
     scd.eps_abs = eps_abs;
     const Scene *sc = &scd;
+#if CLPT_PHOTONS
+    PhotonMap pm;
+    pm.pos = ph_pos; pm.dir = ph_dir; pm.pow = ph_pow;
+    pm.bucket_start = bucket_start;
+    pm.mask = pm_mask; pm.max_photons = pm_max; pm.budget = pm_budget;
+    pm.radius = pm_radius; pm.inv_cell = R(1) / pm_radius; pm.cone_k = pm_cone_k;
+    int gather = pm_mode == PM_ONLINE || pm_mode == PM_PREPASS;
+    int prepass = pm_mode == PM_PREPASS;
+    int owns = pm_mode != PM_OFF;
+#endif
 
     uint gid = get_global_id(0);
     uint n_pix = width * height;
@@ -175,6 +197,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
     ps.o = ps.d = ps.beta = ps.L = v3_zero();
     ps.depth = zero;
     ps.specular = active;
+    ps.own = zero;
 
     while (VANY(active)) {
         // --- start new paths in lanes whose previous path ended ----------------
@@ -187,6 +210,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
             ps.beta = v3_sel(ps.beta, v3((vreal)R(1), (vreal)R(1), (vreal)R(1)), restart);
             ps.L = v3_sel(ps.L, v3_zero(), restart);
             ps.depth = VSEL(ps.depth, zero, restart);
+            ps.own = VSEL(ps.own, zero, restart);
             ps.specular = ps.specular || restart;
             n_camera += vpopcount(restart);
         }
@@ -205,14 +229,34 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 #if CLPT_NEE
         sees = sees && ps.specular;
 #endif
+#if CLPT_PHOTONS
+        if (owns)
+            sees = sees && ps.own != (real)OWN_OWNED && !prepass;
+#endif
         ps.L = v3_sel(ps.L, v3_add(ps.L, v3_mul(ps.beta, m.Le)), sees);
 
         vmask go = hit && ps.depth < (real)max_depth;
         vuint group = VUINT(ps.depth) * 2u + 1u;
 
+#if CLPT_PHOTONS
+        // --- caustic photons at x, the first vertex with a non-delta part -----------
+        vmask at_x = hit && ps.own == (real)OWN_BEFORE_X && m.nondelta != R(0);
+        if (gather && VANY(at_x)) {
+            Rand4 rg = rng_uniform4(seed, pixel, sample, group);  // .d: unused by light sampling
+            V3 Lc = photon_gather(&pm, &m, x, n, ps.d, rg.d, at_x);
+            ps.L = v3_sel(ps.L, v3_add(ps.L, v3_mul(ps.beta, Lc)), at_x);
+        }
+        if (prepass)
+            go = go && !at_x;  // the pre-pass ends at x
+        vmask pure_delta = m.nondelta == R(0);
+#endif
+
 #if CLPT_NEE
         // --- next event estimation ---------------------------------------------------
         vmask nee = go && m.nondelta != R(0);
+#if CLPT_PHOTONS
+        nee = nee && !prepass;
+#endif
         if (VANY(nee)) {
             Rand4 rl = rng_uniform4(seed, pixel, sample, group);
             LightSample ls = light_sample(sc, x, rl.a, rl.b, rl.c);
@@ -241,6 +285,15 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
             vmask no_absorb = ps.depth < (real)rr_depth;
             cont = scatter(sc, &m, &ps, x, n, front, go, rs, no_absorb);
             ps.depth = VSEL(ps.depth, ps.depth + R(1), cont);
+#if CLPT_PHOTONS
+            // x's lobe decides whether the path can be the photon map's; after
+            // it, only purely specular vertices keep it so.
+            vreal own = ps.own;
+            own = VSEL(own, VSEL((vreal)R(OWN_NOT), (vreal)R(OWN_AFTER_D), !ps.specular), at_x);
+            vmask after = ps.own == (real)OWN_AFTER_D || ps.own == (real)OWN_OWNED;
+            own = VSEL(own, VSEL((vreal)R(OWN_NOT), (vreal)R(OWN_OWNED), pure_delta), after && hit);
+            ps.own = own;
+#endif
             n_bounce += vpopcount(cont);
         }
 

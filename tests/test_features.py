@@ -16,15 +16,15 @@ def test_features_follow_the_scene():
     f = scene_features(pack_scene(clpt.load_scene("cornell_box")))
     assert (f.quads, f.spheres, f.triangles, f.planes) == (True, False, False, False)
     assert (f.phong, f.mirror, f.glass, f.sphere_lights, f.triangle_lights) == (False,) * 5
-    assert f.counts == (4, 0, 18, 0, 0, 1)
+    assert f.counts == (4, 0, 18, 0, 0, 1, 0) and not f.photons
     g = scene_features(pack_scene(clpt.load_scene("cornell_box_caustics")))
-    assert g.spheres and g.mirror and g.glass and not g.phong
+    assert g.spheres and g.mirror and g.glass and not g.phong and g.photons
     assert hash(f) != hash(g) and f.options() != g.options()
     assert f.options() == sorted(f.options())  # the options string doubles as a cache key
     assert "CLPT_NUM_QUADS=18" in " ".join(f.options())
     assert "specialized" in f.describe() and "quads" in f.describe()
     generic = scene_features(pack_scene(clpt.load_scene("cornell_box")), mode="generic")
-    assert generic == Features(mode="generic") and "CLPT_NUM_QUADS" not in " ".join(generic.options())
+    assert generic == Features(mode="generic", photons=False) and "CLPT_NUM_QUADS" not in " ".join(generic.options())
 
 
 def test_a_material_change_rebuilds_and_a_repeat_hits_the_cache(device_spec, tmp_path, monkeypatch):

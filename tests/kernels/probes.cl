@@ -109,7 +109,7 @@ inline Scene probe_scene(__global const real4 *rec, uint8 counts)
     Scene s;
     s.rec = rec;
     s.n_materials = counts.s0; s.n_spheres = counts.s1; s.n_quads = counts.s2;
-    s.n_triangles = counts.s3; s.n_planes = counts.s4; s.n_lights = counts.s5;
+    s.n_triangles = counts.s3; s.n_planes = counts.s4; s.n_lights = counts.s5; s.n_caustics = counts.s6;
     s.eps_abs = R(0);
     return s;
 }
@@ -163,4 +163,21 @@ __kernel void probe_accumulate(__global const real *x, uint n, __global pix_sum_
     }
     for (int l = 0; l < CLPT_LANES; l++)
         pixel_acc_store(&a, l, ps, pq, i * CLPT_LANES + l);
+}
+
+// photon_gather_one for each query point (one per work-item, whatever the lanes).
+__kernel void probe_gather(__global const float4 *ph_pos, __global const float4 *ph_dir,
+                           __global const float4 *ph_pow, __global const uint *bucket_start, uint mask,
+                           uint max_photons, uint budget, real radius, real cone_k, real4 kd, real4 ks_n,
+                           __global const real *q, __global real *out)
+{
+    size_t i = get_global_id(0);
+    PhotonMap pm;
+    pm.pos = ph_pos; pm.dir = ph_dir; pm.pow = ph_pow; pm.bucket_start = bucket_start;
+    pm.mask = mask; pm.max_photons = max_photons; pm.budget = budget;
+    pm.radius = radius; pm.inv_cell = R(1) / radius; pm.cone_k = cone_k;
+    __global const real *a = q + 10 * i;
+    real3 x = (real3)(a[0], a[1], a[2]), n = (real3)(a[3], a[4], a[5]), d = (real3)(a[6], a[7], a[8]);
+    real3 L = photon_gather_one(&pm, x, n, d, kd.xyz, ks_n.xyz, ks_n.w, a[9]);
+    out[3 * i] = L.x; out[3 * i + 1] = L.y; out[3 * i + 2] = L.z;
 }

@@ -1,0 +1,238 @@
+"""Caustic photon mapping on the device: photon pass, hash-grid build, and the
+settings of the gather (kernels/photons.cl, kernels/grid.cl,
+kernels/photon_grid.h).
+
+A scene without caustic casters (purely specular objects) compiles no photon
+code and allocates nothing here. For the others, each device builds its own
+photon map from the same seed, so every device sees the same photons.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.cltypes as clt
+
+RADIX_BITS = 8
+MAX_TABLE_BITS = 24
+PM_OFF, PM_ONLINE, PM_OFFLINE, PM_PREPASS = 0, 1, 2, 3
+
+
+@dataclass(frozen=True)
+class PhotonSettings:
+    """How caustics are rendered with photons.
+
+    count: photons emitted per photon map. radius: gather radius, a fraction
+    of the scene's size (the diagonal of its geometry's bounds) unless
+    radius_absolute. cone_k: Jensen's cone filter constant (>= 1).
+    max_photons: most photons one gather uses (0: all within the radius; the
+    paper's cap, which biases dense regions dark). budget: most photons a
+    gather visits per row of three cells; denser rows are subsampled without
+    bias (every s-th photon from a random offset, weighted by s).
+    mode: "online" gathers in every sample; "offline" (the default) gathers in
+    the offline_spp samples per pixel of a pre-pass (at most the render's spp)
+    into a caustic buffer that is added to the image. With one photon map per
+    render the map's own noise dominates, so the extra gathers of online mode
+    buy little; progressive rendering gathers online. aim: "solid_angle" picks casters by the solid angle
+    they subtend from the light, "equal" gives each the same share (the
+    paper). progressive: a fresh photon map every spp_per_map samples per
+    pixel, with the radius shrinking as r_i^2 = r_0^2 prod (j + alpha)/(j + 1)
+    (progressive photon mapping), so caustics converge instead of keeping a
+    fixed blur.
+    """
+
+    count: int = 200_000
+    radius: float = 0.008
+    budget: int = 128
+    radius_absolute: bool = False
+    cone_k: float = 1.1
+    max_photons: int = 0
+    mode: str = "offline"
+    aim: str = "solid_angle"
+    offline_spp: int = 16
+    progressive: bool = False
+    alpha: float = 0.7
+    spp_per_map: int = 4
+
+    def check(self):
+        from .scene import SceneError
+
+        def bad(what):
+            raise SceneError(f"photons: {what}")
+
+        if not isinstance(self.count, (int, np.integer)) or isinstance(self.count, bool) or not \
+                0 <= self.count < 2 ** 31:
+            bad(f"count must be an integer from 0 to 2^31 - 1 (got {self.count!r})")
+        if not (math.isfinite(self.radius) and self.radius > 0):
+            bad(f"radius must be > 0 (got {self.radius!r})")
+        if not (math.isfinite(self.cone_k) and self.cone_k >= 1):
+            bad(f"cone_k must be >= 1 (got {self.cone_k!r})")
+        if not 0 <= self.max_photons < 2 ** 32:
+            bad(f"max_photons must be >= 0 (got {self.max_photons!r})")
+        if not 1 <= self.budget < 2 ** 32:
+            bad(f"budget must be >= 1 (got {self.budget!r})")
+        if self.mode not in ("online", "offline"):
+            bad(f"mode must be 'online' or 'offline' (got {self.mode!r})")
+        if self.aim not in ("solid_angle", "equal"):
+            bad(f"aim must be 'solid_angle' or 'equal' (got {self.aim!r})")
+        if not self.offline_spp >= 1 or not self.spp_per_map >= 1:
+            bad("offline_spp and spp_per_map must be >= 1")
+        if not 0 < self.alpha <= 1:
+            bad(f"alpha must be in (0, 1] (got {self.alpha!r})")
+        return self
+
+    def radius_for(self, scene_size: float, iteration: int = 0) -> float:
+        r = self.radius if self.radius_absolute else self.radius * scene_size
+        if self.progressive:
+            # r_{i+1}^2 = r_i^2 (i + alpha) / (i + 1), in closed form through lgamma
+            # (Knaus and Zwicker, progressive photon mapping).
+            log_ratio = (math.lgamma(iteration + self.alpha) - math.lgamma(self.alpha)
+                         - math.lgamma(iteration + 1))
+            r *= math.exp(0.5 * log_ratio)
+        return r
+
+
+def photon_seed(seed: int, iteration: int) -> int:
+    """Seed of the photon map of a progressive iteration (0: the render's seed)."""
+    if iteration == 0:
+        return seed
+    x = (seed * 0x9E3779B1 + iteration * 0x85EBCA77 + 0x165667B1) & 0xFFFFFFFF
+    x ^= x >> 15
+    x = (x * 0x2C1B3C6D) & 0xFFFFFFFF
+    return x ^ (x >> 12)
+
+
+class PhotonMap:
+    """The photon buffers and grid of one device, rebuilt by build()."""
+
+    def __init__(self, dctx, program, real):
+        self.dctx = dctx
+        self.real = real
+        self.k_trace = cl.Kernel(program, "trace_photons")
+        self.k_keys = cl.Kernel(program, "photon_keys")
+        self.k_hist = cl.Kernel(program, "radix_histogram")
+        self.k_offsets = cl.Kernel(program, "radix_offsets")
+        self.k_scatter = cl.Kernel(program, "radix_scatter")
+        self.k_permute = cl.Kernel(program, "photon_permute")
+        self.k_starts = cl.Kernel(program, "bucket_starts")
+        self.capacity = -1
+        self.n_chunks = 64 if dctx.is_cpu else 1024
+        self.launches = {}
+        self.n_stored = 0
+        self.radius = 0.0
+        self.sorted_keys = None
+
+    def _alloc(self, n: int):
+        ctx = self.dctx.context
+        rw = cl.mem_flags.READ_WRITE
+        m = max(n, 1)
+        self.table_bits = max(10, min(MAX_TABLE_BITS, (2 * m - 1).bit_length()))  # about 2 buckets a photon
+        self.mask = (1 << self.table_bits) - 1
+        try:
+            self.raw = [cl.Buffer(ctx, rw, 16 * m) for _ in range(3)]     # pos, dir, pow as traced
+            self.sorted = [cl.Buffer(ctx, rw, 16 * m) for _ in range(3)]  # in key order
+            self.keys = [cl.Buffer(ctx, rw, 4 * m) for _ in range(2)]
+            self.vals = [cl.Buffer(ctx, rw, 4 * m) for _ in range(2)]
+            self.bucket_start = cl.Buffer(ctx, rw, 4 * ((1 << self.table_bits) + 1))
+            self.hist = cl.Buffer(ctx, rw, 4 * 256 * self.n_chunks)
+            self.counter = cl.Buffer(ctx, rw, 4)
+        except cl.Error as e:
+            from .device import DeviceError
+            raise DeviceError(f"cannot allocate a photon map of {n} photons on {self.dctx.label} ({e}); "
+                              f"use fewer photons") from None
+        self.capacity = n
+
+    def _launch(self, name, kernel, global_size, *args):
+        kernel.set_args(*args)
+        ev = cl.enqueue_nd_range_kernel(self.dctx.queue, kernel, (max(1, global_size),), None)
+        self.launches[name] = self.launches.get(name, 0) + 1
+        return ev
+
+    def build(self, scene_buf, counts, eps_abs, lanes: int, seed: int, settings: PhotonSettings, radius: float):
+        """Trace settings.count photons and build the grid for `radius`.
+        Returns {"stored", "trace_seconds", "grid_seconds", "host_seconds"}
+        (device times from profiling events)."""
+        n = int(settings.count)
+        if n != self.capacity:
+            self._alloc(n)
+        q = self.dctx.queue
+        t_host = time.perf_counter()
+        cl.enqueue_fill_buffer(q, self.counter, np.uint32(0), 0, 4)
+        events = []
+        if n > 0:
+            aim = 0 if settings.aim == "solid_angle" else 1
+            events.append(self._launch("trace_photons", self.k_trace, -(-n // lanes), scene_buf, counts,
+                                       self.real(eps_abs), np.uint32(seed), np.uint32(n), np.uint32(aim),
+                                       *self.raw, self.counter))
+        stored = np.zeros(1, dtype=np.uint32)
+        cl.enqueue_copy(q, stored, self.counter)
+        grid_events = self.build_grid(n, radius)
+        self.n_stored = int(stored[0])
+        return {"stored": self.n_stored, "trace_seconds": _device_seconds(events),
+                "grid_seconds": _device_seconds(grid_events), "host_seconds": time.perf_counter() - t_host}
+
+    def load(self, pos, dirs, power, radius: float):
+        """Use the given photons (arrays of n x 3) instead of traced ones, and
+        build the grid: for tests and for measuring the build alone."""
+        n = len(pos)
+        if n != self.capacity:
+            self._alloc(n)
+        if n:
+            for buf, a, w in ((self.raw[0], pos, 1.0), (self.raw[1], dirs, 0.0), (self.raw[2], power, 0.0)):
+                h = np.zeros((n, 4), dtype=np.float32)
+                h[:, :3] = a
+                h[:, 3] = w
+                cl.enqueue_copy(self.dctx.queue, buf, h)
+        self.n_stored = n
+        events = self.build_grid(n, radius)
+        return {"stored": n, "grid_seconds": _device_seconds(events)}
+
+    def build_grid(self, n: int, radius: float):
+        """Sort the n photon slots by bucket and fill bucket_start; returns the events."""
+        q = self.dctx.queue
+        self.radius = radius
+        table = 1 << self.table_bits
+        cl.enqueue_fill_buffer(q, self.bucket_start, np.uint32(0), 0, 4 * (table + 1))
+        events = []
+        if n > 0:
+            events.append(self._launch("photon_keys", self.k_keys, n, self.raw[0], np.uint32(n),
+                                       self.real(1.0 / radius), np.uint32(self.mask), self.keys[0], self.vals[0]))
+            chunk = np.uint32(-(-n // self.n_chunks))
+            src = 0
+            for shift in range(0, self.table_bits + 1, RADIX_BITS):
+                events.append(self._launch("radix_histogram", self.k_hist, self.n_chunks, self.keys[src],
+                                           np.uint32(n), np.uint32(shift), chunk, self.hist))
+                events.append(self._launch("radix_offsets", self.k_offsets, 1, self.hist, np.uint32(self.n_chunks)))
+                events.append(self._launch("radix_scatter", self.k_scatter, self.n_chunks, self.keys[src],
+                                           self.vals[src], np.uint32(n), np.uint32(shift), chunk, self.hist,
+                                           self.keys[1 - src], self.vals[1 - src]))
+                src = 1 - src
+            events.append(self._launch("photon_permute", self.k_permute, n, self.vals[src], np.uint32(n),
+                                       *self.raw, *self.sorted))
+            events.append(self._launch("bucket_starts", self.k_starts, n + 1, self.keys[src], np.uint32(n),
+                                       np.uint32(self.mask), self.bucket_start))
+            self.sorted_keys = self.keys[src]
+        q.finish()
+        return events
+
+    def kernel_args(self, settings: PhotonSettings, mode: int):
+        """The trailing arguments of trace_paths for this map."""
+        max_p = settings.max_photons if settings.max_photons > 0 else 0xFFFFFFFF
+        return [*self.sorted, self.bucket_start, np.uint32(self.mask), np.uint32(max_p), np.uint32(settings.budget),
+                self.real(self.radius), self.real(settings.cone_k), np.uint32(mode)]
+
+
+def _device_seconds(events) -> float:
+    try:
+        return sum(e.profile.end - e.profile.start for e in events) * 1e-9
+    except cl.Error:
+        return float("nan")
+
+
+def counts_arg(counts):
+    c = list(counts) + [0] * (8 - len(counts))
+    return clt.make_uint8(*c)

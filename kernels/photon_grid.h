@@ -1,0 +1,136 @@
+// photon_grid.h: the caustic photon map's hash grid and its cone-filter gather.
+//
+// Cells are cubes of one gather radius. A cell's bucket is a hash of its y
+// and z plus its x, so the cells of an x-row sit in consecutive buckets.
+// Photons are sorted by bucket and bucket_start[b] is the first photon of
+// bucket b (bucket_start[table size] = photon count), so the three cells of a
+// row are one contiguous range of photons: a gather ball, which touches at
+// most the 3x3x3 cells around its centre, reads 9 ranges. A bucket may also
+// hold photons of other cells: a photon counts only when its own cell is in
+// the row being visited, so none is counted twice. The sort is stable, so a
+// gather adds the same photons in the same order every time.
+//
+// Dense caustics can pack most of the map into a few cells. To bound a
+// gather's cost, a row range of more than `budget` photons is subsampled:
+// with stride s = ceil(count / budget) and a random offset o in [0, s), the
+// photons o, o + s, ... are visited and weighted by s. Each photon is taken
+// with probability exactly 1/s, so the estimate stays that of the full
+// radius in expectation; its extra noise averages out over samples.
+
+#define GRID_ROW_HASH(y, z) (((y) * 73856093u) ^ ((z) * 19349663u))
+// Cell coordinates far outside any scene are clamped, not overflowed.
+#define GRID_COORD_LIMIT R(1.0e9)
+
+inline int grid_coord(real v, real inv_cell)
+{
+    return (int)floor(clamp(v * inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT));
+}
+
+inline int3 grid_cell(real3 p, real inv_cell)
+{
+    return (int3)(grid_coord(p.x, inv_cell), grid_coord(p.y, inv_cell), grid_coord(p.z, inv_cell));
+}
+
+inline uint grid_bucket(int3 c, uint mask)
+{
+    return (GRID_ROW_HASH(as_uint(c.y), as_uint(c.z)) + as_uint(c.x)) & mask;
+}
+
+typedef struct {
+    __global const float4 *pos;   // xyz; w = 1 for a stored photon
+    __global const float4 *dir;   // direction of travel (into the surface)
+    __global const float4 *pow;   // flux, rgb
+    __global const uint *bucket_start;  // table size + 1 entries
+    uint mask;                    // table size - 1 (a power of two)
+    uint max_photons;             // most photons a gather uses (the paper's cap)
+    uint budget;                  // most photons visited per row of cells (subsampled above)
+    real radius, inv_cell, cone_k;
+} PhotonMap;
+
+// Radiance reflected towards -d at x (unit normal n facing -d) by the photons
+// within the gather radius, for a surface with diffuse albedo kd and Phong
+// lobe ks, shininess: sum of w f flux / ((1 - 2/(3k)) pi r^2), with Jensen's
+// cone filter w = 1 - dist / (k r). Photons arriving from behind the surface
+// are left out. One query, in scalar code: each lane walks its own cells, so
+// no lane waits for a denser neighbour.
+inline real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, real3 kd, real3 ks, real shininess,
+                               real u)
+{
+    real r2 = pm->radius * pm->radius;
+    real inv_kr = R(1) / (pm->cone_k * pm->radius);
+    int3 base = grid_cell(x, pm->inv_cell);
+    real3 sum_d = (real3)(R(0)), sum_s = (real3)(R(0));
+#if CLPT_HAS_PHONG
+    real3 refl = d - R(2) * dot(d, n) * n;
+    int phong = ks.x > R(0) || ks.y > R(0) || ks.z > R(0);
+#endif
+    uint found = 0;
+    for (int row = 0; row < 9 && found < pm->max_photons; row++) {
+        int3 cell = base + (int3)(-1, row % 3 - 1, row / 3 - 1);  // first cell of the row
+        uint b = grid_bucket(cell, pm->mask);
+        // Buckets b, b+1, b+2 hold the row; the last ones may wrap to bucket 0.
+        uint n_first = min(3u, pm->mask + 1u - b);
+        uint s0 = pm->bucket_start[b], e0 = pm->bucket_start[b + n_first];
+        uint s1 = pm->bucket_start[0], e1 = n_first == 3u ? s1 : pm->bucket_start[3u - n_first];
+        uint count = (e0 - s0) + (e1 - s1);
+        uint stride = count > pm->budget ? (count + pm->budget - 1u) / pm->budget : 1u;
+        uint offset = min((uint)(u * (real)stride), stride - 1u);
+        real weight = (real)stride;
+        for (int part = 0; part < 2; part++) {
+            uint end = part == 0 ? e0 : e1;
+            // Continue the stride across the wrap: index k of the row is visited when k % stride == offset.
+            uint first = part == 0 ? s0 + offset : s1 + (offset + stride - (e0 - s0) % stride) % stride;
+            for (uint i = first; i < end; i += stride) {
+                float4 p = pm->pos[i];
+                real3 to = REAL3(p.xyz) - x;
+                real d2 = dot(to, to);
+                if (d2 >= r2)
+                    continue;
+                int3 pc = grid_cell(REAL3(p.xyz), pm->inv_cell);
+                if (pc.y != cell.y || pc.z != cell.z || pc.x < cell.x || pc.x > cell.x + 2)
+                    continue;  // another cell's photon in these buckets
+                real3 w_in = REAL3(pm->dir[i].xyz);
+                if (dot(w_in, n) >= R(0))
+                    continue;  // arrives from behind the surface
+                real3 flux = REAL3(pm->pow[i].xyz) * (weight * (R(1) - sqrt(d2) * inv_kr));
+                sum_d += flux;
+#if CLPT_HAS_PHONG
+                if (phong) {
+                    real ca = -dot(refl, w_in);
+                    sum_s += flux * (ca > R(0) ? exp(shininess * log(fmax(ca, R(1e-30)))) : R(0));
+                }
+#endif
+                if (++found >= pm->max_photons)
+                    break;
+            }
+            if (n_first == 3u || found >= pm->max_photons)
+                break;
+        }
+    }
+    real3 f_sum = kd * R(M_1_PI) * sum_d;
+#if CLPT_HAS_PHONG
+    f_sum += ks * ((shininess + R(2)) * R(0.5 * M_1_PI)) * sum_s;
+#endif
+    return f_sum / ((R(1) - R(2) / (R(3) * pm->cone_k)) * R(M_PI) * r2);
+}
+
+// The gather for the lanes in `active`, one lane at a time (u: per-lane
+// random numbers for the subsampling offsets).
+inline V3 photon_gather(const PhotonMap *pm, const Material *m, V3 x, V3 n, V3 d, vreal u, vmask active)
+{
+    V3 out = v3_zero();
+    for (int l = 0; l < CLPT_LANES; l++) {
+        if (VLANE_M(active, l) == 0)
+            continue;
+        real3 xl = (real3)(VLANE_R(x.x, l), VLANE_R(x.y, l), VLANE_R(x.z, l));
+        real3 nl = (real3)(VLANE_R(n.x, l), VLANE_R(n.y, l), VLANE_R(n.z, l));
+        real3 dl = (real3)(VLANE_R(d.x, l), VLANE_R(d.y, l), VLANE_R(d.z, l));
+        real3 kd = (real3)(VLANE_R(m->kd.x, l), VLANE_R(m->kd.y, l), VLANE_R(m->kd.z, l));
+        real3 ks = (real3)(VLANE_R(m->ks.x, l), VLANE_R(m->ks.y, l), VLANE_R(m->ks.z, l));
+        real3 L = photon_gather_one(pm, xl, nl, dl, kd, ks, VLANE_R(m->shininess, l), VLANE_R(u, l));
+        VLANE_R(out.x, l) = L.x;
+        VLANE_R(out.y, l) = L.y;
+        VLANE_R(out.z, l) = L.z;
+    }
+    return out;
+}

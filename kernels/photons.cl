@@ -1,0 +1,175 @@
+// photons.cl: trace_photons, the caustic photon pass.
+//
+// Each photon leaves a light (picked by power, a point uniform by area) in a
+// direction aimed at the caustic casters (purely specular objects, scene
+// records after the lights: bounding sphere centre and radius, radius < 0
+// for an unbounded one). aim_mode 0 picks a caster in proportion to the solid
+// angle of its bounding cone weighted by the largest cosine at the light
+// inside it; aim_mode 1 picks casters equally, as in the paper. The direction
+// is uniform in the chosen cone, and its pdf is the mixture over every cone
+// that contains it, so the photons' flux stays unbiased either way:
+//   flux = Le |cos| / (pdf_area pdf_sa) / n_emit.
+// Photons follow mirror/refraction choices by Russian roulette over kr, kt
+// and absorption, and are stored at the first surface with a diffuse or
+// Phong part after at least one specular bounce (L S+ D), then stop.
+//
+// Launch: one work-item per CLPT_LANES photons (index gid * CLPT_LANES +
+// lane); any local size. Photon i is written to slot i, stored or not
+// (pos.w = 1 marks a stored one), so the result does not depend on timing.
+// Buffers: scene in; ph_pos, ph_dir, ph_pow out; n_stored in/out (atomic).
+
+#define PHOTON_MAX_BOUNCES 64
+#define PHOTON_SEED_SALT 0x5bd1e995u
+
+typedef struct {
+    V3 w;         // direction
+    vreal pdf;    // solid-angle pdf of w (mixture over the cones)
+    vmask valid;
+} AimSample;
+
+// Cone from y around caster obj's bounding sphere (the whole sphere of
+// directions, omc = 2, when y is inside it or the caster is unbounded), and
+// the caster's pick weight.
+inline vreal caster_cone(real4 obj, V3 y, V3 n, vmask two_sided, uint aim_mode, V3 *axis, vreal *omc)
+{
+    V3 dc = v3_sub(v3_splat(obj), y);
+    vreal d2 = v3_dot(dc, dc);
+    vmask full = (obj.w < R(0)) || d2 <= obj.w * obj.w;
+    vreal sin2 = fmin(obj.w * obj.w / d2, R(1));
+    *omc = VSEL(sin2 / (R(1) + vsafe_sqrt(R(1) - sin2)), (vreal)R(2), full);  // 1 - cos(theta_max)
+    *axis = v3_scale(dc, rsqrt(d2));
+    if (aim_mode != 0)
+        return (vreal)R(1);
+    // Solid angle times the largest cosine at the light within the cone: zero
+    // only for a cone wholly behind the light's emitting side.
+    vreal c = v3_dot(*axis, n);
+    c = VSEL(c, fabs(c), two_sided);
+    vreal s = vsafe_sqrt(R(1) - c * c);
+    vreal cos_max = R(1) - *omc, sin_max = vsafe_sqrt(*omc * (R(2) - *omc));
+    vreal best = VSEL(c * cos_max + s * sin_max, (vreal)R(1), full || c >= cos_max);
+    return R(2 * M_PI) * *omc * fmax(best, R(0));
+}
+
+inline AimSample aim_at_casters(const Scene *sc, V3 y, V3 n, vmask two_sided, uint aim_mode, vreal u0,
+                                vreal u1, vreal u2)
+{
+    AimSample a;
+    V3 axis;
+    vreal omc;
+    vreal total = (vreal)R(0);
+    for (uint j = 0; j < NUM_CAUSTICS; j++)
+        total += caster_cone(scene_rec(sc, OFF_CAUSTICS + j), y, n, two_sided, aim_mode, &axis, &omc);
+    // Pick a caster by weight, and a direction uniform in its cone.
+    vreal pick = u0 * total, acc = (vreal)R(0);
+    vmask taken = total != total;
+    a.w = v3_zero();
+    for (uint j = 0; j < NUM_CAUSTICS; j++) {
+        vreal w = caster_cone(scene_rec(sc, OFF_CAUSTICS + j), y, n, two_sided, aim_mode, &axis, &omc);
+        acc += w;
+        vmask sel = !taken && w > R(0) && (pick < acc || j + 1 == NUM_CAUSTICS);
+        taken = taken || sel;
+        V3 lc = sample_uniform_cone(u1, u2, omc);
+        a.w = v3_sel(a.w, frame_to_world(axis, lc.x, lc.y, lc.z), sel);
+    }
+    // The direction's pdf: the mixture over every cone that contains it.
+    vreal pdf = (vreal)R(0);
+    for (uint j = 0; j < NUM_CAUSTICS; j++) {
+        vreal w = caster_cone(scene_rec(sc, OFF_CAUSTICS + j), y, n, two_sided, aim_mode, &axis, &omc);
+        vmask inside = omc >= R(2) || v3_dot(a.w, axis) >= R(1) - omc;
+        pdf += VSEL((vreal)R(0), w / total * uniform_cone_pdf(omc), inside && w > R(0));
+    }
+    a.pdf = pdf;
+    a.valid = taken && total > R(0) && pdf > R(0);
+    return a;
+}
+
+__kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_abs, uint seed, uint n_emit,
+                            uint aim_mode, __global float4 *ph_pos, __global float4 *ph_dir, __global float4 *ph_pow,
+                            __global uint *n_stored)
+{
+    Scene scd;
+#if CLPT_BAKED
+    scd.rec = clpt_scene;
+#else
+    scd.rec = scene;
+#endif
+    scd.n_materials = counts.s0; scd.n_spheres = counts.s1; scd.n_quads = counts.s2;
+    scd.n_triangles = counts.s3; scd.n_planes = counts.s4; scd.n_lights = counts.s5; scd.n_caustics = counts.s6;
+    scd.eps_abs = eps_abs;
+    const Scene *sc = &scd;
+
+    uint gid = get_global_id(0);
+    vuint idx = (vuint)(gid * CLPT_LANES) + VLANE_IDS;
+    uint first = gid * CLPT_LANES;
+    vmask live = VREAL(VLANE_IDS) < (real)(first < n_emit ? min(n_emit - first, (uint)CLPT_LANES) : 0u);
+    uint pseed = seed ^ PHOTON_SEED_SALT;  // photon streams apart from the camera's
+    vuint zero_u = (vuint)0u;
+
+    // --- emission ---------------------------------------------------------------
+    Rand4 r0 = rng_uniform4(pseed, idx, zero_u, zero_u);
+    Rand4 r1 = rng_uniform4(pseed, idx, zero_u, zero_u + 1u);
+    LightPoint lp = light_sample_point(sc, r0.a, r0.b, r0.c);
+    AimSample aim = aim_at_casters(sc, lp.p, lp.n, lp.two_sided, aim_mode, r0.d, r1.a, r1.b);
+    vreal cos_y = v3_dot(aim.w, lp.n);
+    vmask emits = cos_y > R(0) || (lp.two_sided && cos_y < R(0));
+    live = live && aim.valid && emits && lp.pdf_area > R(0);
+    vreal k = fabs(cos_y) / (lp.pdf_area * aim.pdf * (real)n_emit);
+    V3 flux = v3_scale(lp.Le, VSEL((vreal)R(0), k, live));
+    V3 o = offset_origin(sc, lp.p, v3_sel(v3_neg(lp.n), lp.n, cos_y > R(0)));
+    V3 d = aim.w;
+
+    // --- through specular surfaces to the first diffuse one ----------------------
+    vmask stored = live && !live;
+    V3 s_pos = v3_zero(), s_dir = v3_zero();
+    vreal bounces = (vreal)R(0);
+    for (uint b = 0; b < PHOTON_MAX_BOUNCES && VANY(live); b++) {
+        Hit h = scene_intersect(sc, o, d);
+        live = live && h.t < R(INFINITY);
+        Material m = material_fetch(sc, h.mat);
+        V3 x = v3_fma(d, h.t, o);
+        vmask diffuse = live && m.nondelta != R(0);
+        vmask store = diffuse && bounces > R(0);
+        s_pos = v3_sel(s_pos, x, store);
+        s_dir = v3_sel(s_dir, d, store);
+        stored = stored || store;
+        live = live && !diffuse;
+        if (!VANY(live))
+            break;
+        vmask front = v3_dot(h.ng, d) < R(0);
+        V3 n = v3_sel(v3_neg(h.ng), h.ng, front);
+        Rand4 rb = rng_uniform4(pseed, idx, zero_u, zero_u + (2u + b));
+        // Russian roulette over the delta lobes; absorption takes the rest.
+        vmask is_r = rb.a < m.p_r;
+        vmask is_t = !is_r && rb.a < m.p_r + m.p_t;
+        V3 wi = v3_reflect(d, n);
+        V3 w = v3_scale(m.kr, R(1) / m.p_r);
+        vmask up = live;
+#if CLPT_HAS_GLASS
+        if (VANY(is_t)) {
+            vmask refl;
+            vreal eta;
+            V3 wt = dielectric_sample(d, n, front, m.ior, rb.b, &refl, &eta);
+            wi = v3_sel(wi, wt, is_t);
+            w = v3_sel(w, v3_scale(m.kt, R(1) / m.p_t), is_t);  // flux does not scale with eta^2
+            up = up && !(is_t && !refl);
+        }
+#endif
+        live = live && (is_r || is_t);
+        flux = v3_sel(flux, v3_mul(flux, w), live);
+        o = v3_sel(o, offset_origin(sc, x, v3_sel(v3_neg(n), n, up)), live);
+        d = v3_sel(d, v3_normalize(wi), live);
+        bounces = bounces + R(1);
+    }
+
+    stored = stored && v3_max_comp(flux) > R(0) && isfinite(flux.x + flux.y + flux.z);
+    atomic_add(n_stored, vpopcount(stored));
+    for (int l = 0; l < CLPT_LANES; l++) {
+        uint i = first + l;
+        if (i >= n_emit)
+            break;
+        int st = VLANE_M(stored, l) != 0;
+        ph_pos[i] = (float4)(VLANE_R(s_pos.x, l), VLANE_R(s_pos.y, l), VLANE_R(s_pos.z, l), st ? 1.0f : 0.0f);
+        ph_dir[i] = (float4)(VLANE_R(s_dir.x, l), VLANE_R(s_dir.y, l), VLANE_R(s_dir.z, l), 0.0f);
+        ph_pow[i] = st ? (float4)(VLANE_R(flux.x, l), VLANE_R(flux.y, l), VLANE_R(flux.z, l), 0.0f) : (float4)(0.0f);
+    }
+}
