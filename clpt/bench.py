@@ -22,6 +22,8 @@ import sys
 import tempfile
 import time
 
+import numpy as np
+
 
 def _cold_build_child(scene: str, device, lanes, precision, kernel, nee) -> dict:
     from .render import Renderer
@@ -121,4 +123,121 @@ def run_bench(a) -> int:
               f"({'cache hit' if r['warm_build_cache_hit'] else 'cache miss'})")
         if r["nonfinite"]:
             print(f"  non-finite  {r['nonfinite']} samples dropped")
+    return 0
+
+
+# --- photon mapping -------------------------------------------------------------------------
+
+
+def measure_photon_builds(scene, counts, *, device=None, repeats=3) -> list[dict]:
+    """Device times of the photon pass and of the grid build, per photon count
+    (medians over `repeats` builds with different seeds)."""
+    from .photons import PhotonSettings
+    from .render import Renderer
+
+    r = Renderer(scene, device=device)
+    if not r.features.photons:
+        raise ValueError(f"{scene}: no caustic casters, so no photon map to measure")
+    st = r.states[0]
+    rows = []
+    for n in counts:
+        s = PhotonSettings(count=int(n))
+        infos = [st.build_photons(seed, s, s.radius_for(r.packed.size), 1) for seed in range(repeats + 1)][1:]
+        rows.append({"photons": int(n), "stored": infos[-1]["stored"],
+                     "trace_ms": statistics.median(i["trace_seconds"] for i in infos) * 1e3,
+                     "grid_ms": statistics.median(i["grid_seconds"] for i in infos) * 1e3})
+    return rows
+
+
+def _pass_rate(res) -> float:
+    """Samples per second of a render's passes (the 1-sample probe pass left out)."""
+    passes = res.stats.passes[1:] or res.stats.passes
+    return sum(p[2] for p in passes) * res.image.shape[0] * res.image.shape[1] / sum(p[3] for p in passes)
+
+
+def measure_gather_cost(scene, *, device=None, width=128, height=128, spp=64, rounds=3) -> dict:
+    """Per-sample time of path tracing alone and with the photon gather in
+    every sample (online), in interleaved rounds; the difference is the gather."""
+    from .photons import PhotonSettings
+    from .render import Renderer
+
+    pt = Renderer(scene, device=device, photons=False)
+    pm = Renderer(scene, device=device)
+    for r in (pt, pm):
+        r.render(1, width=width, height=height)
+    t_pt, t_pm = [], []
+    for i in range(rounds):
+        t_pt.append(1 / _pass_rate(pt.render(spp, width=width, height=height, seed=i, pass_seconds=1e9)))
+        t_pm.append(1 / _pass_rate(pm.render(spp, width=width, height=height, seed=i, pass_seconds=1e9,
+                                             photons=PhotonSettings(mode="online"))))
+    a, b = statistics.median(t_pt), statistics.median(t_pm)
+    return {"path_tracing_us_per_sample": a * 1e6, "with_gather_us_per_sample": b * 1e6,
+            "gather_us_per_sample": (b - a) * 1e6}
+
+
+def caustic_equal_time(scene, *, device=None, width=128, height=128, seconds=(2.0, 8.0), reference=None,
+                       ref_spp=16384) -> dict:
+    """Error against a high-spp path-traced reference (rendered and saved to
+    `reference` when that file does not exist) in the caustic region (where
+    the offline caustic buffer is at least 5% of its peak) and over the whole
+    image, for path tracing alone and with photons, at equal render times."""
+    from pathlib import Path
+
+    from .image import load_image, save_image
+    from .photons import PhotonSettings
+    from .render import Renderer
+
+    ref_path = Path(reference) if reference else None
+    if ref_path is not None and ref_path.exists():
+        ref = load_image(ref_path)[..., :3].astype(np.float64)
+    else:
+        ref = Renderer(scene, device=device, photons=False).render(
+            ref_spp, width=width, height=height, seed=12345).image.astype(np.float64)
+        if ref_path is not None:
+            save_image(ref_path, ref.astype(np.float32))
+    pm = Renderer(scene, device=device)
+    probe = pm.render(16, width=width, height=height, photons=PhotonSettings(mode="offline"))
+    lum = probe.caustic_image @ np.array([0.2126, 0.7152, 0.0722])
+    region = lum >= 0.05 * lum.max()
+    pt = Renderer(scene, device=device, photons=False)
+    pt.render(1, width=width, height=height)
+    out = {"caustic_pixels": int(region.sum()), "runs": []}
+    configs = [("path tracing", pt, None), ("photons offline", pm, PhotonSettings(mode="offline")),
+               ("photons online", pm, PhotonSettings(mode="online")),
+               ("photons progressive", pm, PhotonSettings(progressive=True, spp_per_map=8))]
+    for t in seconds:
+        for name, r, ps in configs:
+            res = r.render(1 << 24, width=width, height=height, seed=7, time_limit=t, photons=ps)
+            d = res.image.astype(np.float64) - ref
+            out["runs"].append({"method": name, "seconds": round(res.stats.render_seconds, 2), "spp": res.spp,
+                                "rmse_caustic": float(np.sqrt((d[region] ** 2).mean())),
+                                "rmse_image": float(np.sqrt((d ** 2).mean()))})
+    return out
+
+
+def run_bench_photons(a) -> int:
+    counts = [int(float(c)) for c in a.counts.split(",")]
+    builds = measure_photon_builds(a.scene, counts, device=a.device)
+    gather = measure_gather_cost(a.scene, device=a.device, width=a.width, height=a.height)
+    result = {"builds": builds, "gather": gather}
+    if a.equal_time:
+        result["equal_time"] = caustic_equal_time(a.scene, device=a.device, width=a.width, height=a.height,
+                                                  seconds=[float(s) for s in a.equal_time.split(",")],
+                                                  reference=a.reference, ref_spp=a.ref_spp)
+    if a.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    print(f"photon maps of {a.scene} (device times, medians of 3 builds):")
+    for b in builds:
+        print(f"  {b['photons']:>10} photons: {b['stored']:>10} stored, photon pass {b['trace_ms']:8.1f} ms, "
+              f"grid build {b['grid_ms']:7.1f} ms")
+    print(f"gather ({a.width}x{a.height}, online, default settings): path tracing "
+          f"{gather['path_tracing_us_per_sample']:.3f} us/sample, with gather {gather['with_gather_us_per_sample']:.3f}"
+          f" us/sample: the gather costs {gather['gather_us_per_sample']:.3f} us/sample")
+    if a.equal_time:
+        et = result["equal_time"]
+        print(f"equal-time error against the path-traced reference ({et['caustic_pixels']} caustic pixels):")
+        for run in et["runs"]:
+            print(f"  {run['method']:20s} {run['seconds']:6.2f} s {run['spp']:7d} spp  RMSE caustic "
+                  f"{run['rmse_caustic']:.4f}, image {run['rmse_image']:.4f}")
     return 0

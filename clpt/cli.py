@@ -53,9 +53,49 @@ def _add_render_options(p):
     p.add_argument("--no-cache", action="store_true", help="do not use the kernel build cache")
 
 
+def _add_photon_options(p):
+    g = p.add_argument_group("caustic photons (scenes with mirror or glass objects)")
+    g.add_argument("--photons", type=int, default=None, metavar="N",
+                   help="photons per photon map (default 200000); 0 turns photon mapping off")
+    g.add_argument("--radius", type=float, default=None, help="gather radius, a fraction of the scene size "
+                                                              "(default 0.008), or absolute with --radius-absolute")
+    g.add_argument("--radius-absolute", action="store_true")
+    g.add_argument("--cone-k", type=float, default=None, help="cone filter constant k >= 1 (default 1.1)")
+    g.add_argument("--max-photons", type=int, default=None,
+                   help="use at most this many photons per gather (the paper's cap; default: no cap)")
+    g.add_argument("--photon-budget", type=int, default=None,
+                   help="photons visited per row of cells before unbiased subsampling (default 128)")
+    g.add_argument("--photon-mode", choices=("online", "offline"), default=None,
+                   help="gather in every sample, or once in a pre-pass into a caustic buffer (default)")
+    g.add_argument("--offline-spp", type=int, default=None, help="samples per pixel of the offline pre-pass")
+    g.add_argument("--aim", choices=("solid_angle", "equal"), default=None,
+                   help="share photons among casters by solid angle (default) or equally (the paper)")
+    g.add_argument("--progressive", action="store_true",
+                   help="a fresh photon map every --spp-per-map samples, with a shrinking radius")
+    g.add_argument("--alpha", type=float, default=None, help="progressive radius reduction (default 0.7)")
+    g.add_argument("--spp-per-map", type=int, default=None, help="samples per pixel per photon map (progressive)")
+
+
+def _photon_settings(a):
+    from .photons import PhotonSettings
+
+    fields = {"count": a.photons, "radius": a.radius, "cone_k": a.cone_k, "max_photons": a.max_photons,
+              "budget": a.photon_budget, "mode": a.photon_mode, "offline_spp": a.offline_spp, "aim": a.aim,
+              "alpha": a.alpha, "spp_per_map": a.spp_per_map}
+    kw = {k: v for k, v in fields.items() if v is not None}
+    if a.radius_absolute:
+        kw["radius_absolute"] = True
+    if a.progressive:
+        kw["progressive"] = True
+    return PhotonSettings(**kw).check()
+
+
 def _renderer_kwargs(a):
-    return dict(device=a.device, lanes=a.lanes, precision=a.precision, kernel=a.kernel, nee=not a.no_nee,
-                use_cache=not a.no_cache)
+    kw = dict(device=a.device, lanes=a.lanes, precision=a.precision, kernel=a.kernel, nee=not a.no_nee,
+              use_cache=not a.no_cache)
+    if getattr(a, "photons", None) == 0:
+        kw["photons"] = False
+    return kw
 
 
 def cmd_render(a) -> int:
@@ -64,6 +104,7 @@ def cmd_render(a) -> int:
 
     scene = load_scene(a.scene)
     out = Path(a.output) if a.output else Path(Path(a.scene).stem + ".png")
+    photons = _photon_settings(a) if a.photons != 0 else None
     r = Renderer(scene, **_renderer_kwargs(a))
     if a.verbose:
         for st in r.states:
@@ -74,7 +115,7 @@ def cmd_render(a) -> int:
                   file=sys.stderr)
     show, end = _progress_printer(sys.stderr, not a.quiet and (a.progress or sys.stderr.isatty()))
     res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,
-                   height=a.height, progress=show, time_limit=a.time_limit)
+                   height=a.height, photons=photons, progress=show, time_limit=a.time_limit)
     end()
     res.save(out, exposure=a.exposure)
     st = res.stats
@@ -88,6 +129,11 @@ def cmd_render(a) -> int:
     if a.verbose:
         print(f"rays: {st.camera_rays} camera, {st.bounce_rays} bounce, {st.shadow_rays} shadow "
               f"({st.rays / secs / 1e6:.2f} Mrays/s); first launch {st.first_launch_seconds:.3f}s", file=sys.stderr)
+        for m in st.photon_maps[:3]:
+            print(f"photon map: {m['stored']} of {res.photons.count} photons stored, radius {m['radius']:.4g}, "
+                  f"trace {m['trace_seconds'] * 1e3:.1f} ms, grid {m['grid_seconds'] * 1e3:.1f} ms", file=sys.stderr)
+        if len(st.photon_maps) > 3:
+            print(f"photon maps: {len(st.photon_maps)} in all", file=sys.stderr)
     if res.interrupted and a.time_limit is None:
         print(f"interrupted after {res.spp} spp; the image so far was written", file=sys.stderr)
         return 130
@@ -168,6 +214,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-q", "--quiet", action="store_true")
     p.add_argument("--progress", action="store_true", help="show progress even when not on a terminal")
     _add_render_options(p)
+    _add_photon_options(p)
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("bench", help="measure samples/s, rays/s and kernel build times")
@@ -185,6 +232,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--precision", choices=("float", "double"), default="float")
     p.add_argument("--no-nee", action="store_true")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("bench-photons", help="photon pass and grid build times, gather cost, and the error "
+                                             "of caustics at equal render time")
+    p.add_argument("scene", nargs="?", default="cornell_box_caustics")
+    p.add_argument("--counts", default="1e5,1e6,1e7", help="photon counts to build (comma list)")
+    p.add_argument("--width", type=int, default=128)
+    p.add_argument("--height", type=int, default=128)
+    p.add_argument("--equal-time", default=None, metavar="SECONDS",
+                   help="also compare errors at these render times (comma list)")
+    p.add_argument("--reference", default=None, help="reference EXR: read if it exists, else rendered and saved")
+    p.add_argument("--ref-spp", type=int, default=16384)
+    p.add_argument("--device", "-d", default=None)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=lambda a: __import__("clpt.bench", fromlist=["x"]).run_bench_photons(a))
 
     p = sub.add_parser("devices", help="list the OpenCL devices")
     p.set_defaults(func=cmd_devices)

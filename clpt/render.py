@@ -68,6 +68,7 @@ class RenderResult:
     features: Features
     stats: RenderStats
     photons: PhotonSettings | None = None
+    caustic_image: np.ndarray | None = None  # offline photon mapping: the caustic buffer (part of image)
     interrupted: bool = False
 
     @property
@@ -409,8 +410,10 @@ class Renderer:
             interrupted = True
 
         mean, var, count = _combine(self.states, "main", n_pix)
+        caustic = None
         if offline:
             c_mean, c_var, c_count = _combine(self.states, "caustic", n_pix)
+            caustic = c_mean.astype(np.float32).reshape(height, width, 3)
             mean = mean + c_mean
             # As the variance of one sample: the caustic mean's variance scaled to count samples.
             var = var + c_var * np.maximum(count, 1.0) / np.maximum(c_count, 1.0)
@@ -427,7 +430,8 @@ class Renderer:
                             lum_var=var.reshape(height, width).astype(np.float32),
                             spp=int(count.max()) if n_pix else 0, seed=seed, max_depth=max_depth,
                             rr_depth=rr_depth, devices=[s.dctx.label for s in self.states],
-                            features=self.features, stats=stats, photons=pset, interrupted=interrupted)
+                            features=self.features, stats=stats, photons=pset, caustic_image=caustic,
+                            interrupted=interrupted)
 
 
 def render(scene, *, spp: int | None = None, seed: int | None = None, max_depth: int | None = None,

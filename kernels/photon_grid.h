@@ -65,48 +65,60 @@ inline real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, r
     int phong = ks.x > R(0) || ks.y > R(0) || ks.z > R(0);
 #endif
     uint found = 0;
-    for (int row = 0; row < 9 && found < pm->max_photons; row++) {
-        int3 cell = base + (int3)(-1, row % 3 - 1, row / 3 - 1);  // first cell of the row
-        uint b = grid_bucket(cell, pm->mask);
-        // Buckets b, b+1, b+2 hold the row; the last ones may wrap to bucket 0.
-        uint n_first = min(3u, pm->mask + 1u - b);
-        uint s0 = pm->bucket_start[b], e0 = pm->bucket_start[b + n_first];
-        uint s1 = pm->bucket_start[0], e1 = n_first == 3u ? s1 : pm->bucket_start[3u - n_first];
-        uint count = (e0 - s0) + (e1 - s1);
-        uint stride = count > pm->budget ? (count + pm->budget - 1u) / pm->budget : 1u;
-        uint offset = min((uint)(u * (real)stride), stride - 1u);
-        real weight = (real)stride;
-        for (int part = 0; part < 2; part++) {
-            uint end = part == 0 ? e0 : e1;
-            // Continue the stride across the wrap: index k of the row is visited when k % stride == offset.
-            uint first = part == 0 ? s0 + offset : s1 + (offset + stride - (e0 - s0) % stride) % stride;
-            for (uint i = first; i < end; i += stride) {
-                float4 p = pm->pos[i];
-                real3 to = REAL3(p.xyz) - x;
-                real d2 = dot(to, to);
-                if (d2 >= r2)
-                    continue;
-                int3 pc = grid_cell(REAL3(p.xyz), pm->inv_cell);
-                if (pc.y != cell.y || pc.z != cell.z || pc.x < cell.x || pc.x > cell.x + 2)
-                    continue;  // another cell's photon in these buckets
-                real3 w_in = REAL3(pm->dir[i].xyz);
-                if (dot(w_in, n) >= R(0))
-                    continue;  // arrives from behind the surface
-                real3 flux = REAL3(pm->pow[i].xyz) * (weight * (R(1) - sqrt(d2) * inv_kr));
-                sum_d += flux;
+    for (int dz = -1; dz <= 1; dz++) {
+        for (int dy = -1; dy <= 1; dy++) {
+            int3 cell = base + (int3)(-1, dy, dz);  // first cell of the row
+            uint b = grid_bucket(cell, pm->mask);
+            // Buckets b, b+1, b+2 hold the row; the last ones may wrap to bucket 0.
+            uint n_first = min(3u, pm->mask + 1u - b);
+            uint s0 = pm->bucket_start[b], e0 = pm->bucket_start[b + n_first];
+            uint s1 = 0u, e1 = 0u;
+            if (n_first < 3u) {
+                s1 = pm->bucket_start[0];
+                e1 = pm->bucket_start[3u - n_first];
+            }
+            uint count = (e0 - s0) + (e1 - s1);
+            if (count == 0u)
+                continue;
+            uint stride = 1u, offset = 0u;
+            if (count > pm->budget) {
+                stride = (count + pm->budget - 1u) / pm->budget;
+                offset = min((uint)(u * (real)stride), stride - 1u);
+            }
+            real weight = (real)stride;
+            for (int part = 0; part < 2; part++) {
+                uint end = part == 0 ? e0 : e1;
+                // The stride runs on across the wrap: row index k is visited when k % stride == offset.
+                uint first = part == 0 ? s0 + offset : s1 + (offset + stride - (e0 - s0) % stride) % stride;
+                for (uint i = first; i < end; i += stride) {
+                    float4 p = pm->pos[i];
+                    real3 to = REAL3(p.xyz) - x;
+                    real d2 = dot(to, to);
+                    if (d2 >= r2)
+                        continue;
+                    int3 pc = grid_cell(REAL3(p.xyz), pm->inv_cell);
+                    if (pc.y != cell.y || pc.z != cell.z || pc.x < cell.x || pc.x > cell.x + 2)
+                        continue;  // another cell's photon in these buckets
+                    real3 w_in = REAL3(pm->dir[i].xyz);
+                    if (dot(w_in, n) >= R(0))
+                        continue;  // arrives from behind the surface
+                    real3 flux = REAL3(pm->pow[i].xyz) * (weight * (R(1) - sqrt(d2) * inv_kr));
+                    sum_d += flux;
 #if CLPT_HAS_PHONG
-                if (phong) {
-                    real ca = -dot(refl, w_in);
-                    sum_s += flux * (ca > R(0) ? exp(shininess * log(fmax(ca, R(1e-30)))) : R(0));
-                }
+                    if (phong) {
+                        real ca = -dot(refl, w_in);
+                        sum_s += flux * (ca > R(0) ? exp(shininess * log(fmax(ca, R(1e-30)))) : R(0));
+                    }
 #endif
-                if (++found >= pm->max_photons)
+                    if (++found >= pm->max_photons)
+                        goto done;
+                }
+                if (n_first == 3u)
                     break;
             }
-            if (n_first == 3u || found >= pm->max_photons)
-                break;
         }
     }
+done:;
     real3 f_sum = kd * R(M_1_PI) * sum_d;
 #if CLPT_HAS_PHONG
     f_sum += ks * ((shininess + R(2)) * R(0.5 * M_1_PI)) * sum_s;
