@@ -56,9 +56,9 @@ def _add_render_options(p):
 def _add_photon_options(p):
     g = p.add_argument_group("caustic photons (scenes with mirror or glass objects)")
     g.add_argument("--photons", type=int, default=None, metavar="N",
-                   help="photons per photon map (default 200000); 0 turns photon mapping off")
+                   help="photons per photon map (default 1000000); 0 turns photon mapping off")
     g.add_argument("--radius", type=float, default=None, help="gather radius, a fraction of the scene size "
-                                                              "(default 0.008), or absolute with --radius-absolute")
+                                                              "(default 0.004), or absolute with --radius-absolute")
     g.add_argument("--radius-absolute", action="store_true")
     g.add_argument("--cone-k", type=float, default=None, help="cone filter constant k >= 1 (default 1.1)")
     g.add_argument("--max-photons", type=int, default=None,
@@ -66,7 +66,7 @@ def _add_photon_options(p):
     g.add_argument("--photon-budget", type=int, default=None,
                    help="photons visited per row of cells before unbiased subsampling (default 128)")
     g.add_argument("--photon-mode", choices=("online", "offline"), default=None,
-                   help="gather in every sample, or once in a pre-pass into a caustic buffer (default)")
+                   help="gather in every sample (default), or in a pre-pass into a caustic buffer")
     g.add_argument("--offline-spp", type=int, default=None, help="samples per pixel of the offline pre-pass")
     g.add_argument("--aim", choices=("solid_angle", "equal"), default=None,
                    help="share photons among casters by solid angle (default) or equally (the paper)")

@@ -33,11 +33,11 @@ class PhotonSettings:
     paper's cap, which biases dense regions dark). budget: most photons a
     gather visits per row of three cells; denser rows are subsampled without
     bias (every s-th photon from a random offset, weighted by s).
-    mode: "online" gathers in every sample; "offline" (the default) gathers in
+    mode: "online" (the default) gathers in every sample; "offline" gathers in
     the offline_spp samples per pixel of a pre-pass (at most the render's spp)
-    into a caustic buffer that is added to the image. With one photon map per
-    render the map's own noise dominates, so the extra gathers of online mode
-    buy little; progressive rendering gathers online. aim: "solid_angle" picks casters by the solid angle
+    into a caustic buffer that is added to the image: cheaper, but where a
+    caustic changes within a pixel, as at its focus, those few gathers leave
+    noise that online mode averages away. Progressive rendering gathers online. aim: "solid_angle" picks casters by the solid angle
     they subtend from the light, "equal" gives each the same share (the
     paper). progressive: a fresh photon map every spp_per_map samples per
     pixel, with the radius shrinking as r_i^2 = r_0^2 prod (j + alpha)/(j + 1)
@@ -45,13 +45,13 @@ class PhotonSettings:
     fixed blur.
     """
 
-    count: int = 200_000
-    radius: float = 0.008
+    count: int = 1_000_000
+    radius: float = 0.004
     budget: int = 128
     radius_absolute: bool = False
     cone_k: float = 1.1
     max_photons: int = 0
-    mode: str = "offline"
+    mode: str = "online"
     aim: str = "solid_angle"
     offline_spp: int = 16
     progressive: bool = False

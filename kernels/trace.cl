@@ -164,7 +164,10 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
     PhotonMap pm;
     pm.pos = ph_pos; pm.dir = ph_dir; pm.pow = ph_pow;
     pm.bucket_start = bucket_start;
-    pm.mask = pm_mask; pm.max_photons = pm_max; pm.budget = pm_budget;
+    pm.mask = pm_mask; pm.max_photons = pm_max;
+    // The pre-pass gathers only a few times per pixel: subsampling noise would
+    // not average out there, so it visits every photon.
+    pm.budget = pm_mode == PM_PREPASS ? 0xFFFFFFFFu : pm_budget;
     pm.radius = pm_radius; pm.inv_cell = R(1) / pm_radius; pm.cone_k = pm_cone_k;
     int gather = pm_mode == PM_ONLINE || pm_mode == PM_PREPASS;
     int prepass = pm_mode == PM_PREPASS;
