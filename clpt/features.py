@@ -26,6 +26,7 @@ class Features:
     mode: str = "specialized"
     nee: bool = True
     photons: bool = True       # caustic photon map (only for scenes with caustic casters)
+    aux: bool = False          # first-hit feature buffers (normal, albedo, depth) and the filter kernel
     spheres: bool = True
     quads: bool = True
     triangles: bool = True
@@ -46,6 +47,7 @@ class Features:
             "CLPT_BAKED": int(self.mode == "baked"),
             "CLPT_NEE": int(self.nee),
             "CLPT_PHOTONS": int(self.photons),
+            "CLPT_AUX": int(self.aux),
             "CLPT_HAS_SPHERES": int(self.spheres),
             "CLPT_HAS_QUADS": int(self.quads),
             "CLPT_HAS_TRIANGLES": int(self.triangles),
@@ -76,16 +78,17 @@ class Features:
 
 
 def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False, accum_double: bool = True,
-                   mode: str = "specialized", nee: bool = True, photons: bool | None = None) -> Features:
+                   mode: str = "specialized", nee: bool = True, photons: bool | None = None,
+                   aux: bool = False) -> Features:
     """photons: None turns them on exactly when the scene has caustic casters."""
     if mode not in KERNEL_MODES:
         raise ValueError(f"kernel mode must be one of {', '.join(KERNEL_MODES)} (got {mode!r})")
     use_photons = packed.has_caustics if photons is None else bool(photons) and packed.has_caustics
     if mode == "generic":
         return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
-                        photons=use_photons)
+                        photons=use_photons, aux=aux)
     return Features(
-        lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons,
+        lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
         spheres=packed.count("spheres") > 0,
         quads=packed.count("quads") > 0,
         triangles=packed.count("triangles") > 0,

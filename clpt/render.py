@@ -28,7 +28,9 @@ from . import program
 from .device import DeviceContext, DeviceError, select_devices
 from .features import Features, scene_features
 from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
-from .photons import PM_OFF, PM_OFFLINE, PM_ONLINE, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
+from .adaptive import AdaptiveSettings, allocate_error, allocate_paper
+from .denoise import ConeFilter, FilterSettings
+from .photons import PM_OFFLINE, PM_ONLINE, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
 from .scene import Scene, SceneError, load_scene
 
 LOCAL_SIZE_CPU = 16
@@ -48,6 +50,7 @@ class RenderStats:
     render_seconds: float = 0.0
     passes: list = field(default_factory=list)  # (device label, first sample, samples, seconds)
     photon_maps: list = field(default_factory=list)  # per build: stored, radius, trace/grid device seconds
+    adaptive_rounds: int = 0
     launches: dict = field(default_factory=dict)  # kernel name -> launches, all devices
 
     @property
@@ -69,6 +72,9 @@ class RenderResult:
     stats: RenderStats
     photons: PhotonSettings | None = None
     caustic_image: np.ndarray | None = None  # offline photon mapping: the caustic buffer (part of image)
+    aux: dict | None = None                  # feature images: normal, albedo, depth (Renderer(aux=True))
+    filtered: np.ndarray | None = None       # the edge-aware cone filter's output (render(filter=...))
+    adaptive: AdaptiveSettings | None = None
     interrupted: bool = False
 
     @property
@@ -133,7 +139,8 @@ class _DeviceState:
         generated = {}
         if features.mode == "baked":
             generated["<baked scene>"] = _baked_source(packed.records, features.double)
-        entries = ["trace.cl"] + (["photons.cl", "grid.cl"] if features.photons else [])
+        entries = (["trace.cl"] + (["photons.cl", "grid.cl"] if features.photons else [])
+                   + (["filter.cl"] if features.aux else []))
         source = program.stitch(entries, generated)
         self.program, self.build = program.build(dctx, source, features.options(), use_cache=use_cache)
         self.kernel = cl.Kernel(self.program, "trace_paths")
@@ -148,7 +155,7 @@ class _DeviceState:
         self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
         self.launched = False
         self.pmap = PhotonMap(dctx, self.program, real) if features.photons else None
-        self.pm_args = None
+        self.filter = ConeFilter(dctx, self.program) if features.aux else None
         self.launches = {}
 
     def allocate(self, n_pix: int, caustic_buffer: bool):
@@ -161,11 +168,19 @@ class _DeviceState:
             raise DeviceError(f"{n_pix} pixels need {need / 2**20:.0f} MiB of accumulation buffers, more than "
                               f"{self.dctx.label} offers ({dev.global_mem_size / 2**20:.0f} MiB, at most "
                               f"{dev.max_mem_alloc_size / 2**20:.0f} MiB per buffer); render a smaller image")
+        ctx, q, rw = self.dctx.context, self.dctx.queue, cl.mem_flags.READ_WRITE
         try:
             self.main = _Sums(self.dctx, n_pix, self.features.accum_double)
             self.caustic = _Sums(self.dctx, n_pix, self.features.accum_double) if caustic_buffer else None
-            self.stats_buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_WRITE, self.global_size * 16)
-            self.dctx.queue.finish()
+            self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
+            self.list_buf = cl.Buffer(ctx, rw, 4)   # adaptive passes replace these
+            self.jobs_buf = cl.Buffer(ctx, rw, 16)
+            self.aux = []
+            if self.features.aux:
+                self.aux = [cl.Buffer(ctx, rw, n_pix * 16) for _ in range(2)]
+                for b in self.aux:
+                    cl.enqueue_fill_buffer(q, b, np.float32(0), 0, n_pix * 16)
+            q.finish()
         except cl.Error as e:
             raise DeviceError(f"cannot allocate {need / 2**20:.0f} MiB on {self.dctx.label} for "
                               f"{n_pix} pixels ({e}); render a smaller image") from None
@@ -190,24 +205,50 @@ class _DeviceState:
         self.pmap.launches.clear()
         return {**info, "radius": radius, "seed": seed}
 
-    def run(self, s0: int, n: int, prepass: bool = False):
+    def run(self, s0: int, n: int, prepass: bool = False, pixels=None, jobs=None):
         """Add samples [s0, s0 + n) to every pixel (of the caustic buffer, for the
-        offline pre-pass); returns (seconds, stats row sums)."""
+        offline pre-pass), or, given pixels and jobs (adaptive), jobs[i] =
+        (samples, max depth, first sample index, 0) to pixel pixels[i]. Returns
+        (seconds, stats row sums)."""
         q = self.dctx.queue
         sums = self.caustic if prepass else self.main
         seed = (self.seed ^ PREPASS_SEED_SALT) if prepass else self.seed
+        global_size, n_list = self.global_size, 0
+        if pixels is not None:
+            n_list = len(pixels)
+            global_size = -(-(-(-n_list // self.features.lanes)) // self.local) * self.local
+            if global_size > len(self.stats_host):
+                self.stats_buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_WRITE, global_size * 16)
+                self.stats_host = np.empty((global_size, 4), dtype=np.uint32)
+            mf = cl.mem_flags
+            self.list_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                      hostbuf=np.ascontiguousarray(pixels, dtype=np.uint32))
+            self.jobs_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                      hostbuf=np.ascontiguousarray(jobs, dtype=np.uint32))
         args = [*self.head, np.uint32(s0), np.uint32(n), *self.depths, np.uint32(seed), sums.pix_sum, sums.pix_sq,
-                self.stats_buf]
+                self.stats_buf, self.list_buf, self.jobs_buf, np.uint32(n_list)]
+        if self.features.aux:
+            args += self.aux
         if self.features.photons:
             mode = PM_PREPASS if prepass else self.pm_mode
             args += self.pmap.kernel_args(self.pm_settings, mode)
         self.kernel.set_args(*args)
         t0 = time.perf_counter()
-        cl.enqueue_nd_range_kernel(q, self.kernel, (self.global_size,), (self.local,))
-        cl.enqueue_copy(q, self.stats_host, self.stats_buf)
+        cl.enqueue_nd_range_kernel(q, self.kernel, (global_size,), (self.local,))
+        stats = self.stats_host[:global_size]
+        cl.enqueue_copy(q, stats, self.stats_buf)
         seconds = time.perf_counter() - t0
         self.launches["trace_paths"] = self.launches.get("trace_paths", 0) + 1
-        return seconds, self.stats_host.sum(axis=0, dtype=np.uint64)
+        return seconds, stats.sum(axis=0, dtype=np.uint64)
+
+    def read_aux(self):
+        """Per-pixel feature sums: (normal xyz, count), (albedo rgb, distance)."""
+        q = self.dctx.queue
+        a, b = np.empty((self.n_pix, 4), np.float32), np.empty((self.n_pix, 4), np.float32)
+        cl.enqueue_copy(q, a, self.aux[0])
+        cl.enqueue_copy(q, b, self.aux[1])
+        q.finish()
+        return a.astype(np.float64), b.astype(np.float64)
 
 
 def _baked_source(records: np.ndarray, double: bool) -> str:
@@ -245,7 +286,7 @@ class Renderer:
 
     def __init__(self, scene, *, device=None, lanes: int | None = None, precision: str = "float",
                  kernel: str = "specialized", nee: bool = True, photons: bool | None = None,
-                 use_cache: bool = True, accumulate: str = "auto"):
+                 aux: bool = False, use_cache: bool = True, accumulate: str = "auto"):
         if isinstance(scene, (str, Path)):
             scene = load_scene(scene)
         if not isinstance(scene, Scene):
@@ -267,7 +308,7 @@ class Renderer:
             n_lanes = lanes or dctx.default_lanes()
             feats = scene_features(self.packed, lanes=n_lanes, double=precision == "double",
                                    accum_double=acc_double or precision == "double", mode=kernel, nee=nee,
-                                   photons=use_photons)
+                                   photons=use_photons, aux=aux)
             self.states.append(_DeviceState(dctx, self.packed, feats, use_cache))
         self.features = self.states[0].features
 
@@ -277,11 +318,17 @@ class Renderer:
 
     def render(self, spp: int | None = None, *, seed: int | None = None, max_depth: int | None = None,
                rr_depth: int | None = None, width: int | None = None, height: int | None = None,
-               photons: PhotonSettings | None = None, progress=None, time_limit: float | None = None,
-               pass_seconds: float = 0.25) -> RenderResult:
-        """Render; keywords override the scene's settings. progress(done_spp,
-        total_spp, elapsed_seconds, samples_per_second) is called after each pass.
-        Ctrl-C (KeyboardInterrupt) ends the render early with what is done."""
+               photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
+               filter: FilterSettings | None = None, progress=None, preview=None,
+               time_limit: float | None = None, pass_seconds: float = 0.25) -> RenderResult:
+        """Render; keywords override the scene's settings.
+
+        spp is the average number of samples per pixel (with adaptive
+        sampling, the budget shared among the pixels). progress(done_spp,
+        total_spp, elapsed_seconds, samples_per_second) is called after each
+        pass; preview(image) every filter.interval passes with the filtered
+        image so far. Ctrl-C (KeyboardInterrupt) ends the render early with
+        what is done."""
         rs = self.scene.render
         spp = rs.spp if spp is None else spp
         seed = rs.seed if seed is None else seed
@@ -298,6 +345,12 @@ class Renderer:
         pset = (photons or PhotonSettings()).check() if self.features.photons else None
         progressive = pset is not None and pset.progressive
         offline = pset is not None and pset.mode == "offline" and not progressive
+        aset = adaptive.check() if adaptive is not None else None
+        fset = filter.check() if filter is not None else None
+        if fset is not None and not self.features.aux:
+            raise SceneError("render: the filter needs the feature buffers: make the Renderer with aux=True")
+        if aset is not None and progressive:
+            raise SceneError("render: adaptive sampling and progressive photon mapping cannot be combined")
         frame = camera_frame(self.scene.camera, width, height)
         n_pix = width * height
         stats = RenderStats(build_seconds=self.build_seconds,
@@ -308,9 +361,25 @@ class Renderer:
             st.launches = {}
 
         lock = threading.Lock()
-        state = {"next": 0, "done": 0, "stop": False, "error": None}
+        uniform_spp = spp if aset is None else min(spp, aset.min_spp)
+        budget = spp * n_pix  # samples in all
+        state = {"next": 0, "done": 0, "stop": False, "error": None, "passes": 0}
         t_start = time.perf_counter()
         mode = PM_OFFLINE if offline else PM_ONLINE  # progressive rendering gathers online
+
+        def elapsed():
+            return time.perf_counter() - t_start
+
+        def note_pass(st, s0, n, seconds, row):
+            with lock:
+                state["done"] += n
+                state["passes"] += 1
+                stats.nonfinite += int(row[0])
+                stats.camera_rays += int(row[1])
+                stats.bounce_rays += int(row[2])
+                stats.shadow_rays += int(row[3])
+                stats.passes.append((st.dctx.label, s0, n, seconds))
+                return state["done"], state["passes"]
 
         def photon_map(st, iteration):
             info = st.build_photons(photon_seed(seed, iteration), pset, pset.radius_for(self.packed.size, iteration),
@@ -322,7 +391,7 @@ class Renderer:
 
         def take(per_spp):
             with lock:
-                if state["stop"] or state["next"] >= spp:
+                if state["stop"] or state["next"] >= uniform_spp:
                     return None
                 s0 = state["next"]
                 if progressive:  # one photon map per spp_per_map samples
@@ -330,13 +399,13 @@ class Renderer:
                 else:
                     n = 1 if per_spp is None else int(max(1, min(pass_seconds / max(per_spp, 1e-9), 1 << 16)))
                 if time_limit is not None and per_spp is not None:
-                    left = time_limit - (time.perf_counter() - t_start)
+                    left = time_limit - elapsed()
                     if left < per_spp * 0.5:
                         state["stop"] = True
                         return None
                     if not progressive:
                         n = max(1, min(n, int(left / per_spp)))
-                n = min(n, spp - s0)
+                n = min(n, uniform_spp - s0)
                 state["next"] = s0 + n
                 return s0, n
 
@@ -358,22 +427,40 @@ class Renderer:
                     else:  # may include the device's own lazy compile: not a pass-size guide
                         st.launched = True
                         stats.first_launch_seconds += seconds
-                    with lock:
-                        state["done"] += n
-                        stats.nonfinite += int(row[0])
-                        stats.camera_rays += int(row[1])
-                        stats.bounce_rays += int(row[2])
-                        stats.shadow_rays += int(row[3])
-                        stats.passes.append((st.dctx.label, s0, n, seconds))
-                        done = state["done"]
-                    if progress is not None and len(self.states) == 1:
-                        el = time.perf_counter() - t_start
-                        progress(done, spp, el, done * n_pix / max(el, 1e-9))
+                    done, passes = note_pass(st, s0, n, seconds, row)
+                    if len(self.states) == 1:
+                        if progress is not None:
+                            progress(done, spp, elapsed(), done * n_pix / max(elapsed(), 1e-9))
+                        if preview is not None and fset is not None and fset.interval and passes % fset.interval == 0:
+                            preview(self._finish(n_pix, width, height, offline, fset)[0])
             except BaseException as e:  # noqa: BLE001 - handed to the main thread
                 with lock:
                     state["error"] = e
                     state["stop"] = True
 
+        interrupted = self._run_threads(work, state, lock, progress, spp, n_pix, elapsed)
+        if aset is not None and not interrupted and not state["stop"]:
+            interrupted = self._adaptive_rounds(aset, max_depth, budget, n_pix, width, height, state, lock,
+                                                note_pass, stats, progress, spp, elapsed, time_limit)
+        if state["error"] is not None:
+            raise state["error"]
+        if time_limit is not None and state["done"] < spp and aset is None:
+            interrupted = True
+
+        image, var, count, caustic, aux, filtered = self._finish(n_pix, width, height, offline, fset)
+        stats.render_seconds = elapsed()
+        for st in self.states:
+            for k, v in st.launches.items():
+                stats.launches[k] = stats.launches.get(k, 0) + v
+        return RenderResult(image=image, sample_count=count.reshape(height, width).astype(np.uint32),
+                            lum_var=var.reshape(height, width).astype(np.float32),
+                            spp=int(count.max()) if n_pix else 0, seed=seed, max_depth=max_depth,
+                            rr_depth=rr_depth, devices=[s.dctx.label for s in self.states],
+                            features=self.features, stats=stats, photons=pset, caustic_image=caustic,
+                            aux=aux, filtered=filtered, adaptive=aset, interrupted=interrupted)
+
+    def _run_threads(self, work, state, lock, progress, spp, n_pix, elapsed) -> bool:
+        """Run work(state) on every device (in threads when several); True if interrupted."""
         interrupted = False
         if len(self.states) == 1:
             try:
@@ -383,32 +470,89 @@ class Renderer:
             if isinstance(state["error"], KeyboardInterrupt):
                 interrupted = True
                 state["error"] = None
-        else:
-            threads = [threading.Thread(target=work, args=(st,), daemon=True) for st in self.states]
-            for t in threads:
-                t.start()
-            try:
-                last = -1
-                while any(t.is_alive() for t in threads):
-                    for t in threads:
-                        t.join(timeout=0.1)
-                    with lock:
-                        done = state["done"]
-                    if progress is not None and done != last:
-                        last = done
-                        el = time.perf_counter() - t_start
-                        progress(done, spp, el, done * n_pix / max(el, 1e-9))
-            except KeyboardInterrupt:
-                interrupted = True
+            return interrupted
+        threads = [threading.Thread(target=work, args=(st,), daemon=True) for st in self.states]
+        for t in threads:
+            t.start()
+        try:
+            last = -1
+            while any(t.is_alive() for t in threads):
+                for t in threads:
+                    t.join(timeout=0.1)
                 with lock:
-                    state["stop"] = True
+                    done = state["done"]
+                if progress is not None and done != last:
+                    last = done
+                    progress(done, spp, elapsed(), done * n_pix / max(elapsed(), 1e-9))
+        except KeyboardInterrupt:
+            interrupted = True
+            with lock:
+                state["stop"] = True
+            for t in threads:
+                t.join()
+        return interrupted
+
+    def _adaptive_rounds(self, aset, max_depth, budget, n_pix, width, height, state, lock, note_pass, stats,
+                         progress, spp, elapsed, time_limit) -> bool:
+        """Adaptive passes until the pixels are below the threshold (error
+        scheme) or the sample budget or time runs out. True if interrupted."""
+        luma = np.array([0.2126, 0.7152, 0.0722])
+        stats.adaptive_rounds = 0
+        try:
+            while True:
+                if time_limit is not None and elapsed() >= time_limit:
+                    break
+                mean, var, count = _combine(self.states, "main", n_pix)
+                used = int(count.sum())
+                left = budget - used
+                if left <= 0:
+                    break
+                shape = (height, width)
+                lum = (mean @ luma).reshape(shape)
+                if aset.scheme == "error":
+                    n, _ = allocate_error(lum, var.reshape(shape), count.reshape(shape), aset, left)
+                    depth = np.full(shape, max_depth)
+                else:
+                    n, depth, _ = allocate_paper(lum, aset, max_depth)
+                    if n.sum() > left:  # the last round: scale down to the budget
+                        n = np.floor(n * (left / n.sum())).astype(np.int64)
+                pixels = np.flatnonzero(n)
+                if len(pixels) == 0:
+                    break
+                jobs = np.zeros((len(pixels), 4), dtype=np.uint32)
+                jobs[:, 0] = n.ravel()[pixels]
+                jobs[:, 1] = np.minimum(depth.ravel()[pixels], 2**31)
+                jobs[:, 2] = count[pixels]  # each pixel continues its own sample sequence
+                # Split the list among the devices in contiguous parts.
+                parts = np.array_split(np.arange(len(pixels)), len(self.states))
+                errors = []
+
+                def one(st, idx):
+                    try:
+                        if len(idx):
+                            seconds, row = st.run(0, 0, pixels=pixels[idx], jobs=jobs[idx])
+                            note_pass(st, -1, int(jobs[idx, 0].sum()) / n_pix, seconds, row)
+                    except BaseException as e:  # noqa: BLE001
+                        errors.append(e)
+
+                threads = [threading.Thread(target=one, args=(st, idx)) for st, idx in zip(self.states, parts)]
+                for t in threads:
+                    t.start()
                 for t in threads:
                     t.join()
-        if state["error"] is not None:
-            raise state["error"]
-        if time_limit is not None and state["done"] < spp:
-            interrupted = True
+                if errors:
+                    raise errors[0]
+                stats.adaptive_rounds += 1
+                if progress is not None:
+                    done = (used + int(jobs[:, 0].sum())) / n_pix
+                    progress(min(done, spp), spp, elapsed(), done * n_pix / max(elapsed(), 1e-9))
+        except KeyboardInterrupt:
+            return True
+        return False
 
+    def _finish(self, n_pix, width, height, offline, fset):
+        """The image so far, its variance and counts, the caustic buffer, the
+        feature images and the filtered image."""
         mean, var, count = _combine(self.states, "main", n_pix)
         caustic = None
         if offline:
@@ -417,21 +561,28 @@ class Renderer:
             mean = mean + c_mean
             # As the variance of one sample: the caustic mean's variance scaled to count samples.
             var = var + c_var * np.maximum(count, 1.0) / np.maximum(c_count, 1.0)
-        stats.render_seconds = time.perf_counter() - t_start
-        for st in self.states:
-            for k, v in st.launches.items():
-                stats.launches[k] = stats.launches.get(k, 0) + v
         image = mean.astype(np.float32).reshape(height, width, 3)
         bad = ~np.isfinite(image)
         if bad.any():  # the kernels drop non-finite samples; this is the last guard
             warnings.warn(f"{int(bad.sum())} non-finite pixel values set to 0")
             image[bad] = 0.0
-        return RenderResult(image=image, sample_count=count.reshape(height, width).astype(np.uint32),
-                            lum_var=var.reshape(height, width).astype(np.float32),
-                            spp=int(count.max()) if n_pix else 0, seed=seed, max_depth=max_depth,
-                            rr_depth=rr_depth, devices=[s.dctx.label for s in self.states],
-                            features=self.features, stats=stats, photons=pset, caustic_image=caustic,
-                            interrupted=interrupted)
+        aux = filtered = None
+        if self.features.aux:
+            nsum, asum = np.zeros((n_pix, 4)), np.zeros((n_pix, 4))
+            for st in self.states:
+                a, b = st.read_aux()
+                nsum += a
+                asum += b
+            k = np.maximum(nsum[:, 3:4], 1.0)
+            normal = nsum[:, :3]
+            normal = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+            aux = {"normal": normal.reshape(height, width, 3).astype(np.float32),
+                   "albedo": (asum[:, :3] / k).reshape(height, width, 3).astype(np.float32),
+                   "depth": (asum[:, 3] / k[:, 0]).reshape(height, width).astype(np.float32)}
+            if fset is not None:
+                mean_var = (var / np.maximum(count, 1.0)).reshape(height, width)
+                filtered = self.states[0].filter(image, mean_var, aux["normal"], aux["albedo"], aux["depth"], fset)
+        return image, var, count, caustic, aux, filtered
 
 
 def render(scene, *, spp: int | None = None, seed: int | None = None, max_depth: int | None = None,
@@ -441,7 +592,8 @@ def render(scene, *, spp: int | None = None, seed: int | None = None, max_depth:
     settings; other keywords go to Renderer (lanes, precision, kernel, nee,
     photons: bool) or Renderer.render (rr_depth, progress, time_limit;
     photon_settings: a PhotonSettings)."""
-    render_kw = {k: kw.pop(k) for k in ("rr_depth", "progress", "time_limit", "pass_seconds") if k in kw}
+    render_kw = {k: kw.pop(k) for k in ("rr_depth", "progress", "time_limit", "pass_seconds", "adaptive")
+                 if k in kw}
     if "photon_settings" in kw:
         render_kw["photons"] = kw.pop("photon_settings")
     r = Renderer(scene, device=device, **kw)

@@ -20,8 +20,8 @@
 #if !defined(CLPT_HAS_TRIANGLE_LIGHTS) || !defined(CLPT_HAS_SPHERE_LIGHTS)
 #error "clpt: every CLPT_HAS_<kind>_LIGHTS flag must be defined"
 #endif
-#if !defined(CLPT_PHOTONS)
-#error "clpt: CLPT_PHOTONS must be defined"
+#if !defined(CLPT_PHOTONS) || !defined(CLPT_AUX)
+#error "clpt: CLPT_PHOTONS and CLPT_AUX must be defined"
 #endif
 #if !CLPT_GENERIC && (!defined(CLPT_NUM_MATERIALS) || !defined(CLPT_NUM_SPHERES) || !defined(CLPT_NUM_QUADS) \
     || !defined(CLPT_NUM_TRIANGLES) || !defined(CLPT_NUM_PLANES) || !defined(CLPT_NUM_LIGHTS) \

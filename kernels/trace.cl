@@ -7,9 +7,13 @@
 // size, so an image is bit-identical however it was scheduled.
 //
 // Launch: one work-item per group of CLPT_LANES consecutive pixels (row-major
-// index group * CLPT_LANES + lane); global size = number of groups in the
-// range, any local size. Each lane starts a new path as soon as its previous
-// one ends, so lanes stay busy while paths have different lengths.
+// index group * CLPT_LANES + lane), each taking samples [sample_begin,
+// sample_begin + n_samples) and max_depth; or, when n_list > 0 (adaptive
+// sampling), one work-item per CLPT_LANES entries of pix_list, each entry a
+// pixel with its own (samples, max depth, first sample index) in pix_jobs:
+// the host continues each pixel's sample sequence where it stands. Global size = groups (or entries / CLPT_LANES),
+// any local size. Each lane starts a new path as soon as its previous one
+// ends, so lanes stay busy while paths have different lengths.
 //
 // Buffers:
 //   scene     in   packed scene records (scene.h); unused when CLPT_BAKED
@@ -17,6 +21,12 @@
 //   pix_sq    in/out  per pixel: sum of squared luminance
 //   stats     out  per work-item: non-finite samples dropped, camera rays,
 //                  bounce rays, shadow rays (this launch)
+//   pix_list, pix_jobs  in  adaptive passes: pixels, their (samples, depth, first sample)
+//   aux_normal, aux_albedo  in/out (CLPT_AUX): per pixel, sums over samples
+//                  of the first non-delta vertex's shading normal (w: count)
+//                  and of its albedo seen through the specular chain (rgb)
+//                  and distance from the camera (w); 1, 1, 1 and no normal
+//                  for paths that meet no such vertex
 //
 // Estimator: path tracing with next event estimation at every vertex with a
 // non-delta lobe (CLPT_NEE). Emission found by a bounce counts only from the
@@ -35,7 +45,7 @@
 // gather there, and stop. pm_mode 0 ignores the photon map.
 //
 // Flags: CLPT_LANES, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC, CLPT_BAKED, CLPT_NEE,
-//   CLPT_PHOTONS, CLPT_HAS_{SPHERES,QUADS,TRIANGLES,PLANES}, CLPT_HAS_{PHONG,MIRROR,GLASS},
+//   CLPT_PHOTONS, CLPT_AUX, CLPT_HAS_{SPHERES,QUADS,TRIANGLES,PLANES}, CLPT_HAS_{PHONG,MIRROR,GLASS},
 //   CLPT_HAS_{TRIANGLE,SPHERE}_LIGHTS, CLPT_NUM_* (when not generic).
 
 #define PM_OFF 0
@@ -141,7 +151,11 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
                           real4 cam_o, real4 corner, real4 dx, real4 dy,
                           uint width, uint height, uint group_offset,
                           uint sample_begin, uint n_samples, uint max_depth, uint rr_depth, uint seed,
-                          __global pix_sum_t *pix_sum, __global pix_sq_t *pix_sq, __global uint4 *stats
+                          __global pix_sum_t *pix_sum, __global pix_sq_t *pix_sq, __global uint4 *stats,
+                          __global const uint *pix_list, __global const uint4 *pix_jobs, uint n_list
+#if CLPT_AUX
+                          , __global float4 *aux_normal, __global float4 *aux_albedo
+#endif
 #if CLPT_PHOTONS
                           , __global const float4 *ph_pos, __global const float4 *ph_dir,
                           __global const float4 *ph_pow, __global const uint *bucket_start,
@@ -176,7 +190,33 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 
     uint gid = get_global_id(0);
     uint n_pix = width * height;
-    vuint pixel = (vuint)((group_offset + gid) * CLPT_LANES) + VLANE_IDS;
+    vreal zero = (vreal)R(0);
+
+    // --- the lanes' pixels, sample ranges and depth limits ---------------------------
+    vuint pixel, s_begin;
+    vreal lane_n, lane_depth;
+    vmask pix_ok;
+    if (n_list == 0) {
+        uint first = (group_offset + gid) * CLPT_LANES;
+        pixel = (vuint)first + VLANE_IDS;
+        pix_ok = VREAL(VLANE_IDS) < (real)(first < n_pix ? min(n_pix - first, (uint)CLPT_LANES) : 0u);
+        s_begin = (vuint)sample_begin;
+        lane_n = (vreal)(real)n_samples;
+        lane_depth = (vreal)(real)max_depth;
+    } else {
+        pixel = s_begin = (vuint)0u;
+        lane_n = lane_depth = zero;
+        for (int l = 0; l < CLPT_LANES; l++) {
+            uint e = gid * CLPT_LANES + l;
+            uint p = e < n_list ? pix_list[e] : 0xFFFFFFFFu;
+            uint4 job = e < n_list ? pix_jobs[e] : (uint4)(0u);
+            VLANE_U(pixel, l) = p;
+            VLANE_U(s_begin, l) = job.z;
+            VLANE_R(lane_n, l) = (real)job.x;
+            VLANE_R(lane_depth, l) = (real)job.y;
+        }
+        pix_ok = lane_n > zero;
+    }
     vreal pxr = VREAL(pixel % width), pyr = VREAL(pixel / width);
 
     // Per-lane sums, read from and written back to this pixel's buffers.
@@ -187,13 +227,24 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         if (p < n_pix)
             pixel_acc_load(&acc, l, pix_sum, pix_sq, p);
     }
+#if CLPT_AUX
+    // Feature sums: normal xyz + count, albedo rgb + distance.
+    vreal fnx = zero, fny = zero, fnz = zero, fcount = zero, far = zero, fag = zero, fab = zero, fdist = zero;
+    for (int l = 0; l < CLPT_LANES; l++) {
+        uint p = VLANE_U(pixel, l);
+        if (p < n_pix) {
+            float4 a = aux_normal[p], b = aux_albedo[p];
+            VLANE_R(fnx, l) = a.x; VLANE_R(fny, l) = a.y; VLANE_R(fnz, l) = a.z; VLANE_R(fcount, l) = a.w;
+            VLANE_R(far, l) = b.x; VLANE_R(fag, l) = b.y; VLANE_R(fab, l) = b.z; VLANE_R(fdist, l) = b.w;
+        }
+    }
+    vmask feat_done = zero != zero;  // this sample's features are recorded
+    vreal path_len = zero;
+#endif
 
     uint nonfinite = 0, n_camera = 0, n_bounce = 0, n_shadow = 0;
-    vreal done_count = (vreal)R(0);  // samples finished per lane
-    vreal zero = (vreal)R(0);
-    uint first = (group_offset + gid) * CLPT_LANES;
-    vmask pix_ok = VREAL(VLANE_IDS) < (real)(first < n_pix ? min(n_pix - first, (uint)CLPT_LANES) : 0u);
-    vmask active = pix_ok && (real)n_samples > zero;
+    vreal done_count = zero;  // samples finished per lane
+    vmask active = pix_ok && lane_n > zero;
     vmask restart = active;
 
     PathState ps;
@@ -205,7 +256,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
     while (VANY(active)) {
         // --- start new paths in lanes whose previous path ended ----------------
         if (VANY(restart)) {
-            vuint sample = (vuint)sample_begin + VUINT(done_count);
+            vuint sample = s_begin + VUINT(done_count);
             Rand4 rc = rng_uniform4(seed, pixel, sample, (vuint)0);
             V3 dcam = camera_ray(corner, dx, dy, pxr + rc.a, pyr + rc.b);
             ps.o = v3_sel(ps.o, v3_splat(cam_o), restart);
@@ -215,9 +266,13 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
             ps.depth = VSEL(ps.depth, zero, restart);
             ps.own = VSEL(ps.own, zero, restart);
             ps.specular = ps.specular || restart;
+#if CLPT_AUX
+            feat_done = feat_done && !restart;
+            path_len = VSEL(path_len, zero, restart);
+#endif
             n_camera += vpopcount(restart);
         }
-        vuint sample = (vuint)sample_begin + VUINT(done_count);
+        vuint sample = s_begin + VUINT(done_count);
 
         // --- closest hit --------------------------------------------------------------
         Hit h = scene_intersect(sc, ps.o, ps.d);
@@ -226,6 +281,20 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         V3 x = v3_fma(ps.d, h.t, ps.o);
         vmask front = v3_dot(h.ng, ps.d) < R(0);
         V3 n = v3_sel(v3_neg(h.ng), h.ng, front);  // faces the incoming ray
+
+#if CLPT_AUX
+        // --- features for the filter, at the first vertex with a non-delta part ------
+        path_len = VSEL(path_len, path_len + h.t, hit);
+        vmask rec = hit && !feat_done && m.nondelta != R(0);
+        if (VANY(rec)) {
+            V3 alb = v3_mul(ps.beta, v3_add(m.kd, m.ks));
+            fnx = VSEL(fnx, fnx + n.x, rec); fny = VSEL(fny, fny + n.y, rec); fnz = VSEL(fnz, fnz + n.z, rec);
+            far = VSEL(far, far + alb.x, rec); fag = VSEL(fag, fag + alb.y, rec); fab = VSEL(fab, fab + alb.z, rec);
+            fdist = VSEL(fdist, fdist + path_len, rec);
+            fcount = VSEL(fcount, fcount + R(1), rec);
+            feat_done = feat_done || rec;
+        }
+#endif
 
         // --- emission ---------------------------------------------------------------------
         vmask sees = hit && (front || m.two_sided != R(0));
@@ -238,7 +307,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 #endif
         ps.L = v3_sel(ps.L, v3_add(ps.L, v3_mul(ps.beta, m.Le)), sees);
 
-        vmask go = hit && ps.depth < (real)max_depth;
+        vmask go = hit && ps.depth < lane_depth;
         vuint group = VUINT(ps.depth) * 2u + 1u;
 
 #if CLPT_PHOTONS
@@ -304,8 +373,16 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         vmask done = active && !cont;
         if (VANY(done)) {
             accumulate(done, ps.L, &acc, &nonfinite);
+#if CLPT_AUX
+            // No non-delta vertex (an emitter seen directly or through glass, or
+            // the void): no normal, albedo 1, the distance travelled.
+            vmask fb = done && !feat_done;
+            far = VSEL(far, far + R(1), fb); fag = VSEL(fag, fag + R(1), fb); fab = VSEL(fab, fab + R(1), fb);
+            fdist = VSEL(fdist, fdist + path_len, fb);
+            fcount = VSEL(fcount, fcount + R(1), fb);
+#endif
             done_count = VSEL(done_count, done_count + R(1), done);
-            restart = done && done_count < (real)n_samples;
+            restart = done && done_count < lane_n;
             active = (active && !done) || restart;
         } else {
             restart = zero != zero;
@@ -314,8 +391,13 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 
     for (int l = 0; l < CLPT_LANES; l++) {
         uint p = VLANE_U(pixel, l);
-        if (p < n_pix)
+        if (p < n_pix) {
             pixel_acc_store(&acc, l, pix_sum, pix_sq, p);
+#if CLPT_AUX
+            aux_normal[p] = (float4)(VLANE_R(fnx, l), VLANE_R(fny, l), VLANE_R(fnz, l), VLANE_R(fcount, l));
+            aux_albedo[p] = (float4)(VLANE_R(far, l), VLANE_R(fag, l), VLANE_R(fab, l), VLANE_R(fdist, l));
+#endif
+        }
     }
     stats[gid] = (uint4)(nonfinite, n_camera, n_bounce, n_shadow);
 }

@@ -1,0 +1,126 @@
+"""Adaptive sample allocation: which pixels get the next samples.
+
+The host decides from per-pixel statistics (means, variances, counts) that
+the kernels accumulate; the kernels then sample only the listed pixels, each
+continuing its own sample sequence, so an adaptive render stays reproducible.
+Pure numpy, over whole images: no loops over pixels.
+
+Two schemes:
+
+- "error" (the default): a pixel's relative error is the standard error of
+  its mean luminance over the mean (plus a small floor for dark pixels),
+  taken as the largest in its 3x3 neighbourhood so that a pixel whose few
+  samples happened to agree is not stopped too early. Pixels above the
+  noise threshold get samples in proportion to how far above it they are,
+  until every pixel is below it, or the sample budget or time runs out.
+- "paper" (the paper's section 6): after the minimum, each pixel is compared
+  with its 8 neighbours; one that differs from most of them ("discrepant")
+  keeps full sampling and full depth, the others get a quarter of the
+  samples and, if reduce_depth, half the path depth (a deliberate bias the
+  paper accepts for speed), or stop if mode is "stop".
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+LUMA = np.array([0.2126, 0.7152, 0.0722])
+DARK_FLOOR = 1e-3  # luminance below which relative errors are measured against this
+
+
+@dataclass(frozen=True)
+class AdaptiveSettings:
+    scheme: str = "error"          # "error" or "paper"
+    min_spp: int = 32              # uniform samples before any decision
+    threshold: float = 0.02        # error scheme: target relative error of a pixel
+    pass_spp: int = 16             # most samples a pixel gets per adaptive pass
+    disagreement: float = 0.1      # paper scheme: relative luminance difference that counts as disagreeing
+    reduce_depth: bool = True      # paper scheme: half depth for the pixels that agree with their neighbours
+    paper_mode: str = "reduce"     # paper scheme: "reduce" or "stop" the agreeing pixels
+
+    def check(self):
+        from .scene import SceneError
+        if self.scheme not in ("error", "paper"):
+            raise SceneError(f"adaptive: scheme must be 'error' or 'paper' (got {self.scheme!r})")
+        if self.min_spp < 1 or self.pass_spp < 1:
+            raise SceneError("adaptive: min_spp and pass_spp must be >= 1")
+        if not (math.isfinite(self.threshold) and self.threshold > 0):
+            raise SceneError(f"adaptive: threshold must be > 0 (got {self.threshold!r})")
+        if self.paper_mode not in ("reduce", "stop"):
+            raise SceneError(f"adaptive: paper_mode must be 'reduce' or 'stop' (got {self.paper_mode!r})")
+        return self
+
+
+def _neighbourhood_max(a: np.ndarray) -> np.ndarray:
+    p = np.pad(a, 1, mode="edge")
+    h, w = a.shape
+    return np.max([p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)], axis=0)
+
+
+def relative_error(mean_lum: np.ndarray, lum_var: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Standard error of each pixel's mean luminance, relative to the mean."""
+    se = np.sqrt(np.maximum(lum_var, 0.0) / np.maximum(count, 1.0))
+    return se / np.maximum(mean_lum, DARK_FLOOR)
+
+
+def allocate_error(mean_lum, lum_var, count, settings: AdaptiveSettings, budget_left: int):
+    """Samples per pixel for the next pass (error scheme), at most budget_left in all."""
+    err = _neighbourhood_max(relative_error(mean_lum, lum_var, count))
+    need = err > settings.threshold
+    # Samples to reach the threshold if the error falls as 1/sqrt(n): n ((e/t)^2 - 1).
+    want = np.where(need, np.ceil(count * ((err / settings.threshold) ** 2 - 1.0)), 0.0)
+    n = np.clip(want, 0, settings.pass_spp).astype(np.int64)
+    n[need & (n < 1)] = 1
+    total = int(n.sum())
+    if total > budget_left > 0:  # spend what is left on the worst pixels first
+        order = np.argsort(-err, axis=None)
+        keep = np.cumsum(n.ravel()[order]) <= budget_left
+        mask = np.zeros(n.size, dtype=bool)
+        mask[order[keep]] = True
+        n = np.where(mask.reshape(n.shape), n, 0)
+    elif budget_left <= 0:
+        n[:] = 0
+    return n, err
+
+
+def discrepant(mean_lum: np.ndarray, disagreement: float) -> np.ndarray:
+    """Pixels whose luminance differs (relatively) from most of their 8 neighbours."""
+    h, w = mean_lum.shape
+    p = np.pad(mean_lum, 1, mode="edge")
+    votes = np.zeros((h, w), dtype=np.int32)
+    for dy in range(3):
+        for dx in range(3):
+            if dy == 1 and dx == 1:
+                continue
+            q = p[dy:dy + h, dx:dx + w]
+            scale = np.maximum(np.maximum(mean_lum, q), DARK_FLOOR)
+            votes += np.abs(mean_lum - q) > disagreement * scale
+    return votes >= 5
+
+
+def allocate_paper(mean_lum, settings: AdaptiveSettings, max_depth: int):
+    """Samples and depth limit per pixel for the next pass (paper's scheme)."""
+    d = discrepant(mean_lum, settings.disagreement)
+    full = settings.pass_spp
+    if settings.paper_mode == "stop":
+        n = np.where(d, full, 0)
+    else:
+        n = np.where(d, full, max(1, full // 4))
+    depth = np.full(mean_lum.shape, max_depth, dtype=np.int64)
+    if settings.reduce_depth and settings.paper_mode == "reduce":
+        depth = np.where(d, max_depth, max_depth // 2)
+    return n.astype(np.int64), depth, d
+
+
+def sample_map_image(count: np.ndarray) -> np.ndarray:
+    """A heat map (black - blue - red - yellow - white) of samples per pixel,
+    as linear RGB in [0, 1], scaled to the largest count."""
+    t = count.astype(np.float64) / max(float(count.max()), 1.0)
+    stops = np.array([0.0, 0.25, 0.5, 0.75, 1.0])
+    colours = np.array([[0, 0, 0], [0.05, 0.1, 0.8], [0.85, 0.1, 0.1], [1.0, 0.85, 0.0], [1, 1, 1]])
+    rgb = np.stack([np.interp(t, stops, colours[:, c]) for c in range(3)], axis=-1)
+    # The colours are display values: undo the sRGB curve the image writer applies.
+    return np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4).astype(np.float32)
