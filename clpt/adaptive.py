@@ -17,7 +17,9 @@ Two schemes:
   with its 8 neighbours; one that differs from most of them ("discrepant")
   keeps full sampling and full depth, the others get a quarter of the
   samples and, if reduce_depth, half the path depth (a deliberate bias the
-  paper accepts for speed), or stop if mode is "stop".
+  paper accepts for speed), or stop if mode is "stop". Two pixels differ
+  when their means are apart by more than `disagreement` of the larger and
+  by more than 3 standard errors, so that noise alone is no discrepancy.
 """
 
 from __future__ import annotations
@@ -67,43 +69,58 @@ def relative_error(mean_lum: np.ndarray, lum_var: np.ndarray, count: np.ndarray)
 
 
 def allocate_error(mean_lum, lum_var, count, settings: AdaptiveSettings, budget_left: int):
-    """Samples per pixel for the next pass (error scheme), at most budget_left in all."""
-    err = _neighbourhood_max(relative_error(mean_lum, lum_var, count))
+    """Samples per pixel for the next pass (error scheme), at most budget_left in all.
+
+    A pixel above the threshold wants n ((e / t)^2 - 1) more samples (what
+    would bring it to the threshold if its error falls as 1/sqrt(n)). When the
+    wants exceed the budget, it is shared in proportion to them, so the
+    noisiest regions get the most samples even when no pixel can reach the
+    threshold; no pixel gets more than pass_spp in one pass."""
+    own = relative_error(mean_lum, lum_var, count)
+    err = _neighbourhood_max(own)
     need = err > settings.threshold
-    # Samples to reach the threshold if the error falls as 1/sqrt(n): n ((e/t)^2 - 1).
-    want = np.where(need, np.ceil(count * ((err / settings.threshold) ** 2 - 1.0)), 0.0)
-    n = np.clip(want, 0, settings.pass_spp).astype(np.int64)
-    n[need & (n < 1)] = 1
-    total = int(n.sum())
-    if total > budget_left > 0:  # spend what is left on the worst pixels first
-        order = np.argsort(-err, axis=None)
-        keep = np.cumsum(n.ravel()[order]) <= budget_left
-        mask = np.zeros(n.size, dtype=bool)
-        mask[order[keep]] = True
-        n = np.where(mask.reshape(n.shape), n, 0)
-    elif budget_left <= 0:
-        n[:] = 0
-    return n, err
+    want = np.where(need, np.maximum(np.ceil(count * ((err / settings.threshold) ** 2 - 1.0)), 1.0), 0.0)
+    total = want.sum()
+    if budget_left <= 0 or total == 0:
+        return np.zeros(want.shape, dtype=np.int64), err
+    if total > budget_left:
+        want = want * (budget_left / total)  # shares in proportion to the need
+    want = np.minimum(want, settings.pass_spp)
+    share = np.floor(want).astype(np.int64)
+    # What flooring left over goes one sample each to the worst pixels (own error breaks ties).
+    rest = int(min(budget_left, np.ceil(want).sum()) - share.sum())
+    if rest > 0:
+        order = np.lexsort((-own.ravel(), -err.ravel()))
+        order = order[want.ravel()[order] > share.ravel()[order]][:rest]
+        flat = share.ravel()
+        flat[order] += 1
+        share = flat.reshape(want.shape)
+    return share, err
 
 
-def discrepant(mean_lum: np.ndarray, disagreement: float) -> np.ndarray:
-    """Pixels whose luminance differs (relatively) from most of their 8 neighbours."""
+def discrepant(mean_lum: np.ndarray, disagreement: float, std_err: np.ndarray | None = None) -> np.ndarray:
+    """Pixels whose luminance differs from most of their 8 neighbours, by more
+    than `disagreement` relatively and (given std_err) more than its noise."""
     h, w = mean_lum.shape
     p = np.pad(mean_lum, 1, mode="edge")
+    se = np.zeros((h, w)) if std_err is None else std_err
+    pse = np.pad(se, 1, mode="edge")
     votes = np.zeros((h, w), dtype=np.int32)
     for dy in range(3):
         for dx in range(3):
             if dy == 1 and dx == 1:
                 continue
             q = p[dy:dy + h, dx:dx + w]
+            diff = np.abs(mean_lum - q)
             scale = np.maximum(np.maximum(mean_lum, q), DARK_FLOOR)
-            votes += np.abs(mean_lum - q) > disagreement * scale
+            noise = 3.0 * np.sqrt(se * se + pse[dy:dy + h, dx:dx + w] ** 2)
+            votes += (diff > disagreement * scale) & (diff > noise)
     return votes >= 5
 
 
-def allocate_paper(mean_lum, settings: AdaptiveSettings, max_depth: int):
+def allocate_paper(mean_lum, settings: AdaptiveSettings, max_depth: int, std_err=None):
     """Samples and depth limit per pixel for the next pass (paper's scheme)."""
-    d = discrepant(mean_lum, settings.disagreement)
+    d = discrepant(mean_lum, settings.disagreement, std_err)
     full = settings.pass_spp
     if settings.paper_mode == "stop":
         n = np.where(d, full, 0)

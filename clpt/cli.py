@@ -76,6 +76,61 @@ def _add_photon_options(p):
     g.add_argument("--spp-per-map", type=int, default=None, help="samples per pixel per photon map (progressive)")
 
 
+def _add_quality_options(p):
+    g = p.add_argument_group("adaptive sampling")
+    g.add_argument("--adaptive", choices=("error", "paper"), default=None,
+                   help="spend the samples (--spp on average) where the error is: by each pixel's relative "
+                        "error (error) or by disagreement with its neighbours (paper)")
+    g.add_argument("--min-spp", type=int, default=None, help="uniform samples before adapting (default 32)")
+    g.add_argument("--noise-threshold", type=float, default=None,
+                   help="error scheme: stop a pixel at this relative error (default 0.02)")
+    g.add_argument("--adaptive-pass-spp", type=int, default=None, help="most samples a pixel gets per pass (16)")
+    g.add_argument("--no-depth-reduction", action="store_true",
+                   help="paper scheme: keep full depth for calm pixels (no bias)")
+    g.add_argument("--paper-stop", action="store_true", help="paper scheme: stop calm pixels instead of slowing them")
+    g.add_argument("--save-sample-map", metavar="FILE", help="write a heat map of samples per pixel")
+    g = p.add_argument_group("edge-aware cone filter")
+    g.add_argument("--filter", action="store_true", help="write the filtered image (and <out>.unfiltered<ext>)")
+    g.add_argument("--filter-width", type=int, default=None, help="cone radius in pixels per pass (default 2)")
+    g.add_argument("--filter-iterations", type=int, default=None, help="a-trous passes (default 3)")
+    g.add_argument("--filter-interval", type=int, default=None,
+                   help="also write the filtered image so far every N passes (a progressive preview)")
+    g.add_argument("--write-aux", action="store_true",
+                   help="write the feature buffers: <out>.normal.exr, .albedo.exr, .depth.exr, .variance.exr")
+
+
+def _adaptive_settings(a):
+    from .adaptive import AdaptiveSettings
+
+    if a.adaptive is None:
+        return None
+    kw = {"scheme": a.adaptive}
+    for k, v in (("min_spp", a.min_spp), ("threshold", a.noise_threshold), ("pass_spp", a.adaptive_pass_spp)):
+        if v is not None:
+            kw[k] = v
+    if a.no_depth_reduction:
+        kw["reduce_depth"] = False
+    if a.paper_stop:
+        kw["paper_mode"] = "stop"
+    return AdaptiveSettings(**kw).check()
+
+
+def _filter_settings(a):
+    from .denoise import FilterSettings
+
+    if not a.filter:
+        return None
+    kw = {}
+    for k, v in (("width", a.filter_width), ("iterations", a.filter_iterations), ("interval", a.filter_interval)):
+        if v is not None:
+            kw[k] = v
+    return FilterSettings(**kw).check()
+
+
+def _sibling(path: Path, tag: str, ext: str | None = None) -> Path:
+    return path.with_name(f"{path.stem}.{tag}{ext or path.suffix}")
+
+
 def _photon_settings(a):
     from .photons import PhotonSettings
 
@@ -105,7 +160,9 @@ def cmd_render(a) -> int:
     scene = load_scene(a.scene)
     out = Path(a.output) if a.output else Path(Path(a.scene).stem + ".png")
     photons = _photon_settings(a) if a.photons != 0 else None
-    r = Renderer(scene, **_renderer_kwargs(a))
+    adaptive = _adaptive_settings(a)
+    filt = _filter_settings(a)
+    r = Renderer(scene, aux=filt is not None or a.write_aux, **_renderer_kwargs(a))
     if a.verbose:
         for st in r.states:
             b = st.build
@@ -114,13 +171,34 @@ def cmd_render(a) -> int:
             print(f"build: {b.seconds:.3f}s ({'cache hit' if b.cache_hit else 'compiled'}, key {b.key})",
                   file=sys.stderr)
     show, end = _progress_printer(sys.stderr, not a.quiet and (a.progress or sys.stderr.isatty()))
+    from .image import save_image
+
+    preview = None
+    if filt is not None and filt.interval:
+        def preview(img):
+            save_image(out, img, exposure=a.exposure)
     res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,
-                   height=a.height, photons=photons, progress=show, time_limit=a.time_limit)
+                   height=a.height, photons=photons, adaptive=adaptive, filter=filt, progress=show,
+                   preview=preview, time_limit=a.time_limit)
     end()
-    res.save(out, exposure=a.exposure)
+    if res.filtered is not None:
+        save_image(out, res.filtered, metadata={**res.metadata(), "clpt:filtered": 1}, exposure=a.exposure)
+        res.save(_sibling(out, "unfiltered"), exposure=a.exposure)
+    else:
+        res.save(out, exposure=a.exposure)
+    if a.write_aux and res.aux is not None:
+        save_image(_sibling(out, "normal", ".exr"), res.aux["normal"])
+        save_image(_sibling(out, "albedo", ".exr"), res.aux["albedo"])
+        save_image(_sibling(out, "depth", ".exr"), res.aux["depth"])
+        save_image(_sibling(out, "variance", ".exr"), res.lum_var / res.sample_count.clip(1))
+    if a.save_sample_map:
+        from .adaptive import sample_map_image
+        save_image(a.save_sample_map, sample_map_image(res.sample_count),
+                   metadata={"clpt:max_spp": int(res.sample_count.max()), "clpt:min_spp": int(res.sample_count.min())})
     st = res.stats
     secs = max(st.render_seconds, 1e-9)
-    msg = (f"wrote {out}: {res.image.shape[1]}x{res.image.shape[0]}, {res.spp} spp, "
+    spp_text = (f"{res.sample_count.mean():.1f} spp on average" if res.stats.adaptive_rounds else f"{res.spp} spp")
+    msg = (f"wrote {out}: {res.image.shape[1]}x{res.image.shape[0]}, {spp_text}, "
            f"{st.render_seconds:.2f}s, {res.samples / secs / 1e6:.2f} Msamples/s")
     if st.nonfinite:
         msg += f", {st.nonfinite} non-finite samples dropped"
@@ -134,6 +212,9 @@ def cmd_render(a) -> int:
                   f"trace {m['trace_seconds'] * 1e3:.1f} ms, grid {m['grid_seconds'] * 1e3:.1f} ms", file=sys.stderr)
         if len(st.photon_maps) > 3:
             print(f"photon maps: {len(st.photon_maps)} in all", file=sys.stderr)
+    if res.stats.adaptive_rounds and not a.quiet:
+        print(f"adaptive: {res.stats.adaptive_rounds} rounds, {res.sample_count.min()} to {res.sample_count.max()} "
+              f"samples per pixel", file=sys.stderr)
     if res.interrupted and a.time_limit is None:
         print(f"interrupted after {res.spp} spp; the image so far was written", file=sys.stderr)
         return 130
@@ -215,6 +296,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--progress", action="store_true", help="show progress even when not on a terminal")
     _add_render_options(p)
     _add_photon_options(p)
+    _add_quality_options(p)
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("bench", help="measure samples/s, rays/s and kernel build times")

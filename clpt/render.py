@@ -177,7 +177,7 @@ class _DeviceState:
             self.jobs_buf = cl.Buffer(ctx, rw, 16)
             self.aux = []
             if self.features.aux:
-                self.aux = [cl.Buffer(ctx, rw, n_pix * 16) for _ in range(2)]
+                self.aux = [cl.Buffer(ctx, rw, n_pix * 16) for _ in range(3)]
                 for b in self.aux:
                     cl.enqueue_fill_buffer(q, b, np.float32(0), 0, n_pix * 16)
             q.finish()
@@ -242,13 +242,13 @@ class _DeviceState:
         return seconds, stats.sum(axis=0, dtype=np.uint64)
 
     def read_aux(self):
-        """Per-pixel feature sums: (normal xyz, count), (albedo rgb, distance)."""
+        """Per-pixel feature sums: (normal xyz, count), (albedo rgb, distance), (emission rgb, 0)."""
         q = self.dctx.queue
-        a, b = np.empty((self.n_pix, 4), np.float32), np.empty((self.n_pix, 4), np.float32)
-        cl.enqueue_copy(q, a, self.aux[0])
-        cl.enqueue_copy(q, b, self.aux[1])
+        out = [np.empty((self.n_pix, 4), np.float32) for _ in range(3)]
+        for h, b in zip(out, self.aux):
+            cl.enqueue_copy(q, h, b)
         q.finish()
-        return a.astype(np.float64), b.astype(np.float64)
+        return [h.astype(np.float64) for h in out]
 
 
 def _baked_source(records: np.ndarray, double: bool) -> str:
@@ -510,10 +510,14 @@ class Renderer:
                 shape = (height, width)
                 lum = (mean @ luma).reshape(shape)
                 if aset.scheme == "error":
-                    n, _ = allocate_error(lum, var.reshape(shape), count.reshape(shape), aset, left)
+                    # A round spends at most an eighth of the budget, so later rounds
+                    # see what the earlier ones achieved.
+                    round_budget = min(left, max(budget // 8, n_pix))
+                    n, _ = allocate_error(lum, var.reshape(shape), count.reshape(shape), aset, round_budget)
                     depth = np.full(shape, max_depth)
                 else:
-                    n, depth, _ = allocate_paper(lum, aset, max_depth)
+                    se = np.sqrt(var / np.maximum(count, 1.0)).reshape(shape)
+                    n, depth, _ = allocate_paper(lum, aset, max_depth, se)
                     if n.sum() > left:  # the last round: scale down to the budget
                         n = np.floor(n * (left / n.sum())).astype(np.int64)
                 pixels = np.flatnonzero(n)
@@ -568,20 +572,25 @@ class Renderer:
             image[bad] = 0.0
         aux = filtered = None
         if self.features.aux:
-            nsum, asum = np.zeros((n_pix, 4)), np.zeros((n_pix, 4))
+            sums = [np.zeros((n_pix, 4)) for _ in range(3)]
             for st in self.states:
-                a, b = st.read_aux()
-                nsum += a
-                asum += b
+                for acc, part in zip(sums, st.read_aux()):
+                    acc += part
+            nsum, asum, esum = sums
             k = np.maximum(nsum[:, 3:4], 1.0)
             normal = nsum[:, :3]
             normal = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
             aux = {"normal": normal.reshape(height, width, 3).astype(np.float32),
                    "albedo": (asum[:, :3] / k).reshape(height, width, 3).astype(np.float32),
-                   "depth": (asum[:, 3] / k[:, 0]).reshape(height, width).astype(np.float32)}
+                   "depth": (asum[:, 3] / k[:, 0]).reshape(height, width).astype(np.float32),
+                   "emission": (esum[:, :3] / k).reshape(height, width, 3).astype(np.float32)}
             if fset is not None:
+                # Emission seen directly (lights, through mirrors and glass too) is
+                # not noise to smooth: filter what the surfaces reflect.
                 mean_var = (var / np.maximum(count, 1.0)).reshape(height, width)
-                filtered = self.states[0].filter(image, mean_var, aux["normal"], aux["albedo"], aux["depth"], fset)
+                reflected = image - aux["emission"]
+                filtered = aux["emission"] + self.states[0].filter(reflected, mean_var, aux["normal"],
+                                                                   aux["albedo"], aux["depth"], fset)
         return image, var, count, caustic, aux, filtered
 
 

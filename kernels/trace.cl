@@ -22,11 +22,13 @@
 //   stats     out  per work-item: non-finite samples dropped, camera rays,
 //                  bounce rays, shadow rays (this launch)
 //   pix_list, pix_jobs  in  adaptive passes: pixels, their (samples, depth, first sample)
-//   aux_normal, aux_albedo  in/out (CLPT_AUX): per pixel, sums over samples
-//                  of the first non-delta vertex's shading normal (w: count)
-//                  and of its albedo seen through the specular chain (rgb)
-//                  and distance from the camera (w); 1, 1, 1 and no normal
-//                  for paths that meet no such vertex
+//   aux_normal, aux_albedo, aux_emit  in/out (CLPT_AUX): per pixel, sums over
+//                  samples of the first non-delta vertex's shading normal
+//                  (w: count), of its albedo seen through the specular chain
+//                  (rgb) and distance from the camera (w), and of the emission
+//                  reached up to and at that vertex (rgb), which the filter
+//                  leaves out; 1, 1, 1 and no normal for paths that meet no
+//                  such vertex
 //
 // Estimator: path tracing with next event estimation at every vertex with a
 // non-delta lobe (CLPT_NEE). Emission found by a bounce counts only from the
@@ -154,7 +156,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
                           __global pix_sum_t *pix_sum, __global pix_sq_t *pix_sq, __global uint4 *stats,
                           __global const uint *pix_list, __global const uint4 *pix_jobs, uint n_list
 #if CLPT_AUX
-                          , __global float4 *aux_normal, __global float4 *aux_albedo
+                          , __global float4 *aux_normal, __global float4 *aux_albedo, __global float4 *aux_emit
 #endif
 #if CLPT_PHOTONS
                           , __global const float4 *ph_pos, __global const float4 *ph_dir,
@@ -230,12 +232,14 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 #if CLPT_AUX
     // Feature sums: normal xyz + count, albedo rgb + distance.
     vreal fnx = zero, fny = zero, fnz = zero, fcount = zero, far = zero, fag = zero, fab = zero, fdist = zero;
+    vreal fer = zero, feg = zero, feb = zero;
     for (int l = 0; l < CLPT_LANES; l++) {
         uint p = VLANE_U(pixel, l);
         if (p < n_pix) {
-            float4 a = aux_normal[p], b = aux_albedo[p];
+            float4 a = aux_normal[p], b = aux_albedo[p], c = aux_emit[p];
             VLANE_R(fnx, l) = a.x; VLANE_R(fny, l) = a.y; VLANE_R(fnz, l) = a.z; VLANE_R(fcount, l) = a.w;
             VLANE_R(far, l) = b.x; VLANE_R(fag, l) = b.y; VLANE_R(fab, l) = b.z; VLANE_R(fdist, l) = b.w;
+            VLANE_R(fer, l) = c.x; VLANE_R(feg, l) = c.y; VLANE_R(feb, l) = c.z;
         }
     }
     vmask feat_done = zero != zero;  // this sample's features are recorded
@@ -285,6 +289,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 #if CLPT_AUX
         // --- features for the filter, at the first vertex with a non-delta part ------
         path_len = VSEL(path_len, path_len + h.t, hit);
+        vmask before_x = !feat_done;  // this vertex is x or comes before it
         vmask rec = hit && !feat_done && m.nondelta != R(0);
         if (VANY(rec)) {
             V3 alb = v3_mul(ps.beta, v3_add(m.kd, m.ks));
@@ -306,6 +311,13 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
             sees = sees && ps.own != (real)OWN_OWNED && !prepass;
 #endif
         ps.L = v3_sel(ps.L, v3_add(ps.L, v3_mul(ps.beta, m.Le)), sees);
+#if CLPT_AUX
+        vmask direct = sees && before_x;
+        if (VANY(direct)) {
+            V3 e = v3_mul(ps.beta, m.Le);
+            fer = VSEL(fer, fer + e.x, direct); feg = VSEL(feg, feg + e.y, direct); feb = VSEL(feb, feb + e.z, direct);
+        }
+#endif
 
         vmask go = hit && ps.depth < lane_depth;
         vuint group = VUINT(ps.depth) * 2u + 1u;
@@ -396,6 +408,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 #if CLPT_AUX
             aux_normal[p] = (float4)(VLANE_R(fnx, l), VLANE_R(fny, l), VLANE_R(fnz, l), VLANE_R(fcount, l));
             aux_albedo[p] = (float4)(VLANE_R(far, l), VLANE_R(fag, l), VLANE_R(fab, l), VLANE_R(fdist, l));
+            aux_emit[p] = (float4)(VLANE_R(fer, l), VLANE_R(feg, l), VLANE_R(feb, l), 0.0f);
 #endif
         }
     }

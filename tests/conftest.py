@@ -41,7 +41,7 @@ class Probe:
         self.lanes = lanes
         self.real = np.float64 if double else np.float32
         feats = Features(lanes=lanes, double=double, accum_double=accum_double, mode="generic")
-        src = program.stitch(["photons.cl", "grid.cl", str(TESTS / "kernels" / "probes.cl")])
+        src = program.stitch(["photons.cl", "grid.cl", "filter.cl", str(TESTS / "kernels" / "probes.cl")])
         self.program, _ = program.build(dctx, src, feats.options())
         self.kernels = {}
 

@@ -1,0 +1,98 @@
+"""Adaptive sample allocation: the host's decisions (pure numpy) and adaptive
+renders, which must converge to the same image as uniform sampling."""
+
+import numpy as np
+import pytest
+
+import clpt
+from clpt.adaptive import AdaptiveSettings, allocate_error, allocate_paper, discrepant, relative_error
+
+from stats import assert_mean_within
+
+
+def test_error_allocation_follows_the_error_and_the_budget():
+    lum = np.full((8, 8), 0.5)
+    var = np.full((8, 8), 1e-6)  # converged: relative error 1e-3 / 0.5 at 4 samples
+    var[2, 3] = 0.5              # one noisy pixel
+    count = np.full((8, 8), 4.0)
+    s = AdaptiveSettings(threshold=0.05, pass_spp=16)
+    n, err = allocate_error(lum, var, count, s, budget_left=10_000)
+    assert n[2, 3] == 16
+    # Its neighbours get samples too (their estimate might be the lucky one);
+    # pixels two steps away do not.
+    assert (n[1:4, 2:5] > 0).all() and n[5:, 5:].sum() == 0 and n[0, 0] == 0
+    n2, _ = allocate_error(lum, var, count, s, budget_left=20)
+    assert n2.sum() == 20 and n2[2, 3] == n2.max()  # shared by need, the worst pixel first
+    n3, _ = allocate_error(lum, var, count, s, budget_left=0)
+    assert n3.sum() == 0
+    assert relative_error(np.array([0.0]), np.array([1e-4]), np.array([1.0]))[0] == pytest.approx(10.0)
+
+
+def test_paper_scheme_finds_pixels_that_disagree_with_their_neighbours():
+    lum = np.full((7, 7), 0.4)
+    lum[3, 3] = 2.0                     # an outlier: differs from all 8 neighbours
+    lum[:, 0] = 0.1                     # an edge: its pixels agree with 5 of 8
+    d = discrepant(lum, 0.1)
+    assert d[3, 3] and d.sum() == 1
+    s = AdaptiveSettings(scheme="paper", pass_spp=16)
+    n, depth, _ = allocate_paper(lum, s, 8)
+    assert n[3, 3] == 16 and n[0, 0] == 4 and depth[3, 3] == 8 and depth[0, 0] == 4
+    n, depth, _ = allocate_paper(lum, AdaptiveSettings(scheme="paper", paper_mode="stop"), 8)
+    assert n[0, 0] == 0 and (depth == 8).all()
+
+
+@pytest.fixture(scope="module")
+def caustics(device_spec):
+    return clpt.Renderer("cornell_box_caustics", device=device_spec, photons=False)
+
+
+@pytest.fixture(scope="module")
+def uniform_reference(caustics):
+    return caustics.render(4096, width=24, height=24, seed=1)
+
+
+@pytest.mark.parametrize("settings", [
+    AdaptiveSettings(min_spp=32, threshold=0.03, pass_spp=32),
+    AdaptiveSettings(scheme="paper", min_spp=32, pass_spp=32, reduce_depth=False),
+], ids=["error", "paper_no_depth_cut"])
+def test_adaptive_render_converges_to_the_uniform_image(caustics, uniform_reference, settings):
+    """Where samples go does not bias the image (beyond the paper's optional
+    depth cut, which is off here)."""
+    res = caustics.render(256, width=24, height=24, seed=2, adaptive=settings)
+    assert res.stats.adaptive_rounds >= 1 and res.sample_count.min() >= 32
+    assert res.sample_count.max() > res.sample_count.min()  # samples went where they were needed
+    ref = uniform_reference
+    var = res.lum_var / res.sample_count + ref.lum_var / ref.sample_count
+    d = res.image[..., 1].astype(np.float64) - ref.image[..., 1]
+    assert_mean_within(d.mean(), 0.0, np.sqrt(var.sum()) / var.size, 5.0, what="adaptive - uniform")
+    assert res.stats.camera_rays == res.sample_count.sum()  # inactive pixels traced nothing
+
+
+def test_paper_depth_cut_is_a_visible_switchable_bias(device_spec):
+    """Halving the depth of the calm pixels darkens them: the paper's trade of
+    accuracy for speed, off with reduce_depth=False."""
+    r = clpt.Renderer("cornell_box", device=device_spec)
+    cut = r.render(96, width=16, height=16, seed=3, max_depth=2,
+                   adaptive=AdaptiveSettings(scheme="paper", min_spp=16, pass_spp=16))
+    full = r.render(96, width=16, height=16, seed=3, max_depth=2,
+                    adaptive=AdaptiveSettings(scheme="paper", min_spp=16, pass_spp=16, reduce_depth=False))
+    assert cut.image.mean() < full.image.mean() * 0.97
+
+
+def test_adaptive_budget_and_reproducibility(caustics):
+    s = AdaptiveSettings(min_spp=8, threshold=0.001, pass_spp=8)
+    a = caustics.render(24, width=16, height=16, seed=4, adaptive=s)
+    b = caustics.render(24, width=16, height=16, seed=4, adaptive=s)
+    assert np.array_equal(a.image, b.image) and np.array_equal(a.sample_count, b.sample_count)
+    assert a.sample_count.sum() <= 24 * 256  # the budget: spp on average
+    assert a.sample_count.sum() > 20 * 256
+
+
+def test_noisy_pixels_get_the_samples(caustics):
+    """Pixels that are noisy after the first samples (glass, caustics, the
+    light's edge) end up with more samples than calm walls."""
+    res = caustics.render(64, width=32, height=32, seed=5,
+                          adaptive=AdaptiveSettings(min_spp=16, threshold=0.02, pass_spp=16))
+    rel = np.sqrt(res.lum_var / res.sample_count) / np.maximum(res.image.mean(-1), 1e-3)
+    noisy = rel > np.percentile(rel, 90)
+    assert res.sample_count[noisy].mean() > 1.5 * res.sample_count[~noisy].mean()
