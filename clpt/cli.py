@@ -267,6 +267,54 @@ def cmd_cache(a) -> int:
     return 0
 
 
+def cmd_compare(a) -> int:
+    import json
+
+    from .studies import compare, format_table, reference_image, standard_comparison
+    from .scene import load_scene
+
+    out = {}
+    for name in a.scene:
+        scene = load_scene(name)
+        ref_path = Path(a.ref_dir) / f"{Path(name).stem}_{a.width}x{a.height}_{a.ref_spp}spp.exr"
+        ref = reference_image(scene, a.width, a.height, a.ref_spp, ref_path, a.device)
+        out[name] = compare(scene, standard_comparison(), ref=ref, seconds=a.seconds, width=a.width,
+                            height=a.height, device=a.device)
+    if a.json:
+        print(json.dumps(out, indent=1, default=str))
+    else:
+        for name, rows in out.items():
+            print(f"{name}, {a.seconds} s each:")
+            print(format_table(rows, ("value", "seconds", "spp", "relmse", "rmse", "ssim", "flip")))
+    return 0
+
+
+def cmd_tradeoff(a) -> int:
+    from .resources import shipped_scenes
+    from .studies import compare, reference_image, standard_comparison, tradeoff, write_summary
+    from .scene import load_scene
+
+    names = shipped_scenes() if a.scene == ["all"] else a.scene
+    summaries, comparisons = [], {}
+    for name in names:
+        print(f"{name}:", file=sys.stderr)
+        sub_dir = Path(a.out) / Path(name).stem
+        summaries.append(tradeoff(name, out_dir=sub_dir, width=a.width, height=a.height, spp=a.spp,
+                                  ref_spp=a.ref_spp, reference=a.reference, device=a.device,
+                                  log=lambda m: print(m, file=sys.stderr)))
+        if a.compare_seconds > 0:
+            ref_path = sub_dir / f"reference_{a.width}x{a.height}_{a.ref_spp}spp.exr"
+            ref = reference_image(load_scene(name), a.width, a.height, a.ref_spp, ref_path, a.device)
+            comparisons[name] = compare(load_scene(name), standard_comparison(), ref=ref, seconds=a.compare_seconds,
+                                        width=a.width, height=a.height, device=a.device)
+    command = "clpt tradeoff " + " ".join(a.scene) + f" --out {a.out} --width {a.width} --height {a.height} " \
+              f"--spp {a.spp} --ref-spp {a.ref_spp}" + (f" --compare-seconds {a.compare_seconds}"
+                                                       if a.compare_seconds else "")
+    write_summary(a.out, summaries, comparisons or None, command)
+    print(f"wrote {Path(a.out) / 'README.md'}", file=sys.stderr)
+    return 0
+
+
 def cmd_bench(a) -> int:
     from .bench import run_bench
 
@@ -328,6 +376,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", "-d", default=None)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=lambda a: __import__("clpt.bench", fromlist=["x"]).run_bench_photons(a))
+
+    p = sub.add_parser("compare", help="uniform vs adaptive sampling vs the filter, at equal render time")
+    p.add_argument("scene", nargs="+")
+    p.add_argument("--seconds", type=float, default=4.0)
+    p.add_argument("--width", type=int, default=128)
+    p.add_argument("--height", type=int, default=128)
+    p.add_argument("--ref-spp", type=int, default=16384)
+    p.add_argument("--ref-dir", default=".clpt-references", help="where references are cached")
+    p.add_argument("--device", "-d", default=None)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_compare)
+
+    p = sub.add_parser("tradeoff", help="sweep every speed/accuracy knob; tables, plots and a summary")
+    p.add_argument("scene", nargs="+", help="scenes, or 'all' for the shipped ones")
+    p.add_argument("--out", default="tradeoff", help="output folder (one subfolder per scene, README.md)")
+    p.add_argument("--width", type=int, default=64)
+    p.add_argument("--height", type=int, default=64)
+    p.add_argument("--spp", type=int, default=64)
+    p.add_argument("--ref-spp", type=int, default=16384)
+    p.add_argument("--reference", default=None, help="reference EXR (one scene); default: rendered and cached")
+    p.add_argument("--compare-seconds", type=float, default=0.0,
+                   help="also run the equal-time comparison for this long per method")
+    p.add_argument("--device", "-d", default=None)
+    p.set_defaults(func=cmd_tradeoff)
 
     p = sub.add_parser("devices", help="list the OpenCL devices")
     p.set_defaults(func=cmd_devices)

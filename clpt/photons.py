@@ -120,7 +120,7 @@ class PhotonMap:
         self.k_permute = cl.Kernel(program, "photon_permute")
         self.k_starts = cl.Kernel(program, "bucket_starts")
         self.capacity = -1
-        self.n_chunks = 64 if dctx.is_cpu else 1024
+        self.n_chunks = 64 if dctx.is_cpu else 1024  # a multiple of the local size: every chunk work-item exists
         self.launches = {}
         self.n_stored = 0
         self.radius = 0.0
@@ -147,8 +147,12 @@ class PhotonMap:
         self.capacity = n
 
     def _launch(self, name, kernel, global_size, *args):
+        # A fixed local size (the kernels check their range): PoCL compiles a
+        # kernel anew for each local size, and its own choice for large global
+        # sizes overflowed the work-item stacks of the double-precision build.
+        local = 16 if self.dctx.is_cpu else 64
         kernel.set_args(*args)
-        ev = cl.enqueue_nd_range_kernel(self.dctx.queue, kernel, (max(1, global_size),), None)
+        ev = cl.enqueue_nd_range_kernel(self.dctx.queue, kernel, (-(-max(1, global_size) // local) * local,), (local,))
         self.launches[name] = self.launches.get(name, 0) + 1
         return ev
 

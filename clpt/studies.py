@@ -1,0 +1,339 @@
+"""Speed/accuracy studies: what each knob costs and what it buys.
+
+- `compare`: configurations rendered for the same time, errors against a
+  reference (adaptive sampling, the filter, photon modes...).
+- `tradeoff`: one knob at a time swept over its range (spp, depth, Russian
+  roulette, NEE, photons, gather radius, cone k, photon cap, online/offline,
+  progressive, adaptive, filter, precision), each setting's steady render
+  time (compile time apart), samples/s and errors (RMSE, relMSE, SSIM, and
+  FLIP when flip-evaluator is installed); convergence curves with the fitted
+  slope of MSE against time (-1 for an unbiased setting) and, for biased
+  ones, the error floor (MSE minus the image's own variance).
+
+The reference is a high-spp path-traced EXR (photon mapping off, so it is
+unbiased), given by the user or rendered once and cached.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import metrics
+from .adaptive import AdaptiveSettings
+from .denoise import FilterSettings
+from .image import load_image, save_image
+from .photons import PhotonSettings
+from .render import Renderer
+from .scene import load_scene
+
+
+@dataclass
+class Setting:
+    knob: str
+    value: object
+    renderer: dict = field(default_factory=dict)  # Renderer keywords
+    render: dict = field(default_factory=dict)    # Renderer.render keywords
+    biased: bool = False                          # converges to something else than the reference
+
+    @property
+    def label(self) -> str:
+        return f"{self.knob}={self.value}"
+
+
+class Reference(np.ndarray):
+    """A reference image; .noise is the mean variance of its pixel means (what
+    its own noise adds to any MSE against it), 0 if unknown."""
+
+    noise = 0.0
+
+
+def reference_image(scene, width, height, spp, path=None, device=None) -> Reference:
+    """The reference: read from `path` if it exists, else rendered by path
+    tracing alone (unbiased) and saved there, with its noise level in the
+    metadata."""
+    if path is not None and Path(path).exists():
+        from .image import read_metadata
+        ref = load_image(path)[..., :3]
+        if ref.shape[:2] != (height, width):
+            raise ValueError(f"{path} is {ref.shape[1]}x{ref.shape[0]}, not {width}x{height}")
+        out = ref.astype(np.float64).view(Reference)
+        out.noise = float(read_metadata(path).get("clpt:noise", 0.0))
+        return out
+    r = Renderer(scene, device=device, photons=False)
+    res = r.render(spp, width=width, height=height, seed=0x5EED)
+    noise = float((res.lum_var / np.maximum(res.sample_count, 1)).mean())
+    if path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        save_image(path, res.image, metadata={"clpt:reference_spp": spp, "clpt:noise": noise})
+    out = res.image.astype(np.float64).view(Reference)
+    out.noise = noise
+    return out
+
+
+class _Renderers:
+    """Renderers built once per set of Renderer keywords; build and first-launch
+    (device compile) times are kept apart from render times."""
+
+    def __init__(self, scene, device, width, height):
+        self.scene, self.device, self.width, self.height = scene, device, width, height
+        self.cache = {}
+
+    def get(self, kw: dict, render_kw: dict):
+        key = json.dumps(kw, sort_keys=True, default=str)
+        if key not in self.cache:
+            t0 = time.perf_counter()
+            r = Renderer(self.scene, device=self.device, **kw)
+            self.cache[key] = [r, time.perf_counter() - t0, 0.0, set()]
+        entry = self.cache[key]
+        warm_key = json.dumps(sorted(render_kw), default=str)
+        if warm_key not in entry[3]:  # the lazy device compile of each kernel used, kept out of the timings
+            t0 = time.perf_counter()
+            entry[0].render(1, width=self.width, height=self.height, **render_kw)
+            entry[2] += time.perf_counter() - t0
+            entry[3].add(warm_key)
+        return entry[0], entry[1], entry[2]
+
+
+def _measure(renderers, setting: Setting, ref, spp=None, seconds=None, seed=1) -> dict:
+    kw = dict(setting.render)
+    r, build, first = renderers.get(setting.renderer, kw)
+    res = r.render(spp if spp is not None else 1 << 24, width=renderers.width, height=renderers.height, seed=seed,
+                   time_limit=seconds, **kw)
+    img = res.filtered if res.filtered is not None else res.image
+    var_mean = float((res.lum_var / np.maximum(res.sample_count, 1)).mean())
+    row = {"knob": setting.knob, "value": str(setting.value), "biased": setting.biased,
+           "seconds": res.stats.render_seconds, "spp": float(res.sample_count.mean()),
+           "msamples_per_s": res.samples / max(res.stats.render_seconds, 1e-9) / 1e6,
+           "build_seconds": build, "first_launch_seconds": first, "variance_of_mean": var_mean,
+           "mse": float(((img.astype(np.float64) - ref) ** 2).mean()), "nonfinite": res.stats.nonfinite}
+    # What the reference's own noise adds to the MSE is taken out.
+    row["mse_excess"] = max(row["mse"] - float(getattr(ref, "noise", 0.0)), 1e-300)
+    row.update(metrics.all_metrics(img, ref))
+    return row
+
+
+def compare(scene, configs: list[Setting], *, ref, seconds: float, width: int, height: int, device=None,
+            seed=1) -> list[dict]:
+    """Each configuration rendered for `seconds`; errors against ref."""
+    renderers = _Renderers(scene, device, width, height)
+    return [_measure(renderers, c, ref, seconds=seconds, seed=seed) for c in configs]
+
+
+def standard_comparison() -> list[Setting]:
+    """Uniform sampling, the two adaptive schemes, the filter, and both together."""
+    aux = {"aux": True}
+    return [
+        Setting("method", "uniform"),
+        Setting("method", "adaptive-error", render={"adaptive": AdaptiveSettings()}),
+        Setting("method", "adaptive-paper", render={"adaptive": AdaptiveSettings(scheme="paper")}, biased=True),
+        Setting("method", "filter", renderer=aux, render={"filter": FilterSettings()}, biased=True),
+        Setting("method", "adaptive-error+filter", renderer=aux,
+                render={"adaptive": AdaptiveSettings(), "filter": FilterSettings()}, biased=True),
+    ]
+
+
+def knob_settings(has_photons: bool, max_depth: int = 8) -> list[Setting]:
+    """Every knob's sweep; defaults elsewhere."""
+    s = [Setting("max_depth", d, render={"max_depth": d}, biased=d < max_depth) for d in (0, 1, 2, 3, 4, 6, 8, 16)]
+    s += [Setting("rr_depth", d, render={"rr_depth": d}) for d in (0, 1, 2, 4, 8, 1000)]
+    s += [Setting("nee", v, renderer={"nee": v}) for v in (True, False)]
+    s += [Setting("precision", p, renderer={"precision": p}) for p in ("float", "double")]
+    s += [Setting("adaptive", t, render={"adaptive": AdaptiveSettings(threshold=t)}) for t in (0.1, 0.05, 0.02)]
+    s += [Setting("adaptive", "paper", render={"adaptive": AdaptiveSettings(scheme="paper")}, biased=True)]
+    s += [Setting("filter", w, renderer={"aux": True}, render={"filter": FilterSettings(width=w)}, biased=w > 0)
+          for w in (0, 1, 2, 3)]
+    if has_photons:
+        s += [Setting("photons", n, renderer={"photons": n > 0},
+                      render={"photons": PhotonSettings(count=n)} if n else {}, biased=n > 0)
+              for n in (0, 10_000, 100_000, 1_000_000)]
+        s += [Setting("radius", r, render={"photons": PhotonSettings(radius=r)}, biased=True)
+              for r in (0.001, 0.002, 0.004, 0.008, 0.016)]
+        s += [Setting("cone_k", k, render={"photons": PhotonSettings(cone_k=k)}, biased=True) for k in (1.0, 1.1, 2.0, 4.0)]
+        s += [Setting("max_photons", m, render={"photons": PhotonSettings(max_photons=m)}, biased=True)
+              for m in (0, 16, 64, 256)]
+        s += [Setting("photon_mode", m, render={"photons": PhotonSettings(mode=m)}, biased=True)
+              for m in ("online", "offline")]
+        s += [Setting("progressive", a, render={"photons": PhotonSettings(progressive=True, alpha=a)}, biased=False)
+              for a in (0.5, 0.7)]
+    return s
+
+
+def convergence_settings(has_photons: bool) -> list[Setting]:
+    """Settings whose error is followed as the samples grow."""
+    c = [Setting("converge", "path tracing", renderer={"photons": False}),
+         Setting("converge", "filter", renderer={"aux": True, "photons": False},
+                 render={"filter": FilterSettings()}, biased=True),
+         Setting("converge", "max_depth=2", renderer={"photons": False}, render={"max_depth": 2}, biased=True)]
+    if has_photons:
+        c += [Setting("converge", "photons", biased=True),
+              Setting("converge", "photons progressive",
+                      render={"photons": PhotonSettings(progressive=True, alpha=0.5, spp_per_map=4)})]
+    return c
+
+
+def fit_slope(x, y) -> float:
+    """Least-squares slope of log y against log x."""
+    lx, ly = np.log(np.asarray(x, float)), np.log(np.maximum(np.asarray(y, float), 1e-300))
+    return float(np.polyfit(lx, ly, 1)[0])
+
+
+def tradeoff(scene_name, *, out_dir, width=64, height=64, spp=64, ref_spp=16384, reference=None, device=None,
+             spp_steps=(1, 4, 16, 64, 256), log=print) -> dict:
+    """The whole sweep for one scene; writes rows.csv, rows.json, summary.json and plots to out_dir."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = load_scene(scene_name)
+    ref_path = Path(reference) if reference else out / f"reference_{width}x{height}_{ref_spp}spp.exr"
+    t0 = time.perf_counter()
+    ref = reference_image(scene, width, height, ref_spp, ref_path, device)
+    log(f"reference: {ref_path} ({time.perf_counter() - t0:.1f} s)")
+    has_photons = Renderer(scene, device=device).features.photons
+    renderers = _Renderers(scene, device, width, height)
+    rows = []
+    for s in knob_settings(has_photons):
+        row = _measure(renderers, s, ref, spp=spp)
+        rows.append(row)
+        log(f"  {s.label:32s} {row['seconds']:7.3f} s  relMSE {row['relmse']:.4g}  SSIM {row['ssim']:.3f}")
+    curves = {}
+    for s in convergence_settings(has_photons):
+        pts = []
+        for n in spp_steps:
+            row = _measure(renderers, s, ref, spp=n)
+            row["knob"], row["value"] = "converge:" + str(s.value), str(n)
+            rows.append(row)
+            pts.append(row)
+        secs = [p["seconds"] for p in pts]
+        mse = [p["mse_excess"] for p in pts]
+        # MSE = bias^2 + variance: at the most samples, what the variance does not explain.
+        floor = max(0.0, pts[-1]["mse_excess"] - pts[-1]["variance_of_mean"])
+        curves[str(s.value)] = {"seconds": secs, "mse": mse, "spp": list(spp_steps), "biased": s.biased,
+                                "slope_mse_vs_time": fit_slope(secs, mse),
+                                "slope_mse_vs_spp": fit_slope(spp_steps, mse),
+                                "bias_floor_mse": floor}
+        c = curves[str(s.value)]
+        log(f"  converge {s.value!s:22s} MSE ~ spp^{c['slope_mse_vs_spp']:.2f}, time^{c['slope_mse_vs_time']:.2f}"
+            + (f", floor ~{floor:.3g}" if s.biased else ""))
+    summary = {"scene": scene_name, "resolution": f"{width}x{height}", "spp": spp, "reference_spp": ref_spp,
+               "curves": curves, "best_per_knob": _best_per_knob(rows), "pareto": _pareto(rows)}
+    with open(out / "rows.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=sorted({k for r in rows for k in r}))
+        w.writeheader()
+        w.writerows(rows)
+    (out / "rows.json").write_text(json.dumps(rows, indent=1, default=str))
+    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    _plots(out, rows, curves, scene_name, log)
+    return summary
+
+
+def _pareto(rows) -> list[str]:
+    """Settings (not convergence points) that no other is both faster and more accurate than."""
+    pts = [r for r in rows if not r["knob"].startswith("converge")]
+    front = []
+    for r in pts:
+        if not any(o["seconds"] <= r["seconds"] and o["relmse"] <= r["relmse"] and o is not r and
+                   (o["seconds"] < r["seconds"] or o["relmse"] < r["relmse"]) for o in pts):
+            front.append(f"{r['knob']}={r['value']}")
+    return front
+
+
+def _best_per_knob(rows) -> dict:
+    """Per knob: the value with the least relMSE x time (accuracy per second)."""
+    best = {}
+    for r in rows:
+        if r["knob"].startswith("converge"):
+            continue
+        score = r["relmse"] * r["seconds"]
+        if r["knob"] not in best or score < best[r["knob"]][1]:
+            best[r["knob"]] = (r["value"], score)
+    return {k: {"value": v, "relmse_x_seconds": s} for k, (v, s) in best.items()}
+
+
+def _plots(out: Path, rows, curves, title, log):
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        log("  (no plots: pip install matplotlib)")
+        return
+    knobs = sorted({r["knob"] for r in rows if not r["knob"].startswith("converge")})
+    pareto = set(_pareto(rows))
+    fig, ax = plt.subplots(figsize=(7, 5))
+    for i, k in enumerate(knobs):
+        pts = [r for r in rows if r["knob"] == k]
+        ax.loglog([p["seconds"] for p in pts], [p["relmse"] for p in pts], "o-", label=k, color=f"C{i % 10}",
+                  alpha=0.8, ms=4)
+        for p in pts:
+            if f"{p['knob']}={p['value']}" in pareto:
+                ax.plot(p["seconds"], p["relmse"], "k*", ms=12, mfc="none")
+            ax.annotate(str(p["value"]), (p["seconds"], p["relmse"]), fontsize=6, alpha=0.7)
+    ax.set_xlabel("render time (s, steady state)")
+    ax.set_ylabel("relMSE")
+    ax.set_title(f"{title}: error against time, one knob at a time (stars: Pareto front)")
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(out / "knobs.png", dpi=110)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 4.5))
+    for i, (name, c) in enumerate(curves.items()):
+        ax.loglog(c["seconds"], c["mse"], "o-", color=f"C{i}",  # MSE less the reference's noise
+                  label=f"{name}: slope {c['slope_mse_vs_time']:.2f}" + (" (biased)" if c["biased"] else ""))
+    ax.set_xlabel("render time (s)")
+    ax.set_ylabel("MSE")
+    ax.set_title(f"{title}: convergence")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "convergence.png", dpi=110)
+    plt.close(fig)
+
+
+def format_table(rows, keys=("knob", "value", "seconds", "spp", "msamples_per_s", "rmse", "relmse", "ssim", "flip")):
+    keys = [k for k in keys if any(k in r for r in rows)]
+    lines = ["  ".join(f"{k:>14s}" for k in keys)]
+    for r in rows:
+        cells = []
+        for k in keys:
+            v = r.get(k, "")
+            cells.append(f"{v:14.4g}" if isinstance(v, float) and not math.isnan(v) else f"{str(v):>14s}")
+        lines.append("  ".join(cells))
+    return "\n".join(lines)
+
+
+def write_summary(out_dir, summaries: list[dict], compare_rows: dict | None = None, command: str = ""):
+    """docs-style markdown of the sweeps: convergence slopes, error floors,
+    the best value of each knob per second, the Pareto front, and links to plots."""
+    out = Path(out_dir)
+    lines = ["# Speed and accuracy, measured", "",
+             f"Regenerate with `{command}`." if command else "", "",
+             "Each scene is rendered at its resolution below with one knob changed at a time (others at their "
+             "defaults, 64 spp), against a path-traced reference of many samples (photon mapping off, so it is "
+             "unbiased). Times are steady-state render times (kernel builds and the first launch apart).", ""]
+    for s in summaries:
+        name = s["scene"]
+        lines += [f"## {name} ({s['resolution']}, reference {s['reference_spp']} spp)", "",
+                  f"![knobs]({name}/knobs.png) ![convergence]({name}/convergence.png)", "",
+                  "| convergence of | MSE ~ spp^ | MSE ~ time^ | error floor (MSE) |", "|---|---|---|---|"]
+        for cname, c in s["curves"].items():
+            floor = f"{c['bias_floor_mse']:.3g}" if c["biased"] else "- (unbiased)"
+            lines.append(f"| {cname} | {c['slope_mse_vs_spp']:.2f} | {c['slope_mse_vs_time']:.2f} | {floor} |")
+        lines += ["", "| knob | most accuracy per second (least relMSE x time) |", "|---|---|"]
+        for k, v in sorted(s["best_per_knob"].items()):
+            lines.append(f"| {k} | {v['value']} ({v['relmse_x_seconds']:.3g}) |")
+        lines += ["", "Pareto front (no setting is both faster and more accurate): "
+                  + ", ".join(f"`{p}`" for p in s["pareto"]), ""]
+    if compare_rows:
+        lines += ["## Equal render time: uniform, adaptive, filtered", ""]
+        for name, rows in compare_rows.items():
+            lines += [f"### {name}", "", "| method | spp (mean) | relMSE | SSIM | FLIP |", "|---|---|---|---|---|"]
+            for r in rows:
+                lines.append(f"| {r['value']} | {r['spp']:.1f} | {r['relmse']:.4g} | {r['ssim']:.3f} | "
+                             f"{r.get('flip', float('nan')):.4f} |")
+            lines.append("")
+    (out / "README.md").write_text("\n".join(lines) + "\n")
