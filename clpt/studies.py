@@ -101,7 +101,18 @@ class _Renderers:
         return entry[0], entry[1], entry[2]
 
 
-def _measure(renderers, setting: Setting, ref, spp=None, seconds=None, seed=1) -> dict:
+def caustic_region(scene, width, height, device=None):
+    """Pixels where caustic photons matter: the offline caustic buffer at
+    least 5% of its peak luminance (None for scenes without casters)."""
+    r = Renderer(scene, device=device)
+    if not r.features.photons:
+        return None
+    res = r.render(16, width=width, height=height, photons=PhotonSettings(mode="offline"))
+    lum = res.caustic_image @ np.array([0.2126, 0.7152, 0.0722])
+    return lum >= 0.05 * max(float(lum.max()), 1e-12)
+
+
+def _measure(renderers, setting: Setting, ref, spp=None, seconds=None, seed=1, region=None) -> dict:
     kw = dict(setting.render)
     r, build, first = renderers.get(setting.renderer, kw)
     res = r.render(spp if spp is not None else 1 << 24, width=renderers.width, height=renderers.height, seed=seed,
@@ -116,6 +127,8 @@ def _measure(renderers, setting: Setting, ref, spp=None, seconds=None, seed=1) -
     # What the reference's own noise adds to the MSE is taken out.
     row["mse_excess"] = max(row["mse"] - float(getattr(ref, "noise", 0.0)), 1e-300)
     row.update(metrics.all_metrics(img, ref))
+    if region is not None and region.any():
+        row["rmse_caustic"] = metrics.rmse(img[region], ref[region])
     return row
 
 
@@ -178,6 +191,9 @@ def convergence_settings(has_photons: bool) -> list[Setting]:
     return c
 
 
+PHOTON_KNOBS = ("photons", "radius", "cone_k", "max_photons", "photon_mode", "progressive")
+
+
 def fit_slope(x, y) -> float:
     """Least-squares slope of log y against log x."""
     lx, ly = np.log(np.asarray(x, float)), np.log(np.maximum(np.asarray(y, float), 1e-300))
@@ -194,18 +210,20 @@ def tradeoff(scene_name, *, out_dir, width=64, height=64, spp=64, ref_spp=16384,
     t0 = time.perf_counter()
     ref = reference_image(scene, width, height, ref_spp, ref_path, device)
     log(f"reference: {ref_path} ({time.perf_counter() - t0:.1f} s)")
-    has_photons = Renderer(scene, device=device).features.photons
+    region = caustic_region(scene, width, height, device)
+    has_photons = region is not None
     renderers = _Renderers(scene, device, width, height)
     rows = []
     for s in knob_settings(has_photons):
-        row = _measure(renderers, s, ref, spp=spp)
+        row = _measure(renderers, s, ref, spp=spp, region=region)
         rows.append(row)
-        log(f"  {s.label:32s} {row['seconds']:7.3f} s  relMSE {row['relmse']:.4g}  SSIM {row['ssim']:.3f}")
+        log(f"  {s.label:32s} {row['seconds']:7.3f} s  relMSE {row['relmse']:.4g}  SSIM {row['ssim']:.3f}"
+            + (f"  RMSE caustic {row['rmse_caustic']:.4g}" if "rmse_caustic" in row else ""))
     curves = {}
     for s in convergence_settings(has_photons):
         pts = []
         for n in spp_steps:
-            row = _measure(renderers, s, ref, spp=n)
+            row = _measure(renderers, s, ref, spp=n, region=region)
             row["knob"], row["value"] = "converge:" + str(s.value), str(n)
             rows.append(row)
             pts.append(row)
@@ -221,7 +239,8 @@ def tradeoff(scene_name, *, out_dir, width=64, height=64, spp=64, ref_spp=16384,
         log(f"  converge {s.value!s:22s} MSE ~ spp^{c['slope_mse_vs_spp']:.2f}, time^{c['slope_mse_vs_time']:.2f}"
             + (f", floor ~{floor:.3g}" if s.biased else ""))
     summary = {"scene": scene_name, "resolution": f"{width}x{height}", "spp": spp, "reference_spp": ref_spp,
-               "curves": curves, "best_per_knob": _best_per_knob(rows), "pareto": _pareto(rows)}
+               "curves": curves, "best_per_knob": _best_per_knob(rows), "pareto": _pareto(rows),
+               "caustic_rows": [r for r in rows if "rmse_caustic" in r and r["knob"] in PHOTON_KNOBS]}
     with open(out / "rows.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=sorted({k for r in rows for k in r}))
         w.writeheader()
@@ -323,6 +342,12 @@ def write_summary(out_dir, summaries: list[dict], compare_rows: dict | None = No
         for cname, c in s["curves"].items():
             floor = f"{c['bias_floor_mse']:.3g}" if c["biased"] else "- (unbiased)"
             lines.append(f"| {cname} | {c['slope_mse_vs_spp']:.2f} | {c['slope_mse_vs_time']:.2f} | {floor} |")
+        if s.get("caustic_rows"):
+            lines += ["", "Photon knobs, error in the caustic region (where photons matter):", "",
+                      "| setting | seconds | RMSE caustic | relMSE image |", "|---|---|---|---|"]
+            for r in s["caustic_rows"]:
+                lines.append(f"| {r['knob']}={r['value']} | {r['seconds']:.3f} | {r['rmse_caustic']:.4g} | "
+                             f"{r['relmse']:.4g} |")
         lines += ["", "| knob | most accuracy per second (least relMSE x time) |", "|---|---|"]
         for k, v in sorted(s["best_per_knob"].items()):
             lines.append(f"| {k} | {v['value']} ({v['relmse_x_seconds']:.3g}) |")
