@@ -51,3 +51,18 @@ def test_specialized_generic_and_baked_images_are_identical(device_spec, name):
     imgs = [clpt.render(name, spp=2, width=16, height=16, device=device_spec, kernel=k)
             for k in ("specialized", "generic", "baked")]
     assert np.array_equal(imgs[0], imgs[1]) and np.array_equal(imgs[0], imgs[2])
+
+
+def test_feature_buffers_only_with_the_filter(device_spec):
+    """No feature buffers or filter kernel unless asked for; with them, the
+    image itself does not change."""
+    plain = clpt.Renderer("cornell_box", device=device_spec)
+    res = plain.render(2, width=8, height=8)
+    assert not plain.features.aux and plain.states[0].aux == [] and plain.states[0].filter is None
+    assert res.aux is None and res.filtered is None
+    with pytest.raises(clpt.SceneError, match="aux=True"):
+        plain.render(2, width=8, height=8, filter=clpt.FilterSettings())
+    aux = clpt.Renderer("cornell_box", device=device_spec, aux=True)
+    res2 = aux.render(2, width=8, height=8)
+    assert aux.features.aux and "-DCLPT_AUX=1" in aux.features.options()
+    assert np.array_equal(res.image, res2.image) and set(res2.aux) == {"normal", "albedo", "depth", "emission"}
