@@ -15,6 +15,18 @@ typedef struct {
     vmask valid;  // a usable sample (emitting side faces the point, pdf > 0)
 } LightSample;
 
+// Light i's records start at r; `pick` gets the lanes whose u_pick falls in
+// its slot of the power table and that no earlier light took. Returns the
+// light's info record (area, pick probability, cdf, material).
+inline real4 light_pick(const Scene *sc, uint i, vreal u_pick, vmask *taken, vmask *pick, uint *r)
+{
+    *r = OFF_LIGHTS + LIGHT_STRIDE * i;
+    real4 info = scene_rec(sc, *r + 4);
+    *pick = !*taken && (u_pick < info.z || i + 1 == NUM_LIGHTS);
+    *taken = *taken || *pick;
+    return info;
+}
+
 inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, vreal u2)
 {
     LightSample ls;
@@ -25,10 +37,9 @@ inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, v
     ls.valid = (vreal)R(0) != (vreal)R(0);
     vmask taken = ls.valid;
     for (uint i = 0; i < NUM_LIGHTS; i++) {
-        uint r = OFF_LIGHTS + LIGHT_STRIDE * i;
-        real4 info = scene_rec(sc, r + 4);  // area, pick probability, cdf, material
-        vmask pick = !taken && (u_pick < info.z || i + 1 == NUM_LIGHTS);
-        taken = taken || pick;
+        uint r;
+        vmask pick;
+        real4 info = light_pick(sc, i, u_pick, &taken, &pick, &r);  // area, pick probability, cdf, material
         if (!VANY(pick)) continue;
         real4 p = scene_rec(sc, r);
         int kind = (int)p.w;
@@ -114,10 +125,9 @@ inline LightPoint light_sample_point(const Scene *sc, vreal u_pick, vreal u1, vr
     lp.two_sided = lp.pdf_area != lp.pdf_area;
     vmask taken = lp.two_sided;
     for (uint i = 0; i < NUM_LIGHTS; i++) {
-        uint r = OFF_LIGHTS + LIGHT_STRIDE * i;
-        real4 info = scene_rec(sc, r + 4);  // area, pick probability, cdf, material
-        vmask pick = !taken && (u_pick < info.z || i + 1 == NUM_LIGHTS);
-        taken = taken || pick;
+        uint r;
+        vmask pick;
+        real4 info = light_pick(sc, i, u_pick, &taken, &pick, &r);  // area, pick probability, cdf, material
         if (!VANY(pick)) continue;
         real4 p = scene_rec(sc, r);
         int kind = (int)p.w;

@@ -87,15 +87,7 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
                             uint aim_mode, __global float4 *ph_pos, __global float4 *ph_dir, __global float4 *ph_pow,
                             __global uint *n_stored)
 {
-    Scene scd;
-#if CLPT_BAKED
-    scd.rec = clpt_scene;
-#else
-    scd.rec = scene;
-#endif
-    scd.n_materials = counts.s0; scd.n_spheres = counts.s1; scd.n_quads = counts.s2;
-    scd.n_triangles = counts.s3; scd.n_planes = counts.s4; scd.n_lights = counts.s5; scd.n_caustics = counts.s6;
-    scd.eps_abs = eps_abs;
+    Scene scd = scene_make(scene, counts, eps_abs);
     const Scene *sc = &scd;
 
     uint gid = get_global_id(0);

@@ -65,6 +65,23 @@ typedef struct {
 
 inline real4 scene_rec(const Scene *sc, uint i) { return sc->rec[i]; }
 
+// The scene a kernel reads: its records (the baked constants, or the buffer)
+// and the section sizes (counts: materials, spheres, quads, triangles,
+// planes, lights, caustic casters).
+inline Scene scene_make(__global const real4 *records, uint8 counts, real eps_abs)
+{
+    Scene s;
+#if CLPT_BAKED
+    s.rec = clpt_scene;
+#else
+    s.rec = records;
+#endif
+    s.n_materials = counts.s0; s.n_spheres = counts.s1; s.n_quads = counts.s2; s.n_triangles = counts.s3;
+    s.n_planes = counts.s4; s.n_lights = counts.s5; s.n_caustics = counts.s6;
+    s.eps_abs = eps_abs;
+    return s;
+}
+
 // --- offsetting ray origins ----------------------------------------------
 // A new ray starts a little off the surface, along the side it leaves by.
 // The offset is relative to the point's magnitude (positions carry rounding
@@ -132,6 +149,21 @@ typedef struct {
     vreal mat;  // material id
 } Hit;
 
+// Closest hit among the quads (tri = 0) or triangles (tri = 1) at records
+// off.., updating h where nearer.
+inline void closest_planar(const Scene *sc, uint off, uint count, int tri, V3 o, V3 d, Hit *h)
+{
+    for (uint i = 0; i < count; i++) {
+        uint r = off + PLANAR_STRIDE * i;
+        real4 n;
+        vreal t = intersect_planar(sc, r, o, d, tri, &n);
+        vmask closer = t < h->t;
+        h->t = VSEL(h->t, t, closer);
+        h->ng = v3_sel4(h->ng, n, closer);
+        h->mat = VSEL(h->mat, (vreal)scene_rec(sc, r).w, closer);
+    }
+}
+
 inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
 {
     Hit h;
@@ -152,26 +184,10 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
     }
 #endif
 #if CLPT_HAS_QUADS
-    for (uint i = 0; i < NUM_QUADS; i++) {
-        uint r = OFF_QUADS + PLANAR_STRIDE * i;
-        real4 n;
-        vreal t = intersect_planar(sc, r, o, d, 0, &n);
-        vmask closer = t < h.t;
-        h.t = VSEL(h.t, t, closer);
-        h.ng = v3_sel4(h.ng, n, closer);
-        h.mat = VSEL(h.mat, (vreal)scene_rec(sc, r).w, closer);
-    }
+    closest_planar(sc, OFF_QUADS, NUM_QUADS, 0, o, d, &h);
 #endif
 #if CLPT_HAS_TRIANGLES
-    for (uint i = 0; i < NUM_TRIANGLES; i++) {
-        uint r = OFF_TRIANGLES + PLANAR_STRIDE * i;
-        real4 n;
-        vreal t = intersect_planar(sc, r, o, d, 1, &n);
-        vmask closer = t < h.t;
-        h.t = VSEL(h.t, t, closer);
-        h.ng = v3_sel4(h.ng, n, closer);
-        h.mat = VSEL(h.mat, (vreal)scene_rec(sc, r).w, closer);
-    }
+    closest_planar(sc, OFF_TRIANGLES, NUM_TRIANGLES, 1, o, d, &h);
 #endif
 #if CLPT_HAS_PLANES
     for (uint i = 0; i < NUM_PLANES; i++) {

@@ -106,12 +106,7 @@ __kernel void probe_refract(__global const real *dx, __global const real *dy, __
 
 inline Scene probe_scene(__global const real4 *rec, uint8 counts)
 {
-    Scene s;
-    s.rec = rec;
-    s.n_materials = counts.s0; s.n_spheres = counts.s1; s.n_quads = counts.s2;
-    s.n_triangles = counts.s3; s.n_planes = counts.s4; s.n_lights = counts.s5; s.n_caustics = counts.s6;
-    s.eps_abs = R(0);
-    return s;
+    return scene_make(rec, counts, R(0));
 }
 
 __kernel void probe_intersect(__global const real4 *rec, uint8 counts,
