@@ -33,6 +33,15 @@ class PackedScene:
     extent: float                # diagonal of the scene's bounds, camera included
     size: float                  # diagonal of the geometry's bounds: the unit of relative photon radii
     max_flux: float              # total emitted power (pi * area * max Le * sides), for photon sum scales
+    max_radiance: float = 1.0    # the brightest emission's largest channel
+
+    @property
+    def lum_scale(self) -> float:
+        """The power of two that brings the brightest emission near 1: the
+        kernels square luminance times this for the per-pixel variance, which
+        then neither overflows nor goes subnormal in float, whatever the
+        scene's units of radiance (the image itself is not scaled)."""
+        return 2.0 ** -round(math.log2(self.max_radiance)) if self.max_radiance > 0 else 1.0
 
     def count(self, name: str) -> int:
         return self.counts[COUNT_NAMES.index(name)]
@@ -184,7 +193,8 @@ def pack_scene(scene: Scene) -> PackedScene:
     flux = sum(sides * math.pi * area * max(m.emission) for sides, area, m, _, _ in lights)
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
                        light_kinds=frozenset(kinds[int(r[0][3])] for _, _, _, r, _ in lights),
-                       extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux)
+                       extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,
+                       max_radiance=max((max(m.emission) for _, _, m, _, _ in lights), default=1.0))
 
 
 @dataclass(frozen=True)

@@ -85,6 +85,18 @@ class PhotonSettings:
             bad(f"alpha must be in (0, 1] (got {self.alpha!r})")
         return self
 
+    def check_radius(self, scene_size: float, double: bool = False):
+        """The gather radius must be representable: its square above the
+        smallest normal number of the kernels' real type (a smaller one finds
+        nothing and divides by zero)."""
+        from .scene import SceneError
+
+        r = self.radius_for(scene_size)
+        tiny = float(np.finfo(np.float64 if double else np.float32).tiny)
+        if not r * r > tiny * 4:
+            raise SceneError(f"photons: radius {r:.3g} is too small for {'double' if double else 'float'} "
+                             f"precision (its square underflows); use a radius above {math.sqrt(tiny) * 2:.3g}")
+
     def radius_for(self, scene_size: float, iteration: int = 0) -> float:
         r = self.radius if self.radius_absolute else self.radius * scene_size
         if self.progressive:

@@ -30,7 +30,7 @@ from .features import Features, scene_features
 from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
 from .adaptive import AdaptiveSettings, allocate_error, allocate_paper
 from .denoise import ConeFilter, FilterSettings
-from .photons import PM_OFFLINE, PM_ONLINE, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
+from .photons import PM_OFF, PM_OFFLINE, PM_ONLINE, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
 from .scene import Scene, SceneError, load_scene
 
 LOCAL_SIZE_CPU = 16
@@ -151,6 +151,7 @@ class _DeviceState:
         self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
         self.counts = counts_arg(packed.counts)
         self.eps_abs = packed.extent * (1e-13 if features.double else 2e-6)
+        self.lum_scale = packed.lum_scale
         self.real = real
         self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
         self.launched = False
@@ -189,7 +190,7 @@ class _DeviceState:
 
     def set_frame(self, frame: CameraFrame, width: int, height: int, max_depth: int, rr_depth: int, seed: int):
         r4 = clt.make_double4 if self.features.double else clt.make_float4
-        self.head = [self.scene_buf, self.counts, self.real(self.eps_abs), r4(*frame.origin, 0),
+        self.head = [self.scene_buf, self.counts, self.real(self.eps_abs), self.real(self.lum_scale), r4(*frame.origin, 0),
                      r4(*frame.corner, 0), r4(*frame.dx, 0), r4(*frame.dy, 0), np.uint32(width),
                      np.uint32(height), np.uint32(0)]
         self.depths = [np.uint32(min(max_depth, 2**31)), np.uint32(min(rr_depth, 2**31))]
@@ -258,7 +259,7 @@ def _baked_source(records: np.ndarray, double: bool) -> str:
     return f"__constant real4 clpt_scene[{max(1, len(records))}] = {{\n{rows}\n}};\n"
 
 
-def _combine(states, which: str, n_pix: int):
+def _combine(states, which: str, n_pix: int, lum_scale: float = 1.0):
     total = np.zeros((n_pix, 4), dtype=np.float64)
     total_sq = np.zeros(n_pix, dtype=np.float64)
     for st in states:
@@ -270,8 +271,8 @@ def _combine(states, which: str, n_pix: int):
     count = total[:, 3]
     safe = np.maximum(count, 1.0)
     mean = total[:, :3] / safe[:, None]
-    lum_mean = mean @ np.array([0.2126, 0.7152, 0.0722])
-    var = np.maximum(total_sq / safe - lum_mean ** 2, 0.0) * (safe / np.maximum(safe - 1.0, 1.0))
+    lum_mean = (mean @ np.array([0.2126, 0.7152, 0.0722])) * lum_scale  # the kernels square scaled luminance
+    var = np.maximum(total_sq / safe - lum_mean ** 2, 0.0) * (safe / np.maximum(safe - 1.0, 1.0)) / lum_scale ** 2
     return mean, var, count
 
 
@@ -343,8 +344,12 @@ class Renderer:
         if spp >= 2**32 or seed >= 2**32:
             raise SceneError("render: spp and seed must be below 2^32")
         pset = (photons or PhotonSettings()).check() if self.features.photons else None
-        progressive = pset is not None and pset.progressive
-        offline = pset is not None and pset.mode == "offline" and not progressive
+        if pset is not None:
+            pset.check_radius(self.packed.size, self.features.double)
+        # No photons: the path tracer keeps every path (pm_mode PM_OFF), as with photons=False.
+        no_photons = pset is not None and pset.count == 0
+        progressive = pset is not None and pset.progressive and not no_photons
+        offline = pset is not None and pset.mode == "offline" and not progressive and not no_photons
         aset = adaptive.check() if adaptive is not None else None
         fset = filter.check() if filter is not None else None
         if fset is not None and not self.features.aux:
@@ -365,7 +370,7 @@ class Renderer:
         budget = spp * n_pix  # samples in all
         state = {"next": 0, "done": 0, "stop": False, "error": None, "passes": 0}
         t_start = time.perf_counter()
-        mode = PM_OFFLINE if offline else PM_ONLINE  # progressive rendering gathers online
+        mode = PM_OFF if no_photons else PM_OFFLINE if offline else PM_ONLINE  # progressive gathers online
 
         def elapsed():
             return time.perf_counter() - t_start
@@ -453,7 +458,7 @@ class Renderer:
             for k, v in st.launches.items():
                 stats.launches[k] = stats.launches.get(k, 0) + v
         return RenderResult(image=image, sample_count=count.reshape(height, width).astype(np.uint32),
-                            lum_var=var.reshape(height, width).astype(np.float32),
+                            lum_var=var.reshape(height, width),
                             spp=int(count.max()) if n_pix else 0, seed=seed, max_depth=max_depth,
                             rr_depth=rr_depth, devices=[s.dctx.label for s in self.states],
                             features=self.features, stats=stats, photons=pset, caustic_image=caustic,
@@ -502,7 +507,7 @@ class Renderer:
             while True:
                 if time_limit is not None and elapsed() >= time_limit:
                     break
-                mean, var, count = _combine(self.states, "main", n_pix)
+                mean, var, count = _combine(self.states, "main", n_pix, self.packed.lum_scale)
                 used = int(count.sum())
                 left = budget - used
                 if left <= 0:
@@ -557,10 +562,10 @@ class Renderer:
     def _finish(self, n_pix, width, height, offline, fset):
         """The image so far, its variance and counts, the caustic buffer, the
         feature images and the filtered image."""
-        mean, var, count = _combine(self.states, "main", n_pix)
+        mean, var, count = _combine(self.states, "main", n_pix, self.packed.lum_scale)
         caustic = None
         if offline:
-            c_mean, c_var, c_count = _combine(self.states, "caustic", n_pix)
+            c_mean, c_var, c_count = _combine(self.states, "caustic", n_pix, self.packed.lum_scale)
             caustic = c_mean.astype(np.float32).reshape(height, width, 3)
             mean = mean + c_mean
             # As the variance of one sample: the caustic mean's variance scaled to count samples.

@@ -285,6 +285,20 @@ def _fail(source, path, reason):
     raise SceneError(f"{source}: {path}: {reason}" if path else f"{source}: {reason}")
 
 
+# Radiance is carried in float kernels (3.4e38 at most, normal down to
+# 1.2e-38): emission must leave room for sums of samples above and for
+# reflected light below.
+MIN_EMISSION, MAX_EMISSION = 1e-30, 1e30
+
+
+def _emission(source, path, v):
+    a = _finite_vec(source, path, v, nonneg=True)
+    if ((a > MAX_EMISSION) | ((a > 0) & (a < MIN_EMISSION))).any():
+        _fail(source, path, f"must be 0 or between {MIN_EMISSION:g} and {MAX_EMISSION:g} (got {list(v)}): "
+                            "radiance is carried in float; change the scene's units and use exposure instead")
+    return a
+
+
 def _finite_vec(source, path, v, nonneg=False):
     a = np.asarray(v, dtype=np.float64)
     if a.shape != (3,):
@@ -312,7 +326,7 @@ def check_material(source, path, m: Material):
     total = np.zeros(3)
     for key in ("kd", "ks", "kr", "kt"):
         total += _finite_vec(source, f"{path}.{key}", getattr(m, key), nonneg=True)
-    _finite_vec(source, f"{path}.emission", m.emission, nonneg=True)
+    _emission(source, f"{path}.emission", m.emission)
     _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False)
     _finite(source, f"{path}.ior", m.ior, lo=0.0)
     if (total > 1.0 + 1e-6).any():
@@ -363,7 +377,7 @@ def check_scene(scene: Scene):
         except SceneError as e:
             _fail(src, f"{path}.material", str(e))
         if s.emission is not None:
-            _finite_vec(src, f"{path}.emission", s.emission, nonneg=True)
+            _emission(src, f"{path}.emission", s.emission)
         if isinstance(s.material, Material):
             check_material(src, f"{path}.material", m)
         emissive = m.is_emissive

@@ -119,6 +119,8 @@ inline real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, r
         }
     }
 done:;
+    if (found == 0u)
+        return (real3)(R(0));  // nothing in reach (also keeps 0 / 0 out when r^2 underflows)
     real3 f_sum = kd * R(M_1_PI) * sum_d;
 #if CLPT_HAS_PHONG
     f_sum += ks * ((shininess + R(2)) * R(0.5 * M_1_PI)) * sum_s;

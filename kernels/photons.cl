@@ -148,8 +148,9 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
 #endif
         live = live && (is_r || is_t);
         flux = v3_sel(flux, v3_mul(flux, w), live);
-        o = v3_sel(o, offset_origin(sc, x, v3_sel(v3_neg(n), n, up)), live);
-        d = v3_sel(d, v3_normalize(wi), live);
+        V3 wn = v3_normalize(wi);
+        o = v3_sel(o, offset_scattered(sc, x, v3_sel(v3_neg(n), n, up), wn), live);
+        d = v3_sel(d, wn, live);
         bounces = bounces + R(1);
     }
 

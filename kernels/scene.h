@@ -98,6 +98,23 @@ inline V3 offset_origin(const Scene *sc, V3 p, V3 n_side)
     return v3_fma(n_side, m * OFFSET_REL + sc->eps_abs, p);
 }
 
+// The origin of a scattered ray of unit direction d: moved along d itself by
+// as much as puts it the same distance off the surface, so the ray's line is
+// the one the scattering gave. Offsets along the normal would shift the
+// line: inside a glass ball each total internal reflection would move the
+// ray closer to the centre, lowering its angle of incidence until it leaked
+// out below the critical angle. Near grazing (cos < 1/8) the step along d
+// would grow long, and the normal offset is kept.
+inline V3 offset_scattered(const Scene *sc, V3 p, V3 n_side, V3 d)
+{
+    vreal m = fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z)));
+    vreal delta = m * OFFSET_REL + sc->eps_abs;
+    vreal c = v3_dot(d, n_side);
+    vmask along = c >= R(0.125);
+    V3 dir = v3_sel(n_side, d, along);
+    return v3_fma(dir, VSEL(delta, delta / c, along), p);
+}
+
 // --- primitive tests --------------------------------------------------------
 // Each returns the ray parameter of the hit or +inf; NaNs from rays parallel
 // to a plane fail every comparison and so never count as hits.

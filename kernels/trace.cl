@@ -67,6 +67,7 @@ typedef struct {
     V3 L;            // radiance gathered so far by this sample
     vreal depth;     // scattering events so far
     vmask specular;  // last vertex was the camera or a delta lobe
+    vmask sees_le;   // emission found by the ray counts: camera, delta lobe or narrow Phong lobe
     vreal own;       // OWN_*: relation to the photon map's paths
 } PathState;
 
@@ -128,17 +129,25 @@ inline vmask scatter(const Scene *sc, const Material *m, PathState *ps, V3 x, V3
 #endif
     vmask cont = go && (is_d || is_s || is_r || is_t);
     ps->beta = v3_sel(ps->beta, v3_mul(ps->beta, w), cont);
-    ps->o = v3_sel(ps->o, offset_origin(sc, x, v3_sel(v3_neg(n), n, up)), cont);
-    ps->d = v3_sel(ps->d, v3_normalize(wi), cont);
+    V3 wn = v3_normalize(wi);
+    ps->o = v3_sel(ps->o, offset_scattered(sc, x, v3_sel(v3_neg(n), n, up), wn), cont);
+    ps->d = v3_sel(ps->d, wn, cont);
     ps->specular = VSEL(ps->specular, is_r || is_t, cont);
+#if CLPT_HAS_PHONG
+    ps->sees_le = VSEL(ps->sees_le, is_r || is_t || (is_s && m->shininess >= PHONG_NEE_MAX_N), cont);
+#else
+    ps->sees_le = VSEL(ps->sees_le, is_r || is_t, cont);
+#endif
     return cont && v3_max_comp(ps->beta) > R(0);
 }
 
 // Adds finished samples (lanes in `done`) to the pixel sums. A sample that is
-// not finite is counted and left out: it never reaches the sums.
-inline void accumulate(vmask done, V3 L, PixelAcc *acc, uint *nonfinite)
+// not finite is counted and left out: it never reaches the sums. The squares
+// are of luminance times lum_scale (a power of two that brings the scene's
+// brightest emission near 1), so they stay in float's range at any units.
+inline void accumulate(vmask done, V3 L, real lum_scale, PixelAcc *acc, uint *nonfinite)
 {
-    vreal lum = v3_luminance(L);
+    vreal lum = v3_luminance(L) * lum_scale;
     vmask bad = done && !isfinite(L.x + L.y + L.z);
     *nonfinite += vpopcount(bad);
     vmask ok = done && !bad;
@@ -149,7 +158,7 @@ inline void accumulate(vmask done, V3 L, PixelAcc *acc, uint *nonfinite)
     acc_add(&acc->n, (vreal)R(1), done);
 }
 
-__kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_abs,
+__kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_abs, real lum_scale,
                           real4 cam_o, real4 corner, real4 dx, real4 dy,
                           uint width, uint height, uint group_offset,
                           uint sample_begin, uint n_samples, uint max_depth, uint rr_depth, uint seed,
@@ -247,6 +256,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
     ps.o = ps.d = ps.beta = ps.L = v3_zero();
     ps.depth = zero;
     ps.specular = active;
+    ps.sees_le = active;
     ps.own = zero;
 
     while (VANY(active)) {
@@ -262,6 +272,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
             ps.depth = VSEL(ps.depth, zero, restart);
             ps.own = VSEL(ps.own, zero, restart);
             ps.specular = ps.specular || restart;
+            ps.sees_le = ps.sees_le || restart;
 #if CLPT_AUX
             feat_done = feat_done && !restart;
             path_len = VSEL(path_len, zero, restart);
@@ -296,7 +307,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         // --- emission ---------------------------------------------------------------------
         vmask sees = hit && (front || m.two_sided != R(0));
 #if CLPT_NEE
-        sees = sees && ps.specular;
+        sees = sees && ps.sees_le;
 #endif
 #if CLPT_PHOTONS
         if (owns)
@@ -376,7 +387,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         // --- finished samples --------------------------------------------------------
         vmask done = active && !cont;
         if (VANY(done)) {
-            accumulate(done, ps.L, &acc, &nonfinite);
+            accumulate(done, ps.L, lum_scale, &acc, &nonfinite);
 #if CLPT_AUX
             // No non-delta vertex (an emitter seen directly or through glass, or
             // the void): no normal, albedo 1, the distance travelled.

@@ -179,23 +179,13 @@ def test_cornell_box_scaled_or_moved_renders_the_same(device_spec, cbox_scene, c
 # --- intensity ----------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("k", [
-    1e-6,
-    1e6,
-    pytest.param(1e-20, marks=pytest.mark.xfail(strict=True, reason=(
-        "lum_var loses its precision for radiance ~1e-20: Renderer.render returns it as float32 "
-        "(clpt/render.py, RenderResult(lum_var=var...astype(np.float32))), where a variance of ~1e-40 is "
-        "subnormal; the float kernel also squares luminance in float (kernels/trace.cl accumulate(): "
-        "lum * lum)"))),
-    pytest.param(1e20, marks=pytest.mark.xfail(strict=True, reason=(
-        "lum_var overflows to inf for radiance above ~1.8e19 although the image is finite: "
-        "kernels/trace.cl accumulate() squares luminance in the kernel's float (lum * lum) and "
-        "clpt/render.py casts the variance to float32 (max 3.4e38)"))),
-])
+@pytest.mark.parametrize("k", [1e-25, 1e-6, 1e6, 1e25])
 def test_emission_scales_linearly(device_spec, cbox_scene, k):
-    """Light emission scaled by k: with the same seed every path is the same,
-    so every pixel scales by exactly k (to float rounding, checked at 1e-4
-    relative) and its variance by k^2."""
+    """Light emission scaled by k, from 1e-25 to 1e25: with the same seed
+    every path is the same, so every pixel scales by exactly k (to float
+    rounding, checked at 1e-4 relative) and its variance by k^2 (the kernels
+    square luminance scaled to the brightest emission, so neither overflows
+    nor goes subnormal)."""
     ref = clpt.Renderer(cbox_scene, device=device_spec).render(16, width=W, height=W, seed=3)
     res = clpt.Renderer(scale_emission(cbox_scene, k), device=device_spec).render(16, width=W, height=W, seed=3)
     assert_finite(res)
@@ -208,16 +198,14 @@ def test_emission_scales_linearly(device_spec, cbox_scene, k):
     assert np.abs(vr - 1).max() < 1e-3, f"lum_var / k^2 differs from the reference by {np.abs(vr - 1).max():.3g}"
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "the scene checker accepts an emission that is finite in float64 but not in the kernels' float32 "
-    "(clpt/scene.py check_material/_finite_vec only test np.isfinite in float64); clpt/pack.py then uploads "
-    "inf, every sample is dropped as non-finite and the image is silently black"))
-def test_emission_beyond_float_range_is_rejected(device_spec, cbox_scene):
-    """An emission of 1e39 cannot be represented in float32 (max 3.4e38), nor
-    can the image it would give: the scene must be rejected with a SceneError
-    naming the emission rather than rendered black."""
+@pytest.mark.parametrize("k", [1e-40, 1e31, 1e39])
+def test_emission_beyond_float_range_is_rejected(device_spec, cbox_scene, k):
+    """An emission of 1e39 cannot be represented in float32 (max 3.4e38), one
+    of 1e31 leaves no room for sums of samples, and 1e-40 is subnormal: the
+    scene is rejected with a SceneError naming the emission rather than
+    rendered black or infinite."""
     with pytest.raises(clpt.SceneError, match="emission"):
-        r = clpt.Renderer(scale_emission(cbox_scene, 1e39), device=device_spec)
+        r = clpt.Renderer(scale_emission(cbox_scene, k), device=device_spec)
         r.render(4, width=8, height=8, seed=1)
 
 
@@ -261,16 +249,7 @@ def _ball_cosine(cam, ss):
     return np.where(disc > 0, np.abs((p / 0.5 * d).sum(-1)), np.nan)
 
 
-@pytest.mark.parametrize("nee", [
-    False,
-    pytest.param(True, marks=pytest.mark.xfail(strict=True, reason=(
-        "Phong lobes get their direct light only from light sampling: kernels/trace.cl counts emission "
-        "found by a bounce only after a mirror/refraction vertex ('sees = sees && ps.specular'), with no "
-        "MIS. A lobe of n = 1e6 covers ~6e-6 sr, so light samples (kernels/lights.h light_sample) "
-        "practically never land in it: the reflection of an area light is missing (image mean 0.27 "
-        "instead of 0.75) and the few samples that would carry it (weights ~1e5) are never drawn, so "
-        "lum_var does not show the error either"))),
-])
+@pytest.mark.parametrize("nee", [False, True])
 def test_phong_ball_of_huge_exponent_approaches_mirror_ball(device_spec, nee):
     """A Phong ball of ks = 1 and n = 1e6 reflects like a mirror ball, but the
     modified Phong BRDF (f = ks (n+2)/(2 pi) cos^n) has directional albedo
@@ -347,15 +326,7 @@ def _tir_scene(ior):
     return scene, R
 
 
-@pytest.mark.parametrize("precision", [
-    pytest.param("float", marks=pytest.mark.xfail(strict=True, reason=(
-        "totally internally reflected rays leak out of a glass ball in float builds: offset_origin() "
-        "(kernels/scene.h) moves every new ray origin along the normal by 2e-6 |p| + 2e-6 x scene size; "
-        "for a reflection inside a sphere that shrinks the ray's distance from the centre, so sin(theta_i) "
-        "drifts down by ~1.5e-5 per bounce until the ray is below the critical angle and escapes "
-        "(double builds offset by 1e-12 and keep them trapped)"))),
-    "double",
-])
+@pytest.mark.parametrize("precision", ["float", "double"])
 def test_total_internal_reflection_inside_a_glass_ball(device_spec, precision):
     """Seen from inside a lossless glass ball in a furnace of radiance
     Le / (1 - rho) = 2, a ray meeting the surface below the critical angle
@@ -680,11 +651,6 @@ def test_photon_mapping_agrees_with_path_tracing(caustics, caustics_pt):
                        math.hypot(image_sigma(res), image_sigma(caustics_pt)), K, what="photons vs path tracing")
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "PhotonSettings(count=0) is accepted (PhotonSettings.check allows 0; the CLI maps --photons 0 to "
-    "photons=False) but Renderer.render (clpt/render.py) still runs the kernels in PM_ONLINE mode, where the "
-    "path tracer leaves the caustic paths E S* x D S+ L to the (empty) photon map: the caustics are "
-    "silently lost (12 sigma darker here). It should render with pm_mode PM_OFF when count == 0"))
 def test_zero_photons_is_photon_mapping_off(caustics, caustics_pt):
     """count=0 emits no photons; the caustics must then come from path tracing
     (as photons=False, or the CLI's --photons 0), not vanish."""
@@ -695,12 +661,17 @@ def test_zero_photons_is_photon_mapping_off(caustics, caustics_pt):
                        math.hypot(image_sigma(res), image_sigma(caustics_pt)), K, what="count=0 vs photons off")
 
 
+# A map whose gathers find nothing: the path-traced part of the image alone.
+NOTHING_FOUND = clpt.PhotonSettings(count=1, radius=1e-7)
+
+
 @pytest.mark.parametrize("settings", [
     clpt.PhotonSettings(count=1),
     clpt.PhotonSettings(radius=1e-7),
+    clpt.PhotonSettings(radius=1e-18),
     clpt.PhotonSettings(radius=10.0),
     clpt.PhotonSettings(radius=1e30, count=100_000),
-], ids=["one-photon", "radius-1e-7", "radius-10", "radius-1e30"])
+], ids=["one-photon", "radius-1e-7", "radius-1e-18", "radius-10", "radius-1e30"])
 def test_photon_extremes_only_add_caustics(caustics, settings):
     """With one seed the path-traced part of the image is the same whatever
     the photon map, and a gather only adds light: every pixel is at least
@@ -710,7 +681,7 @@ def test_photon_extremes_only_add_caustics(caustics, settings):
     1e30 (r^2 = inf: nothing) are all finite and never brighter than the
     default map within noise (a huge radius spreads the caustic over pi r^2)."""
     seed = 2
-    base = _photon_render(caustics, clpt.PhotonSettings(count=0), seed)
+    base = _photon_render(caustics, NOTHING_FOUND, seed)
     res = _photon_render(caustics, settings, seed)
     assert_finite(res)
     assert res.stats.photon_maps[0]["stored"] <= settings.count
@@ -724,21 +695,19 @@ def test_photon_extremes_only_add_caustics(caustics, settings):
         assert m <= m_default + K * sigma, f"brighter than the default photon map: {m:.5g} > {m_default:.5g} + {K} sigma"
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "a photon radius whose square underflows (1e-30 x scene size: r^2 ~ 1e-59 is 0 in float) makes every "
-    "gather 0/0 = NaN: kernels/photon_grid.h photon_gather_one() returns f_sum / ((1 - 2/(3k)) pi r2) even "
-    "when no photon was found, and PhotonSettings.check (clpt/photons.py) accepts any radius > 0; every "
-    "sample whose first diffuse vertex gathers is dropped as non-finite and the image is black"))
-def test_vanishing_photon_radius(caustics):
-    """A radius of 1e-30 scene sizes finds no photon: the image must be the
-    count=0 image (or the setting rejected with a SceneError), not NaN."""
-    try:
-        res = _photon_render(caustics, clpt.PhotonSettings(radius=1e-30, count=100_000), 2)
-    except clpt.SceneError:
-        return
+def test_vanishing_photon_radius(caustics_scene, caustics, device_spec):
+    """A radius of 1e-30 scene sizes: its square underflows in float, so a
+    float renderer rejects it with a SceneError saying so; in double it is
+    representable, finds no photon and gives exactly the image of a map
+    whose gathers find nothing, never 0 / 0."""
+    tiny = clpt.PhotonSettings(radius=1e-30, count=100_000)
+    with pytest.raises(clpt.SceneError, match="too small"):
+        caustics.render(4, width=W, height=W, seed=2, photons=tiny)
+    r = clpt.Renderer(caustics_scene, device=device_spec, precision="double")
+    res = r.render(64, width=W, height=W, seed=2, photons=tiny)
+    base = r.render(64, width=W, height=W, seed=2, photons=NOTHING_FOUND)
     assert_finite(res)
-    base = _photon_render(caustics, clpt.PhotonSettings(count=0), 2)
-    assert np.allclose(res.image, base.image, rtol=1e-6, atol=0)
+    assert np.array_equal(res.image, base.image)
 
 
 def test_ten_million_photons(caustics, caustics_pt):
