@@ -73,9 +73,12 @@ def allocate_error(mean_lum, lum_var, count, settings: AdaptiveSettings, budget_
 
     A pixel above the threshold wants n ((e / t)^2 - 1) more samples (what
     would bring it to the threshold if its error falls as 1/sqrt(n)). When the
-    wants exceed the budget, it is shared in proportion to them, so the
-    noisiest regions get the most samples even when no pixel can reach the
-    threshold; no pixel gets more than pass_spp in one pass."""
+    wants exceed the budget, the pixels above the threshold are steered to the
+    counts that minimise their summed relative variance (proportional to their
+    relative per-sample deviations), so the noisiest regions get the most
+    samples even when no pixel can reach the threshold; no pixel gets more than max(pass_spp, its count) in one pass
+    (at most doubling its samples, so the passes are few and long enough to
+    keep the device busy, yet each sees what the last achieved)."""
     own = relative_error(mean_lum, lum_var, count)
     err = _neighbourhood_max(own)
     need = err > settings.threshold
@@ -84,8 +87,15 @@ def allocate_error(mean_lum, lum_var, count, settings: AdaptiveSettings, budget_
     if budget_left <= 0 or total == 0:
         return np.zeros(want.shape, dtype=np.int64), err
     if total > budget_left:
-        want = want * (budget_left / total)  # shares in proportion to the need
-    want = np.minimum(want, settings.pass_spp)
+        # The counts that minimise the summed relative variance of these pixels
+        # for the samples there will be: n_i proportional to each one's relative
+        # per-sample deviation (sum s_i^2 / n_i under sum n_i = N).
+        dev = np.where(need, err * np.sqrt(np.maximum(count, 1.0)), 0.0)
+        target = dev * ((count[need].sum() + budget_left) / max(dev.sum(), 1e-300))
+        want = np.where(need, np.maximum(target - count, 0.0), 0.0)
+        if want.sum() > budget_left:
+            want = want * (budget_left / want.sum())
+    want = np.minimum(want, np.maximum(count, settings.pass_spp))
     share = np.floor(want).astype(np.int64)
     # What flooring left over goes one sample each to the worst pixels (own error breaks ties).
     rest = int(min(budget_left, np.ceil(want).sum()) - share.sum())

@@ -259,6 +259,13 @@ def _baked_source(records: np.ndarray, double: bool) -> str:
     return f"__constant real4 clpt_scene[{max(1, len(records))}] = {{\n{rows}\n}};\n"
 
 
+def _lane_group_max(n: np.ndarray, lanes: int) -> np.ndarray:
+    """Each entry raised to the largest of its group of `lanes` consecutive entries."""
+    pad = -len(n) % lanes
+    g = np.concatenate([n, np.zeros(pad, dtype=n.dtype)]).reshape(-1, lanes)
+    return np.repeat(g.max(axis=1), lanes)[:len(n)].astype(n.dtype)
+
+
 def _combine(states, which: str, n_pix: int, lum_scale: float = 1.0):
     total = np.zeros((n_pix, 4), dtype=np.float64)
     total_sq = np.zeros(n_pix, dtype=np.float64)
@@ -518,6 +525,11 @@ class Renderer:
                     # A round spends at most an eighth of the budget, so later rounds
                     # see what the earlier ones achieved.
                     round_budget = min(left, max(budget // 8, n_pix))
+                    if time_limit is not None and used > 0:
+                        # Half the time left at the rate so far: the last rounds shrink
+                        # with it instead of running past the limit.
+                        rate = used / max(elapsed(), 1e-9)
+                        round_budget = min(round_budget, max(n_pix, int(rate * (time_limit - elapsed()) / 2)))
                     n, _ = allocate_error(lum, var.reshape(shape), count.reshape(shape), aset, round_budget)
                     depth = np.full(shape, max_depth)
                 else:
@@ -532,8 +544,15 @@ class Renderer:
                 jobs[:, 0] = n.ravel()[pixels]
                 jobs[:, 1] = np.minimum(depth.ravel()[pixels], 2**31)
                 jobs[:, 2] = count[pixels]  # each pixel continues its own sample sequence
-                # Split the list among the devices in contiguous parts.
+                # Split the list among the devices in contiguous parts (neighbouring
+                # pixels share a work-item: their paths run alike in its lanes).
                 parts = np.array_split(np.arange(len(pixels)), len(self.states))
+                # A work-item lasts as long as its busiest lane: each lane gets as many
+                # samples as the busiest of its work-item's lanes, when the budget allows.
+                more = [_lane_group_max(jobs[idx, 0], st.features.lanes) for st, idx in zip(self.states, parts)]
+                if sum(int(m.sum()) for m in more) <= left:
+                    for idx, m in zip(parts, more):
+                        jobs[idx, 0] = m
                 errors = []
 
                 def one(st, idx):
