@@ -38,7 +38,7 @@ class AdaptiveSettings:
     scheme: str = "error"          # "error" or "paper"
     min_spp: int = 32              # uniform samples before any decision
     threshold: float = 0.02        # error scheme: target relative error of a pixel
-    pass_spp: int = 16             # most samples a pixel gets per adaptive pass
+    pass_spp: int = 16             # most samples per adaptive pass (error scheme: or the pixel's count, if more)
     disagreement: float = 0.1      # paper scheme: relative luminance difference that counts as disagreeing
     reduce_depth: bool = True      # paper scheme: half depth for the pixels that agree with their neighbours
     paper_mode: str = "reduce"     # paper scheme: "reduce" or "stop" the agreeing pixels

@@ -84,7 +84,7 @@ def _add_quality_options(p):
     g.add_argument("--min-spp", type=int, default=None, help="uniform samples before adapting (default 32)")
     g.add_argument("--noise-threshold", type=float, default=None,
                    help="error scheme: stop a pixel at this relative error (default 0.02)")
-    g.add_argument("--adaptive-pass-spp", type=int, default=None, help="most samples a pixel gets per pass (16)")
+    g.add_argument("--adaptive-pass-spp", type=int, default=None, help="most samples a pixel gets per pass, or its count so far if more (16)")
     g.add_argument("--no-depth-reduction", action="store_true",
                    help="paper scheme: keep full depth for calm pixels (no bias)")
     g.add_argument("--paper-stop", action="store_true", help="paper scheme: stop calm pixels instead of slowing them")
