@@ -4,6 +4,7 @@ clpt/scenes)."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib.resources
 from pathlib import Path
 
@@ -13,12 +14,11 @@ def _data_dir(name: str) -> Path:
     for d in (here / name, here.parent / name):  # installed, then source checkout
         if d.is_dir():
             return d
-    try:  # an editable install maps clpt.<name> onto the checkout's folder
+    # An editable install maps clpt.<name> onto the checkout's folder (or has no such package).
+    with contextlib.suppress(ModuleNotFoundError, TypeError):
         d = Path(str(importlib.resources.files(f"clpt.{name}")))
         if d.is_dir():
             return d
-    except (ModuleNotFoundError, TypeError):
-        pass
     raise FileNotFoundError(f"clpt cannot find its {name}/ folder next to {here}; reinstall clpt")
 
 

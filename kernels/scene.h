@@ -92,10 +92,14 @@ inline Scene scene_make(__global const real4 *records, uint8 counts, real eps_ab
 #else
 #define OFFSET_REL R(2e-6)
 #endif
+inline vreal offset_distance(const Scene *sc, V3 p)
+{
+    return fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z))) * OFFSET_REL + sc->eps_abs;
+}
+
 inline V3 offset_origin(const Scene *sc, V3 p, V3 n_side)
 {
-    vreal m = fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z)));
-    return v3_fma(n_side, m * OFFSET_REL + sc->eps_abs, p);
+    return v3_fma(n_side, offset_distance(sc, p), p);
 }
 
 // The origin of a scattered ray of unit direction d: moved along d itself by
@@ -107,8 +111,7 @@ inline V3 offset_origin(const Scene *sc, V3 p, V3 n_side)
 // would grow long, and the normal offset is kept.
 inline V3 offset_scattered(const Scene *sc, V3 p, V3 n_side, V3 d)
 {
-    vreal m = fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z)));
-    vreal delta = m * OFFSET_REL + sc->eps_abs;
+    vreal delta = offset_distance(sc, p);
     vreal c = v3_dot(d, n_side);
     vmask along = c >= R(0.125);
     V3 dir = v3_sel(n_side, d, along);

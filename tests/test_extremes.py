@@ -24,6 +24,7 @@ import pytest
 import clpt
 from clpt.pack import camera_frame
 
+from analytic import pixel_average, sphere_light_on_floor, sub_pixel_rays
 from stats import assert_mean_within
 from test_furnace import furnace
 
@@ -107,21 +108,6 @@ def transform(scene, s=1.0, t=(0.0, 0.0, 0.0)):
 def scale_emission(scene, k):
     return replace(scene, shapes=[replace(sh, emission=tuple(k * e for e in sh.emission))
                                   if sh.emission is not None else sh for sh in scene.shapes])
-
-
-def sub_pixel_rays(cam, w, h, ss):
-    """Unit directions through an ss x ss grid of points in every pixel: (h*ss, w*ss, 3)."""
-    fr = camera_frame(cam, w, h)
-    sub = (np.arange(ss) + 0.5) / ss
-    px = (np.arange(w)[:, None] + sub[None, :]).ravel()
-    py = (np.arange(h)[:, None] + sub[None, :]).ravel()
-    X, Y = np.meshgrid(px, py)
-    d = fr.corner + X[..., None] * fr.dx + Y[..., None] * fr.dy
-    return d / np.linalg.norm(d, axis=-1, keepdims=True)
-
-
-def pixel_average(values, w, h, ss):
-    return values.reshape(h, ss, w, ss).mean(axis=(1, 3))
 
 
 # --- shared scenes and renderers ------------------------------------------------------
@@ -421,16 +407,7 @@ def test_tiny_sphere_light_is_a_point_light(device_spec, radius, precision):
     r = clpt.Renderer(clpt.Scene(camera=cam, shapes=[floor, bulb]), device=device_spec, precision=precision)
     res = r.render(256, max_depth=1, seed=1)
     assert_finite(res)
-    ss = 6
-    d = sub_pixel_rays(cam, W, W, ss)
-    o = np.array(cam.origin)
-    t = -o[1] / d[..., 1]
-    p = o + t[..., None] * d
-    to_c = c - p
-    dist = np.linalg.norm(to_c, axis=-1)
-    e = math.pi * le * (radius / dist) ** 2 * (to_c[..., 1] / dist)
-    on_floor = (t > 0) & (np.abs(p[..., 0]) < 3) & (np.abs(p[..., 2]) < 3)
-    expected = pixel_average(rho / math.pi * np.where(on_floor, e, 0.0), W, W, ss)
+    expected = sphere_light_on_floor(cam, W, W, 6, c, radius, le, rho)
     v = pixel_var(res)
     img = res.image[..., 0].astype(np.float64)
     z = np.abs(img - expected) / np.sqrt(v + (1e-6 * expected.max()) ** 2)

@@ -11,6 +11,7 @@ import clpt
 from clpt.pack import camera_frame
 from clpt.resources import shipped_scenes
 
+from analytic import sphere_light_on_floor
 from stats import assert_mean_within
 from test_shapes import lambert_irradiance
 
@@ -128,19 +129,7 @@ def test_sphere_light_over_diffuse_plane(device_spec):
     w = h = 16
     cam = clpt.Camera(origin=(0.0, 0.5, 1.2), target=(0.0, 0.0, -0.2), fov=50, width=w, height=h)
     res = clpt.Renderer(clpt.Scene(camera=cam, shapes=[floor, bulb]), device=device_spec).render(512, max_depth=1)
-    fr = camera_frame(cam, w, h)
-    o = np.array(cam.origin)
-    sub = (np.arange(6) + 0.5) / 6
-    px = (np.arange(w)[:, None] + sub[None, :]).ravel()
-    X, Y = np.meshgrid(px, px)
-    d = fr.corner + X[..., None] * fr.dx + Y[..., None] * fr.dy
-    t = -o[1] / d[..., 1]
-    p = o + t[..., None] * d
-    to_c = c - p
-    dist = np.linalg.norm(to_c, axis=-1)
-    e = math.pi * le * (r / dist) ** 2 * (to_c[..., 1] / dist)
-    on_floor = (t > 0) & (np.abs(p[..., 0]) < 3) & (np.abs(p[..., 2]) < 3)
-    expected = (rho / math.pi * np.where(on_floor, e, 0.0)).reshape(h, 6, w, 6).mean(axis=(1, 3))
+    expected = sphere_light_on_floor(cam, w, h, 6, c, r, le, rho)
     var_pix = res.lum_var / res.sample_count
     z = np.abs(res.image[..., 0] - expected) / np.sqrt(var_pix + 1e-12)
     assert z.max() < 6, f"pixel off by {z.max():.1f} sigma"
