@@ -56,7 +56,8 @@ def _add_render_options(p):
 def _add_photon_options(p):
     g = p.add_argument_group("caustic photons (scenes with mirror or glass objects)")
     g.add_argument("--photons", type=int, default=None, metavar="N",
-                   help="photons per photon map (default 1000000); 0 turns photon mapping off")
+                   help="photons per photon map (default: 0.25 per camera sample of a progressive iteration, "
+                        "10^6 for a fixed map); 0 turns photon mapping off")
     g.add_argument("--radius", type=float, default=None, help="gather radius, a fraction of the scene size "
                                                               "(default 0.004), or absolute with --radius-absolute")
     g.add_argument("--radius-absolute", action="store_true")
@@ -65,8 +66,16 @@ def _add_photon_options(p):
                    help="use at most this many photons per gather (the paper's cap; default: no cap)")
     g.add_argument("--photon-budget", type=int, default=None,
                    help="photons visited per row of cells before unbiased subsampling (default 128)")
-    g.add_argument("--photon-mode", choices=("online", "offline"), default=None,
-                   help="gather in every sample (default), or in a pre-pass into a caustic buffer")
+    g.add_argument("--photon-mode", choices=("merge", "online", "offline"), default=None,
+                   help="merge: photon merging at every non-delta vertex weighted against path tracing by MIS "
+                        "(default); online: the photon map owns the caustic paths at the first diffuse vertex; "
+                        "offline: that, gathered in a pre-pass into a caustic buffer")
+    g.add_argument("--merge-vertices", type=int, default=None,
+                   help="merge at the first N non-delta vertices of a camera path (default: all)")
+    g.add_argument("--merge-probability", type=float, default=None,
+                   help="merge at a vertex with this probability (Russian roulette on the merge; default 1)")
+    g.add_argument("--no-photon-pilot", action="store_true",
+                   help="always use the photon map (no pilot deciding whether it pays)")
     g.add_argument("--offline-spp", type=int, default=None, help="samples per pixel of the offline pre-pass")
     g.add_argument("--aim", choices=("solid_angle", "equal"), default=None,
                    help="share photons among casters by solid angle (default) or equally (the paper)")
@@ -136,12 +145,15 @@ def _photon_settings(a):
 
     fields = {"count": a.photons, "radius": a.radius, "cone_k": a.cone_k, "max_photons": a.max_photons,
               "budget": a.photon_budget, "mode": a.photon_mode, "offline_spp": a.offline_spp, "aim": a.aim,
-              "alpha": a.alpha, "spp_per_map": a.spp_per_map}
+              "alpha": a.alpha, "spp_per_map": a.spp_per_map, "merge_vertices": a.merge_vertices,
+              "merge_probability": a.merge_probability}
     kw = {k: v for k, v in fields.items() if v is not None}
     if a.radius_absolute:
         kw["radius_absolute"] = True
     if a.progressive:
         kw["progressive"] = True
+    if a.no_photon_pilot:
+        kw["pilot"] = False
     return PhotonSettings(**kw).check()
 
 
@@ -207,6 +219,10 @@ def cmd_render(a) -> int:
     if a.verbose:
         print(f"rays: {st.camera_rays} camera, {st.bounce_rays} bounce, {st.shadow_rays} shadow "
               f"({st.rays / secs / 1e6:.2f} Mrays/s); first launch {st.first_launch_seconds:.3f}s", file=sys.stderr)
+        if st.photon_pilot is not None:
+            pl = st.photon_pilot
+            print(f"photon pilot: {pl['choice']} (caustic photons carry {pl['caustic_share']:.2%} of the "
+                  f"lights' power; {pl['stored']} of {pl['photons']} photons stored)", file=sys.stderr)
         for m in st.photon_maps[:3]:
             print(f"photon map: {m['stored']} of {res.photons.count} photons stored, radius {m['radius']:.4g}, "
                   f"trace {m['trace_seconds'] * 1e3:.1f} ms, grid {m['grid_seconds'] * 1e3:.1f} ms", file=sys.stderr)
@@ -373,6 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also compare errors at these render times (comma list)")
     p.add_argument("--reference", default=None, help="reference EXR: read if it exists, else rendered and saved")
     p.add_argument("--ref-spp", type=int, default=16384)
+    p.add_argument("--max-depth", type=int, default=64, help="path depth of the equal-time renders (default 64)")
     p.add_argument("--device", "-d", default=None)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=lambda a: __import__("clpt.bench", fromlist=["x"]).run_bench_photons(a))

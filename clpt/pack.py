@@ -149,9 +149,12 @@ def pack_scene(scene: Scene) -> PackedScene:
         mid = mat_id(p)
         m = scene.surface(p)
         sides = 2.0 if m.two_sided else 1.0
+        # The primitive's light record index + 1 (0: not a light), for the
+        # light pdf of BSDF-sampled hits (multiple importance sampling).
+        light1 = float(len(lights) + 1) if m.is_emissive else 0.0
         if isinstance(p, Sphere):
             c = np.array(p.center, dtype=np.float64)
-            spheres += [(*c, p.radius), (mid, 0.0, 0.0, 0.0)]
+            spheres += [(*c, p.radius), (mid, light1, 0.0, 0.0)]
             if m.is_emissive:
                 area = 4 * math.pi * p.radius ** 2
                 lights.append((sides, area, m, [(*c, LIGHT_KIND_SPHERE), (p.radius, 0.0, 0.0, 0.0),
@@ -163,6 +166,7 @@ def pack_scene(scene: Scene) -> PackedScene:
                 v0, v1, v2 = (np.array(a, dtype=np.float64) for a in p.vertices)
                 c, u, v = v0, v1 - v0, v2 - v0
             recs, n, area = _planar_records(c, u, v, mid)
+            recs[1] = (*n, light1)
             kind = LIGHT_KIND_QUAD if isinstance(p, Quad) else LIGHT_KIND_TRIANGLE
             if kind == LIGHT_KIND_TRIANGLE:
                 area *= 0.5

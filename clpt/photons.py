@@ -19,7 +19,9 @@ import pyopencl.cltypes as clt
 
 RADIX_BITS = 8
 MAX_TABLE_BITS = 24
-PM_OFF, PM_ONLINE, PM_OFFLINE, PM_PREPASS = 0, 1, 2, 3
+# Photon-map modes of trace_paths (kernels/trace.cl PM_*).
+PM_OFF, PM_MERGE, PM_OWNED, PM_OFFLINE, PM_PREPASS = 0, 1, 2, 3, 4
+MODES = ("merge", "online", "offline")
 
 
 @dataclass(frozen=True)
@@ -45,16 +47,21 @@ class PhotonSettings:
     fixed blur.
     """
 
-    count: int = 1_000_000
+    count: int | None = None
     radius: float = 0.004
     budget: int = 128
     radius_absolute: bool = False
     cone_k: float = 1.1
     max_photons: int = 0
-    mode: str = "online"
+    mode: str = "merge"
+    merge_vertices: int = 1 << 20
+    merge_probability: float = 1.0
     aim: str = "solid_angle"
     offline_spp: int = 16
-    progressive: bool = False
+    progressive: bool | None = None
+    photons_per_sample: float = 0.25
+    pilot: bool = True
+    min_caustic_share: float = 1e-3
     alpha: float = 0.7
     spp_per_map: int = 4
 
@@ -64,8 +71,8 @@ class PhotonSettings:
         def bad(what):
             raise SceneError(f"photons: {what}")
 
-        if not isinstance(self.count, (int, np.integer)) or isinstance(self.count, bool) or not \
-                0 <= self.count < 2 ** 31:
+        if self.count is not None and (not isinstance(self.count, (int, np.integer)) or isinstance(self.count, bool)
+                                       or not 0 <= self.count < 2 ** 31):
             bad(f"count must be an integer from 0 to 2^31 - 1 (got {self.count!r})")
         if not (math.isfinite(self.radius) and self.radius > 0):
             bad(f"radius must be > 0 (got {self.radius!r})")
@@ -75,15 +82,37 @@ class PhotonSettings:
             bad(f"max_photons must be >= 0 (got {self.max_photons!r})")
         if not 1 <= self.budget < 2 ** 32:
             bad(f"budget must be >= 1 (got {self.budget!r})")
-        if self.mode not in ("online", "offline"):
-            bad(f"mode must be 'online' or 'offline' (got {self.mode!r})")
+        if self.mode not in MODES:
+            bad(f"mode must be one of {', '.join(MODES)} (got {self.mode!r})")
+        if not (isinstance(self.merge_probability, (int, float)) and 0 < self.merge_probability <= 1):
+            bad(f"merge_probability must be in (0, 1] (got {self.merge_probability!r})")
+        if not isinstance(self.merge_vertices, (int, np.integer)) or not 1 <= self.merge_vertices < 2 ** 31:
+            bad(f"merge_vertices must be an integer >= 1 (got {self.merge_vertices!r})")
         if self.aim not in ("solid_angle", "equal"):
             bad(f"aim must be 'solid_angle' or 'equal' (got {self.aim!r})")
+        if not (isinstance(self.photons_per_sample, (int, float)) and 0 < self.photons_per_sample < 1e6):
+            bad(f"photons_per_sample must be > 0 (got {self.photons_per_sample!r})")
+        if not isinstance(self.pilot, bool):
+            bad(f"pilot must be True or False (got {self.pilot!r})")
         if not self.offline_spp >= 1 or not self.spp_per_map >= 1:
             bad("offline_spp and spp_per_map must be >= 1")
         if not 0 < self.alpha <= 1:
             bad(f"alpha must be in (0, 1] (got {self.alpha!r})")
         return self
+
+    def resolved(self, n_pixels: int) -> "PhotonSettings":
+        """The settings with their automatic values filled in: merging is
+        progressive unless told otherwise, and a progressive map holds
+        photons_per_sample photons per camera sample of its iteration (so that
+        tracing photons and building the grid stay a small share of the time,
+        whatever the image size); a fixed map holds 10^6 photons."""
+        from dataclasses import replace
+        progressive = self.mode == "merge" if self.progressive is None else bool(self.progressive)
+        count = self.count
+        if count is None:
+            count = (max(1000, min(2 ** 30, int(self.photons_per_sample * n_pixels * self.spp_per_map)))
+                     if progressive else 1_000_000)
+        return replace(self, progressive=progressive, count=int(count))
 
     def check_radius(self, scene_size: float, double: bool = False):
         """The gather radius must be representable: its square above the
@@ -131,10 +160,12 @@ class PhotonMap:
         self.k_scatter = cl.Kernel(program, "radix_scatter")
         self.k_permute = cl.Kernel(program, "photon_permute")
         self.k_starts = cl.Kernel(program, "bucket_starts")
+        self.k_occ = cl.Kernel(program, "photon_occupancy")
         self.capacity = -1
         self.n_chunks = 64 if dctx.is_cpu else 1024  # a multiple of the local size: every chunk work-item exists
         self.launches = {}
         self.n_stored = 0
+        self.n_emitted = 0
         self.radius = 0.0
         self.sorted_keys = None
 
@@ -152,6 +183,9 @@ class PhotonMap:
             self.bucket_start = cl.Buffer(ctx, rw, 4 * ((1 << self.table_bits) + 1))
             self.hist = cl.Buffer(ctx, rw, 4 * 256 * self.n_chunks)
             self.counter = cl.Buffer(ctx, rw, 4)
+            # Occupancy bits: about 128 a photon (27 set each), 2^16 to 2^26.
+            self.occ_bits = 1 << max(16, min(26, (128 * m - 1).bit_length()))
+            self.occ = cl.Buffer(ctx, rw, self.occ_bits // 8)
         except cl.Error as e:
             from .device import DeviceError
             raise DeviceError(f"cannot allocate a photon map of {n} photons on {self.dctx.label} ({e}); "
@@ -188,6 +222,7 @@ class PhotonMap:
         cl.enqueue_copy(q, stored, self.counter)
         grid_events = self.build_grid(n, radius)
         self.n_stored = int(stored[0])
+        self.n_emitted = n
         return {"stored": self.n_stored, "trace_seconds": _device_seconds(events),
                 "grid_seconds": _device_seconds(grid_events), "host_seconds": time.perf_counter() - t_host}
 
@@ -204,6 +239,7 @@ class PhotonMap:
                 h[:, 3] = w
                 cl.enqueue_copy(self.dctx.queue, buf, h)
         self.n_stored = n
+        self.n_emitted = n
         events = self.build_grid(n, radius)
         return {"stored": n, "grid_seconds": _device_seconds(events)}
 
@@ -213,6 +249,7 @@ class PhotonMap:
         self.radius = radius
         table = 1 << self.table_bits
         cl.enqueue_fill_buffer(q, self.bucket_start, np.uint32(0), 0, 4 * (table + 1))
+        cl.enqueue_fill_buffer(q, self.occ, np.uint32(0), 0, self.occ_bits // 8)
         events = []
         if n > 0:
             events.append(self._launch("photon_keys", self.k_keys, n, self.raw[0], np.uint32(n),
@@ -232,14 +269,22 @@ class PhotonMap:
             events.append(self._launch("bucket_starts", self.k_starts, n + 1, self.keys[src], np.uint32(n),
                                        np.uint32(self.mask), self.bucket_start))
             self.sorted_keys = self.keys[src]
+            events.append(self._launch("photon_occupancy", self.k_occ, n, self.raw[0], np.uint32(n),
+                                       self.real(1.0 / radius), np.uint32(self.occ_bits - 1), self.occ))
         q.finish()
         return events
 
     def kernel_args(self, settings: PhotonSettings, mode: int):
         """The trailing arguments of trace_paths for this map."""
         max_p = settings.max_photons if settings.max_photons > 0 else 0xFFFFFFFF
+        # The merge's pdf is pf cos pi r^2 N (kernels/trace.cl, photon merging).
+        p = float(settings.merge_probability)
+        mis_k = math.pi * self.radius ** 2 * max(self.n_emitted, 1) * p
         return [*self.sorted, self.bucket_start, np.uint32(self.mask), np.uint32(max_p), np.uint32(settings.budget),
-                self.real(self.radius), self.real(settings.cone_k), np.uint32(mode)]
+                self.real(self.radius), self.real(settings.cone_k), np.uint32(mode), self.real(mis_k),
+                np.uint32(min(settings.merge_vertices, 2 ** 31)), np.uint32(0 if settings.aim == "solid_angle" else 1),
+                self.real(p),
+                self.occ, np.uint32(self.occ_bits - 1)]
 
 
 def _device_seconds(events) -> float:
@@ -252,3 +297,30 @@ def _device_seconds(events) -> float:
 def counts_arg(counts):
     c = list(counts) + [0] * (8 - len(counts))
     return clt.make_uint8(*c)
+
+
+
+def pilot(renderer, settings: PhotonSettings, *, seed: int) -> tuple[PhotonSettings, dict]:
+    """Whether photon merging pays on this scene, from one photon map of the
+    render's settings (after Grittmann et al. 2018, lightweight photon
+    mapping, which falls back to path tracing where photons bring nothing):
+    the share of the lights' power that the stored caustic photons carry
+    (light that reaches a diffuse surface through mirrors or glass). Below
+    min_caustic_share the caustic paths are too faint to be worth a gather at
+    every vertex and the render path traces alone. Deterministic: the same
+    seed and scene give the same choice.
+    Returns the settings to render with (count 0: path tracing) and what the
+    pilot measured."""
+    from dataclasses import replace
+    st = renderer.states[0]
+    info = st.build_photons(photon_seed(seed, 0), settings, settings.radius_for(renderer.packed.size), PM_MERGE)
+    pm = st.pmap
+    n = pm.capacity
+    power = np.zeros((max(n, 1), 4), np.float32)
+    if n > 0:
+        cl.enqueue_copy(pm.dctx.queue, power, pm.sorted[2])
+    share = float(power[:, :3].sum(axis=0, dtype=np.float64).max()) / max(renderer.packed.max_flux, 1e-300)
+    use = share >= settings.min_caustic_share
+    out = {"choice": "photon merging" if use else "path tracing", "caustic_share": share,
+           "stored": info["stored"], "photons": n, "seconds": info["host_seconds"]}
+    return (replace(settings, pilot=False) if use else replace(settings, count=0, pilot=False)), out

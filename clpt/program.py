@@ -25,7 +25,7 @@ import pyopencl as cl
 from .resources import kernel_dir
 
 # Device libraries in dependency order; entry files (*.cl) come after them.
-LIBRARY_FILES = ("features.h", "simd.h", "rng.h", "sampling.h", "scene.h", "lights.h", "camera.h", "accum.h",
+LIBRARY_FILES = ("features.h", "simd.h", "rng.h", "sampling.h", "scene.h", "lights.h", "photon_aim.h", "camera.h", "accum.h",
                  "bsdf.h", "photon_grid.h")
 
 

@@ -30,7 +30,7 @@ from .features import Features, scene_features
 from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
 from .adaptive import AdaptiveSettings, allocate_error, allocate_paper
 from .denoise import ConeFilter, FilterSettings
-from .photons import PM_OFF, PM_OFFLINE, PM_ONLINE, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
+from .photons import PM_MERGE, PM_OFF, PM_OFFLINE, PM_OWNED, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
 from .scene import Scene, SceneError, load_scene
 
 LOCAL_SIZE_CPU = 16
@@ -51,6 +51,7 @@ class RenderStats:
     passes: list = field(default_factory=list)  # (device label, first sample, samples, seconds)
     photon_maps: list = field(default_factory=list)  # per build: stored, radius, trace/grid device seconds
     adaptive_rounds: int = 0
+    photon_pilot: dict | None = None  # what the pilot measured and chose (PhotonSettings.pilot)
     launches: dict = field(default_factory=dict)  # kernel name -> launches, all devices
 
     @property
@@ -86,6 +87,8 @@ class RenderResult:
                 "clpt:rr_depth": self.rr_depth, "clpt:device": "; ".join(self.devices),
                 "clpt:render_seconds": round(self.stats.render_seconds, 4),
                 "clpt:kernel": self.features.describe(), "clpt:interrupted": int(self.interrupted)}
+        if self.stats.photon_pilot is not None:
+            meta["clpt:photon_choice"] = self.stats.photon_pilot["choice"]
         if self.photons is not None:
             p = self.photons
             meta["clpt:photons"] = (f"{p.count} photons, radius {p.radius}{'' if p.radius_absolute else ' x size'}, "
@@ -350,9 +353,17 @@ class Renderer:
                 raise SceneError(f"render: {name} must be an integer >= {lo} (got {v!r})")
         if spp >= 2**32 or seed >= 2**32:
             raise SceneError("render: spp and seed must be below 2^32")
-        pset = (photons or PhotonSettings()).check() if self.features.photons else None
+        pset = (photons or PhotonSettings()).check().resolved(width * height) if self.features.photons else None
+        pilot_info = None
+        t_pilot = time.perf_counter()
         if pset is not None:
             pset.check_radius(self.packed.size, self.features.double)
+            if pset.pilot and pset.mode == "merge" and pset.count > 0 and adaptive is None:
+                from .photons import pilot
+                pset, pilot_info = pilot(self, pset, seed=seed)
+        pilot_seconds = time.perf_counter() - t_pilot
+        if pilot_info is not None and time_limit is not None:
+            time_limit = max(time_limit - pilot_seconds, 0.0)  # the pilot is part of the render's time
         # No photons: the path tracer keeps every path (pm_mode PM_OFF), as with photons=False.
         no_photons = pset is not None and pset.count == 0
         progressive = pset is not None and pset.progressive and not no_photons
@@ -377,7 +388,8 @@ class Renderer:
         budget = spp * n_pix  # samples in all
         state = {"next": 0, "done": 0, "stop": False, "error": None, "passes": 0}
         t_start = time.perf_counter()
-        mode = PM_OFF if no_photons else PM_OFFLINE if offline else PM_ONLINE  # progressive gathers online
+        mode = (PM_OFF if pset is None or no_photons else PM_OFFLINE if offline
+                else PM_MERGE if pset.mode == "merge" else PM_OWNED)
 
         def elapsed():
             return time.perf_counter() - t_start
@@ -460,7 +472,8 @@ class Renderer:
             interrupted = True
 
         image, var, count, caustic, aux, filtered = self._finish(n_pix, width, height, offline, fset)
-        stats.render_seconds = elapsed()
+        stats.render_seconds = elapsed() + (pilot_seconds if pilot_info is not None else 0.0)
+        stats.photon_pilot = pilot_info
         for st in self.states:
             for k, v in st.launches.items():
                 stats.launches[k] = stats.launches.get(k, 0) + v

@@ -10,7 +10,9 @@
 //   photon_permute   one work-item per slot: photons into key order
 //   bucket_starts    one work-item per slot and one more: index of each
 //                    bucket's first photon (bucket_start, table size + 1)
-// To: sorted ph_pos/ph_dir/ph_pow and bucket_start, read by photon_gather.
+//   photon_occupancy one work-item per slot: the occupancy bits (below)
+// To: sorted ph_pos/ph_dir/ph_pow, bucket_start and the occupancy bits, read
+// by photon_gather.
 // Every step is deterministic (no atomics decide an order), so a photon map
 // and the images gathered from it are the same bits every time.
 
@@ -95,4 +97,28 @@ __kernel void bucket_starts(__global const uint *keys, uint n, uint mask, __glob
     uint hi = i == n ? table : keys[i];
     for (uint b = lo; b <= hi && b <= table; b++)
         bucket_start[b] = i;
+}
+
+// One work-item per slot: sets, in a bit table hashed like the buckets (with
+// its own mask), the bits of the 27 cells around a stored photon's cell. A
+// gather point whose own cell's bit is clear has no photon within the radius
+// (a set bit may be a hash collision), so most empty gathers end after one
+// vector test (photon_maybe). OR is order-free: the table is the same bits
+// every time.
+__kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_cell, uint occ_mask,
+                               __global uint *occ)
+{
+    uint i = get_global_id(0);
+    if (i >= n)
+        return;
+    float4 p = ph_pos[i];
+    if (p.w == 0.0f)
+        return;
+    int3 c = grid_cell(REAL3(p.xyz), inv_cell);
+    for (int dz = -1; dz <= 1; dz++)
+        for (int dy = -1; dy <= 1; dy++)
+            for (int dx = -1; dx <= 1; dx++) {
+                uint b = grid_bucket(c + (int3)(dx, dy, dz), occ_mask);
+                atomic_or(&occ[b >> 5], 1u << (b & 31u));
+            }
 }

@@ -157,3 +157,35 @@ inline LightPoint light_sample_point(const Scene *sc, vreal u_pick, vreal u1, vr
     }
     return lp;
 }
+
+// Solid-angle pdf with which light_sample, called at x, draws the point y on
+// the light it hits (light1: the hit's light index + 1; ng: the unit
+// geometric normal at y; dist: |y - x|): the pick probability times the
+// per-light pdf, for the multiple-importance weights of BSDF-sampled hits.
+inline vreal light_pdf_hit(const Scene *sc, vreal light1, V3 x, V3 y, V3 ng, vreal dist)
+{
+    vreal pdf = (vreal)R(0);
+    V3 w = v3_sub(y, x);
+    vreal d2 = dist * dist;
+    for (uint i = 0; i < NUM_LIGHTS; i++) {
+        vmask is = light1 == (real)(i + 1);
+        if (!VANY(is)) continue;
+        uint r = OFF_LIGHTS + LIGHT_STRIDE * i;
+        real4 p = scene_rec(sc, r);
+        real4 info = scene_rec(sc, r + 4);  // area, pick probability, cdf, material
+        vreal cos_l = fabs(v3_dot(ng, w)) / dist;
+        vreal per = d2 / (info.x * cos_l);
+#if CLPT_HAS_SPHERE_LIGHTS
+        if ((int)p.w == LIGHT_KIND_SPHERE) {
+            real rad = scene_rec(sc, r + 1).x;
+            V3 dc = v3_sub(v3_splat(p), x);
+            vreal dc2 = v3_dot(dc, dc);
+            vreal sin2 = fmin(rad * rad / dc2, R(1));
+            vreal omc = sin2 / (R(1) + vsafe_sqrt(R(1) - sin2));
+            per = VSEL(per, uniform_cone_pdf(omc), dc2 > rad * rad * R(1.001));
+        }
+#endif
+        pdf = VSEL(pdf, per * info.y, is);
+    }
+    return VSEL(pdf, (vreal)R(0), !(pdf < R(INFINITY)));
+}

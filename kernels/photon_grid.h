@@ -45,16 +45,44 @@ typedef struct {
     uint max_photons;             // most photons a gather uses (the paper's cap)
     uint budget;                  // most photons visited per row of cells (subsampled above)
     real radius, inv_cell, cone_k;
+    real mis_k;                   // pi r^2 N photons: the merge's pdf is pf cos mis_k (trace.cl)
+    __global const uint *occ;     // occupancy bits (grid.cl photon_occupancy)
+    uint occ_mask;                // bits in the table - 1
 } PhotonMap;
+
+#if CLPT_LANES == 1
+#define VAS_UINT(x) as_uint(x)
+#else
+#define VAS_UINT(x) CLPT_CAT(as_uint, CLPT_LANES)(x)
+#endif
+
+// Lanes (among `active`) whose cell's occupancy bit is set: only they can
+// have photons within the radius. Vector code, one load per lane.
+inline vmask photon_maybe(const PhotonMap *pm, V3 x, vmask active)
+{
+    vint cx = VINT(floor(clamp(x.x * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    vint cy = VINT(floor(clamp(x.y * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    vint cz = VINT(floor(clamp(x.z * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    vuint b = (GRID_ROW_HASH(VAS_UINT(cy), VAS_UINT(cz)) + VAS_UINT(cx)) & pm->occ_mask;
+    vuint word = (vuint)0u;
+    for (int l = 0; l < CLPT_LANES; l++)
+        VLANE_U(word, l) = pm->occ[VLANE_U(b, l) >> 5];
+    vuint bit = (word >> (b & 31u)) & 1u;
+    return active && VREAL(bit) > R(0);
+}
 
 // Radiance reflected towards -d at x (unit normal n facing -d) by the photons
 // within the gather radius, for a surface with diffuse albedo kd and Phong
 // lobe ks, shininess: sum of w f flux / ((1 - 2/(3k)) pi r^2), with Jensen's
 // cone filter w = 1 - dist / (k r). Photons arriving from behind the surface
-// are left out. One query, in scalar code: each lane walks its own cells, so
-// no lane waits for a denser neighbour.
+// are left out, and so are photons of more than max_bounces specular
+// bounces (the path would be longer than the camera path may grow). With mis,
+// each photon is weighted against path tracing by the power heuristic: the
+// merge's pdf pf cos mis_k against the BSDF pdf (p_d cos / pi + p_s Phong pdf)
+// of the direction the photon came from. One query, in scalar code: each lane
+// walks its own cells, so no lane waits for a denser neighbour.
 inline real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, real3 kd, real3 ks, real shininess,
-                               real u)
+                               real u, real p_d, real p_s, int mis, real max_bounces)
 {
     real r2 = pm->radius * pm->radius;
     real inv_kr = R(1) / (pm->cone_k * pm->radius);
@@ -96,19 +124,34 @@ inline real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, r
                     real d2 = dot(to, to);
                     if (d2 >= r2)
                         continue;
+                    if (p.w > max_bounces)
+                        continue;
                     int3 pc = grid_cell(REAL3(p.xyz), pm->inv_cell);
                     if (pc.y != cell.y || pc.z != cell.z || pc.x < cell.x || pc.x > cell.x + 2)
                         continue;  // another cell's photon in these buckets
-                    real3 w_in = REAL3(pm->dir[i].xyz);
-                    if (dot(w_in, n) >= R(0))
+                    float4 dir = pm->dir[i];
+                    real3 w_in = REAL3(dir.xyz);
+                    real cos_n = -dot(w_in, n);
+                    if (cos_n <= R(0))
                         continue;  // arrives from behind the surface
-                    real3 flux = REAL3(pm->pow[i].xyz) * (weight * (R(1) - sqrt(d2) * inv_kr));
-                    sum_d += flux;
+                    real w = weight * (R(1) - sqrt(d2) * inv_kr);
+                    real lobe_s = R(0);
 #if CLPT_HAS_PHONG
                     if (phong) {
                         real ca = -dot(refl, w_in);
-                        sum_s += flux * (ca > R(0) ? exp(shininess * log(fmax(ca, R(1e-30)))) : R(0));
+                        lobe_s = ca > R(0) ? exp(shininess * log(fmax(ca, R(1e-30)))) : R(0);
                     }
+#endif
+                    if (mis) {
+                        real p_pt = p_d * cos_n * R(M_1_PI) + p_s * (shininess + R(1)) * R(0.5 * M_1_PI) * lobe_s;
+                        real q = p_pt / ((real)dir.w * cos_n * pm->mis_k);
+                        real wm = R(1) / (R(1) + q * q);
+                        w *= isnan(wm) ? R(0) : wm;
+                    }
+                    real3 flux = REAL3(pm->pow[i].xyz) * w;
+                    sum_d += flux;
+#if CLPT_HAS_PHONG
+                    sum_s += flux * lobe_s;
 #endif
                     if (++found >= pm->max_photons)
                         goto done;
@@ -130,8 +173,10 @@ done:;
 
 // The gather for the lanes in `active`, one lane at a time (u: per-lane
 // random numbers for the subsampling offsets).
-inline V3 photon_gather(const PhotonMap *pm, const Material *m, V3 x, V3 n, V3 d, vreal u, vmask active)
+inline V3 photon_gather(const PhotonMap *pm, const Material *m, LobeProbs pr, V3 x, V3 n, V3 d, vreal u,
+                        vmask active, int mis, vreal max_bounces)
 {
+    active = photon_maybe(pm, x, active);
     V3 out = v3_zero();
     for (int l = 0; l < CLPT_LANES; l++) {
         if (VLANE_M(active, l) == 0)
@@ -141,7 +186,8 @@ inline V3 photon_gather(const PhotonMap *pm, const Material *m, V3 x, V3 n, V3 d
         real3 dl = (real3)(VLANE_R(d.x, l), VLANE_R(d.y, l), VLANE_R(d.z, l));
         real3 kd = (real3)(VLANE_R(m->kd.x, l), VLANE_R(m->kd.y, l), VLANE_R(m->kd.z, l));
         real3 ks = (real3)(VLANE_R(m->ks.x, l), VLANE_R(m->ks.y, l), VLANE_R(m->ks.z, l));
-        real3 L = photon_gather_one(pm, xl, nl, dl, kd, ks, VLANE_R(m->shininess, l), VLANE_R(u, l));
+        real3 L = photon_gather_one(pm, xl, nl, dl, kd, ks, VLANE_R(m->shininess, l), VLANE_R(u, l),
+                                    VLANE_R(pr.d, l), VLANE_R(pr.s, l), mis, VLANE_R(max_bounces, l));
         VLANE_R(out.x, l) = L.x;
         VLANE_R(out.y, l) = L.y;
         VLANE_R(out.z, l) = L.z;

@@ -15,73 +15,12 @@
 //
 // Launch: one work-item per CLPT_LANES photons (index gid * CLPT_LANES +
 // lane); any local size. Photon i is written to slot i, stored or not
-// (pos.w = 1 marks a stored one), so the result does not depend on timing.
-// Buffers: scene in; ph_pos, ph_dir, ph_pow out; n_stored in/out (atomic).
+// (pos.w > 0 marks a stored one), so the result does not depend on timing.
+// Buffers: scene in; ph_pos (xyz, specular bounces), ph_dir (direction of
+// travel, light-side pdf factor pf), ph_pow (flux) out; n_stored in/out (atomic).
 
 #define PHOTON_MAX_BOUNCES 64
 #define PHOTON_SEED_SALT 0x5bd1e995u
-
-typedef struct {
-    V3 w;         // direction
-    vreal pdf;    // solid-angle pdf of w (mixture over the cones)
-    vmask valid;
-} AimSample;
-
-// Cone from y around caster obj's bounding sphere (the whole sphere of
-// directions, omc = 2, when y is inside it or the caster is unbounded), and
-// the caster's pick weight.
-inline vreal caster_cone(real4 obj, V3 y, V3 n, vmask two_sided, uint aim_mode, V3 *axis, vreal *omc)
-{
-    V3 dc = v3_sub(v3_splat(obj), y);
-    vreal d2 = v3_dot(dc, dc);
-    vmask full = (obj.w < R(0)) || d2 <= obj.w * obj.w;
-    vreal sin2 = fmin(obj.w * obj.w / d2, R(1));
-    *omc = VSEL(sin2 / (R(1) + vsafe_sqrt(R(1) - sin2)), (vreal)R(2), full);  // 1 - cos(theta_max)
-    *axis = v3_scale(dc, rsqrt(d2));
-    if (aim_mode != 0)
-        return (vreal)R(1);
-    // Solid angle times the largest cosine at the light within the cone: zero
-    // only for a cone wholly behind the light's emitting side.
-    vreal c = v3_dot(*axis, n);
-    c = VSEL(c, fabs(c), two_sided);
-    vreal s = vsafe_sqrt(R(1) - c * c);
-    vreal cos_max = R(1) - *omc, sin_max = vsafe_sqrt(*omc * (R(2) - *omc));
-    vreal best = VSEL(c * cos_max + s * sin_max, (vreal)R(1), full || c >= cos_max);
-    return R(2 * M_PI) * *omc * fmax(best, R(0));
-}
-
-inline AimSample aim_at_casters(const Scene *sc, V3 y, V3 n, vmask two_sided, uint aim_mode, vreal u0,
-                                vreal u1, vreal u2)
-{
-    AimSample a;
-    V3 axis;
-    vreal omc;
-    vreal total = (vreal)R(0);
-    for (uint j = 0; j < NUM_CAUSTICS; j++)
-        total += caster_cone(scene_rec(sc, OFF_CAUSTICS + j), y, n, two_sided, aim_mode, &axis, &omc);
-    // Pick a caster by weight, and a direction uniform in its cone.
-    vreal pick = u0 * total, acc = (vreal)R(0);
-    vmask taken = total != total;
-    a.w = v3_zero();
-    for (uint j = 0; j < NUM_CAUSTICS; j++) {
-        vreal w = caster_cone(scene_rec(sc, OFF_CAUSTICS + j), y, n, two_sided, aim_mode, &axis, &omc);
-        acc += w;
-        vmask sel = !taken && w > R(0) && (pick < acc || j + 1 == NUM_CAUSTICS);
-        taken = taken || sel;
-        V3 lc = sample_uniform_cone(u1, u2, omc);
-        a.w = v3_sel(a.w, frame_to_world(axis, lc.x, lc.y, lc.z), sel);
-    }
-    // The direction's pdf: the mixture over every cone that contains it.
-    vreal pdf = (vreal)R(0);
-    for (uint j = 0; j < NUM_CAUSTICS; j++) {
-        vreal w = caster_cone(scene_rec(sc, OFF_CAUSTICS + j), y, n, two_sided, aim_mode, &axis, &omc);
-        vmask inside = omc >= R(2) || v3_dot(a.w, axis) >= R(1) - omc;
-        pdf += VSEL((vreal)R(0), w / total * uniform_cone_pdf(omc), inside && w > R(0));
-    }
-    a.pdf = pdf;
-    a.valid = taken && total > R(0) && pdf > R(0);
-    return a;
-}
 
 __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_abs, uint seed, uint n_emit,
                             uint aim_mode, __global float4 *ph_pos, __global float4 *ph_dir, __global float4 *ph_pow,
@@ -105,7 +44,10 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
     vreal cos_y = v3_dot(aim.w, lp.n);
     vmask emits = cos_y > R(0) || (lp.two_sided && cos_y < R(0));
     live = live && aim.valid && emits && lp.pdf_area > R(0);
-    vreal k = fabs(cos_y) / (lp.pdf_area * aim.pdf * (real)n_emit);
+    // pf = p_area p_dir / |cos|, the light-side pdf factor of the photon's
+    // multiple-importance weight (photon_aim.h); flux = Le / (pf n_emit).
+    vreal pf = lp.pdf_area * aim.pdf / fabs(cos_y);
+    vreal k = R(1) / (pf * (real)n_emit);
     V3 flux = v3_scale(lp.Le, VSEL((vreal)R(0), k, live));
     V3 o = offset_origin(sc, lp.p, v3_sel(v3_neg(lp.n), lp.n, cos_y > R(0)));
     V3 d = aim.w;
@@ -113,7 +55,7 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
     // --- through specular surfaces to the first diffuse one ----------------------
     vmask stored = live && !live;
     V3 s_pos = v3_zero(), s_dir = v3_zero();
-    vreal bounces = (vreal)R(0);
+    vreal bounces = (vreal)R(0), s_bounces = (vreal)R(0);
     for (uint b = 0; b < PHOTON_MAX_BOUNCES && VANY(live); b++) {
         Hit h = scene_intersect(sc, o, d);
         live = live && h.t < R(INFINITY);
@@ -123,6 +65,7 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
         vmask store = diffuse && bounces > R(0);
         s_pos = v3_sel(s_pos, x, store);
         s_dir = v3_sel(s_dir, d, store);
+        s_bounces = VSEL(s_bounces, bounces, store);
         stored = stored || store;
         live = live && !diffuse;
         if (!VANY(live))
@@ -161,8 +104,9 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
         if (i >= n_emit)
             break;
         int st = VLANE_M(stored, l) != 0;
-        ph_pos[i] = (float4)(VLANE_R(s_pos.x, l), VLANE_R(s_pos.y, l), VLANE_R(s_pos.z, l), st ? 1.0f : 0.0f);
-        ph_dir[i] = (float4)(VLANE_R(s_dir.x, l), VLANE_R(s_dir.y, l), VLANE_R(s_dir.z, l), 0.0f);
+        ph_pos[i] = (float4)(VLANE_R(s_pos.x, l), VLANE_R(s_pos.y, l), VLANE_R(s_pos.z, l),
+                             st ? (float)VLANE_R(s_bounces, l) : 0.0f);
+        ph_dir[i] = (float4)(VLANE_R(s_dir.x, l), VLANE_R(s_dir.y, l), VLANE_R(s_dir.z, l), (float)VLANE_R(pf, l));
         ph_pow[i] = st ? (float4)(VLANE_R(flux.x, l), VLANE_R(flux.y, l), VLANE_R(flux.z, l), 0.0f) : (float4)(0.0f);
     }
 }

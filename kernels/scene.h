@@ -6,8 +6,8 @@
 //   materials  MAT_STRIDE records each
 //     0 kd.rgb, p_diffuse     1 ks.rgb, p_phong     2 kr.rgb, p_mirror
 //     3 kt.rgb, p_refract     4 Le.rgb, two_sided   5 shininess, ior, nondelta, emissive
-//   spheres    2 records: center.xyz, radius | material, 0, 0, 0
-//   quads      4 records: corner.xyz, material | n.xyz, 0 | wu.xyz, 0 | wv.xyz, 0
+//   spheres    2 records: center.xyz, radius | material, light + 1, 0, 0
+//   quads      4 records: corner.xyz, material | n.xyz, light + 1 | wu.xyz, 0 | wv.xyz, 0
 //   triangles  4 records, as quads (corner = v0)
 //   planes     2 records: point.xyz, material | n.xyz, 0
 //   lights     5 records: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, 0 |
@@ -167,6 +167,7 @@ typedef struct {
     vreal t;    // +inf where the ray escaped
     V3 ng;      // unit geometric normal (sphere: outward; planar: winding)
     vreal mat;  // material id
+    vreal light;  // light record index + 1 of an emissive primitive, 0 otherwise
 } Hit;
 
 // Closest hit among the quads (tri = 0) or triangles (tri = 1) at records
@@ -181,6 +182,7 @@ inline void closest_planar(const Scene *sc, uint off, uint count, int tri, V3 o,
         h->t = VSEL(h->t, t, closer);
         h->ng = v3_sel4(h->ng, n, closer);
         h->mat = VSEL(h->mat, (vreal)scene_rec(sc, r).w, closer);
+        h->light = VSEL(h->light, (vreal)n.w, closer);
     }
 }
 
@@ -190,6 +192,7 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
     h.t = (vreal)R(INFINITY);
     h.ng = v3_zero();
     h.mat = (vreal)R(0);
+    h.light = (vreal)R(0);
 #if CLPT_HAS_SPHERES
     for (uint i = 0; i < NUM_SPHERES; i++) {
         uint r = OFF_SPHERES + SPHERE_STRIDE * i;
@@ -200,7 +203,9 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
         // The normal is formed now, from the ray's origin relative to the centre.
         V3 n = v3_scale(v3_fma(d, t, v3_sub4(o, cr)), (vreal)(R(1) / cr.w));
         h.ng = v3_sel(h.ng, n, closer);
-        h.mat = VSEL(h.mat, (vreal)scene_rec(sc, r + 1).x, closer);
+        real4 sm = scene_rec(sc, r + 1);
+        h.mat = VSEL(h.mat, (vreal)sm.x, closer);
+        h.light = VSEL(h.light, (vreal)sm.y, closer);
     }
 #endif
 #if CLPT_HAS_QUADS
@@ -217,6 +222,7 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
         h.t = VSEL(h.t, t, closer);
         h.ng = v3_sel4(h.ng, scene_rec(sc, r + 1), closer);
         h.mat = VSEL(h.mat, (vreal)scene_rec(sc, r).w, closer);
+        h.light = VSEL(h.light, (vreal)R(0), closer);
     }
 #endif
     return h;

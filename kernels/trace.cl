@@ -31,29 +31,44 @@
 //                  such vertex
 //
 // Estimator: path tracing with next event estimation at every vertex with a
-// non-delta lobe (CLPT_NEE). Emission found by a bounce counts only from the
-// camera or after a mirror/refraction vertex, which light sampling cannot
-// reach. A material's lobe is chosen by Russian roulette over kd, ks, kr, kt
-// and absorption, as in the paper; before depth rr_depth the absorption
-// branch is left out (lobe probabilities renormalized).
+// non-delta lobe (CLPT_NEE), weighted against BSDF sampling by multiple
+// importance sampling (power heuristic): emission found by a BSDF-sampled
+// ray after a non-delta lobe is weighted by pdf_bsdf^2 / (pdf_bsdf^2 +
+// pdf_light^2) and the light sample by the complement; after the camera or
+// a delta lobe (which light sampling cannot reach) emission counts whole.
+// A material's lobe is chosen by Russian roulette over kd, ks, kr, kt and
+// absorption, as in the paper; before depth rr_depth the absorption branch
+// is left out (lobe probabilities renormalized).
 //
-// Caustic photons (CLPT_PHOTONS, pm_mode): the photon map owns exactly the
-// paths E S* x D S+ L where x is the first vertex from the camera with a
-// non-delta part, D is x's diffuse or Phong lobe and S+ are purely specular
-// surfaces (the paths trace_photons stores). pm_mode 1 (online) gathers at x
-// in every sample; 2 (offline) leaves that to a per-pixel caustic buffer the
-// host adds; in both, emission reached along an owned path is not added
-// again. pm_mode 3 is the offline pre-pass: follow the camera path to x,
-// gather there, and stop. pm_mode 0 ignores the photon map.
+// Caustic photons (CLPT_PHOTONS, pm_mode):
+//   PM_MERGE (1): photon merging at every vertex with a non-delta part,
+//     weighted by multiple importance sampling against path tracing, for the
+//     paths both can make: ... x D S+ L, where D is a non-delta vertex and S+
+//     purely specular ones (the paths trace_photons stores, L S+ D). With
+//     p_pt the BSDF pdf at x of the direction towards the specular chain and
+//     p_m = pf cos mis_k (pf = the photon's light-side pdf p_area p_dir / cos
+//     at the light, mis_k = pi r^2 N photons), the merge gets
+//     p_m^2 / (p_m^2 + p_pt^2) and the path-traced hit of the light at the
+//     end of the chain the complement, both computed by the same function of
+//     the path, so the two add up to one technique's worth (vertex merging,
+//     Georgiev et al. 2012, without connections).
+//   PM_OWNED (2) / PM_OFFLINE (3): the photon map owns exactly the paths
+//     E S* x D S+ L where x is the first vertex from the camera with a
+//     non-delta part; 2 gathers at x in every sample, 3 leaves that to a
+//     per-pixel caustic buffer the host adds; in both, emission reached along
+//     an owned path is not added again. PM_PREPASS (4) is the offline
+//     pre-pass: follow the camera path to x, gather there, and stop.
+//   PM_OFF (0) ignores the photon map.
 //
 // Flags: CLPT_LANES, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC, CLPT_BAKED, CLPT_NEE,
 //   CLPT_PHOTONS, CLPT_AUX, CLPT_HAS_{SPHERES,QUADS,TRIANGLES,PLANES}, CLPT_HAS_{PHONG,MIRROR,GLASS},
 //   CLPT_HAS_{TRIANGLE,SPHERE}_LIGHTS, CLPT_NUM_* (when not generic).
 
 #define PM_OFF 0
-#define PM_ONLINE 1
-#define PM_OFFLINE 2
-#define PM_PREPASS 3
+#define PM_MERGE 1
+#define PM_OWNED 2
+#define PM_OFFLINE 3
+#define PM_PREPASS 4
 
 // Where a path stands relative to the photon map's paths.
 #define OWN_BEFORE_X 0  // no vertex with a non-delta part yet
@@ -61,37 +76,43 @@
 #define OWN_OWNED 2     // ... and one or more purely specular vertices followed
 #define OWN_NOT 3       // not a photon-map path
 
+// Where a path stands relative to the paths photon merging can make.
+#define CHAIN_NONE 0    // the last vertex was not a non-delta lobe, nor after one via delta vertices
+#define CHAIN_AFTER_D 1 // the last vertex chose a non-delta lobe
+#define CHAIN_IN 2      // ... then one or more purely specular vertices followed
+
 typedef struct {
     V3 o, d;         // current ray
     V3 beta;         // path throughput
     V3 L;            // radiance gathered so far by this sample
     vreal depth;     // scattering events so far
     vmask specular;  // last vertex was the camera or a delta lobe
-    vmask sees_le;   // emission found by the ray counts: camera, delta lobe or narrow Phong lobe
-    vreal own;       // OWN_*: relation to the photon map's paths
+    vreal pdf_prev;  // solid-angle pdf of the last BSDF sample; 0 after the camera or a delta lobe
+    V3 x_prev;       // the last scattering vertex (for the light pdf of a BSDF-sampled hit)
+    vreal own;       // OWN_*: relation to the owned photon map's paths (PM_OWNED, PM_OFFLINE)
+    vreal chain;     // CHAIN_*: relation to the paths photon merging can make (PM_MERGE)
+    vreal chain_k;   // at the last non-delta vertex: mis_k cos / pdf_bsdf of the direction taken
+                     // (0 where no merge happened there); times pf at the light: p_m / p_pt
 } PathState;
 
 // Path throughput after choosing and sampling one lobe of m at a hit.
-// Returns the mask of lanes whose path goes on; writes the new ray and flags.
-inline vmask scatter(const Scene *sc, const Material *m, PathState *ps, V3 x, V3 n, vmask front,
-                     vmask go, Rand4 r, vmask no_absorb)
+// Returns the mask of lanes whose path goes on; writes the new ray, flags and
+// the pdf of a non-delta direction (ps->pdf_prev, 0 for delta lobes).
+inline vmask scatter(const Scene *sc, const Material *m, LobeProbs pr, PathState *ps, V3 x, V3 n, vmask front,
+                     vmask go, Rand4 r)
 {
     // --- Russian roulette over the lobes --------------------------------------
-    vreal p_d = m->p_d, p_s = m->p_s, p_r = m->p_r, p_t = m->p_t;
-    vreal p_sum = p_d + p_s + p_r + p_t;
-    vreal renorm = VSEL((vreal)R(1), R(1) / p_sum, no_absorb && p_sum > R(0));
-    p_d *= renorm; p_s *= renorm; p_r *= renorm; p_t *= renorm;
     vreal c = r.a;
-    vmask is_d = c < p_d;
-    vmask is_s = !is_d && c < p_d + p_s;
-    vmask is_r = !is_d && !is_s && c < p_d + p_s + p_r;
-    vmask is_t = !is_d && !is_s && !is_r && c < p_d + p_s + p_r + p_t;
+    vmask is_d = c < pr.d;
+    vmask is_s = !is_d && c < pr.d + pr.s;
+    vmask is_r = !is_d && !is_s && c < pr.d + pr.s + pr.r;
+    vmask is_t = !is_d && !is_s && !is_r && c < pr.d + pr.s + pr.r + pr.t;
     V3 d = ps->d;
 
     // --- diffuse: cosine-weighted; f cos / pdf = kd ---------------------------
     V3 lc = sample_cosine_hemisphere(r.b, r.c);
     V3 wi = frame_to_world(n, lc.x, lc.y, lc.z);
-    V3 w = v3_scale(m->kd, R(1) / p_d);
+    V3 w = v3_scale(m->kd, R(1) / pr.d);
     vmask up = go;  // the new ray leaves on the normal's side
 #if CLPT_HAS_PHONG
     // --- Phong lobe around the mirror direction --------------------------------
@@ -102,7 +123,7 @@ inline vmask scatter(const Scene *sc, const Material *m, PathState *ps, V3 x, V3
         V3 ll = sample_phong_lobe(r.b, r.c, m->shininess);
         V3 ws = frame_to_world(rdir, ll.x, ll.y, ll.z);
         vreal cos_i = v3_dot(ws, n);
-        vreal k = (m->shininess + R(2)) / (m->shininess + R(1)) * fmax(cos_i, R(0)) / p_s;
+        vreal k = (m->shininess + R(2)) / (m->shininess + R(1)) * fmax(cos_i, R(0)) / pr.s;
         wi = v3_sel(wi, ws, is_s);
         w = v3_sel(w, v3_scale(m->ks, k), is_s);
         is_s = is_s && cos_i > R(0);
@@ -111,7 +132,7 @@ inline vmask scatter(const Scene *sc, const Material *m, PathState *ps, V3 x, V3
 #if CLPT_HAS_MIRROR
     // --- perfect mirror ------------------------------------------------------------
     wi = v3_sel(wi, v3_reflect(d, n), is_r);
-    w = v3_sel(w, v3_scale(m->kr, R(1) / p_r), is_r);
+    w = v3_sel(w, v3_scale(m->kr, R(1) / pr.r), is_r);
 #endif
 #if CLPT_HAS_GLASS
     // --- dielectric: Fresnel picks reflection or refraction ----------------------
@@ -122,22 +143,23 @@ inline vmask scatter(const Scene *sc, const Material *m, PathState *ps, V3 x, V3
         V3 wt = dielectric_sample(d, n, front, m->ior, r.d, &refl, &eta);
         wi = v3_sel(wi, wt, is_t);
         // Radiance is scaled by 1/eta^2 across the interface (pbrt, sec. 9.5.2).
-        vreal k = VSEL(R(1) / (eta * eta), (vreal)R(1), refl) / p_t;
+        vreal k = VSEL(R(1) / (eta * eta), (vreal)R(1), refl) / pr.t;
         w = v3_sel(w, v3_scale(m->kt, k), is_t);
         up = up && !(is_t && !refl);
     }
 #endif
     vmask cont = go && (is_d || is_s || is_r || is_t);
-    ps->beta = v3_sel(ps->beta, v3_mul(ps->beta, w), cont);
+    vmask nondelta = is_d || is_s;
     V3 wn = v3_normalize(wi);
+    // The pdf of the direction under the whole non-delta mixture (what light
+    // sampling's weight is measured against), not only the chosen lobe's.
+    vreal pdf = VSEL((vreal)R(0), bsdf_pdf(m, pr, d, n, wn), nondelta);
+    ps->beta = v3_sel(ps->beta, v3_mul(ps->beta, w), cont);
     ps->o = v3_sel(ps->o, offset_scattered(sc, x, v3_sel(v3_neg(n), n, up), wn), cont);
     ps->d = v3_sel(ps->d, wn, cont);
     ps->specular = VSEL(ps->specular, is_r || is_t, cont);
-#if CLPT_HAS_PHONG
-    ps->sees_le = VSEL(ps->sees_le, is_r || is_t || (is_s && m->shininess >= PHONG_NEE_MAX_N), cont);
-#else
-    ps->sees_le = VSEL(ps->sees_le, is_r || is_t, cont);
-#endif
+    ps->pdf_prev = VSEL(ps->pdf_prev, pdf, cont);
+    ps->x_prev = v3_sel(ps->x_prev, x, cont);
     return cont && v3_max_comp(ps->beta) > R(0);
 }
 
@@ -171,7 +193,8 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
                           , __global const float4 *ph_pos, __global const float4 *ph_dir,
                           __global const float4 *ph_pow, __global const uint *bucket_start,
                           uint pm_mask, uint pm_max, uint pm_budget, real pm_radius,
-                          real pm_cone_k, uint pm_mode
+                          real pm_cone_k, uint pm_mode, real pm_mis_k, uint pm_merge_vertices, uint pm_aim, real pm_merge_p,
+                          __global const uint *pm_occ, uint pm_occ_mask
 #endif
                           )
 {
@@ -186,9 +209,12 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
     // not average out there, so it visits every photon.
     pm.budget = pm_mode == PM_PREPASS ? 0xFFFFFFFFu : pm_budget;
     pm.radius = pm_radius; pm.inv_cell = R(1) / pm_radius; pm.cone_k = pm_cone_k;
-    int gather = pm_mode == PM_ONLINE || pm_mode == PM_PREPASS;
+    pm.mis_k = pm_mis_k;
+    pm.occ = pm_occ; pm.occ_mask = pm_occ_mask;
+    int merge = pm_mode == PM_MERGE;
+    int gather = pm_mode == PM_OWNED || pm_mode == PM_PREPASS;
     int prepass = pm_mode == PM_PREPASS;
-    int owns = pm_mode != PM_OFF;
+    int owns = pm_mode == PM_OWNED || pm_mode == PM_OFFLINE || pm_mode == PM_PREPASS;
 #endif
 
     uint gid = get_global_id(0);
@@ -256,8 +282,10 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
     ps.o = ps.d = ps.beta = ps.L = v3_zero();
     ps.depth = zero;
     ps.specular = active;
-    ps.sees_le = active;
-    ps.own = zero;
+    ps.pdf_prev = zero;
+    ps.x_prev = v3_zero();
+    ps.own = ps.chain = ps.chain_k = zero;
+    vreal nd_count = zero;  // vertices with a non-delta part met so far (merges allowed at the first pm_merge_vertices)
 
     while (VANY(active)) {
         // --- start new paths in lanes whose previous path ended ----------------
@@ -271,8 +299,10 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
             ps.L = v3_sel(ps.L, v3_zero(), restart);
             ps.depth = VSEL(ps.depth, zero, restart);
             ps.own = VSEL(ps.own, zero, restart);
+            ps.chain = VSEL(ps.chain, zero, restart);
+            ps.pdf_prev = VSEL(ps.pdf_prev, zero, restart);
+            nd_count = VSEL(nd_count, zero, restart);
             ps.specular = ps.specular || restart;
-            ps.sees_le = ps.sees_le || restart;
 #if CLPT_AUX
             feat_done = feat_done && !restart;
             path_len = VSEL(path_len, zero, restart);
@@ -306,14 +336,27 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 
         // --- emission ---------------------------------------------------------------------
         vmask sees = hit && (front || m.two_sided != R(0));
+        vreal w_le = (vreal)R(1);
 #if CLPT_NEE
-        sees = sees && ps.sees_le;
+        // After a non-delta lobe light sampling could have found this point too.
+        vmask bsdf_hit = sees && ps.pdf_prev > R(0) && h.light > R(0);
+        if (VANY(bsdf_hit)) {
+            vreal pdf_l = light_pdf_hit(sc, h.light, ps.x_prev, x, h.ng, h.t);
+            w_le = VSEL(w_le, mis_power(ps.pdf_prev, pdf_l), bsdf_hit);
+        }
 #endif
 #if CLPT_PHOTONS
         if (owns)
             sees = sees && ps.own != (real)OWN_OWNED && !prepass;
+        // At the end of a purely specular chain from a non-delta vertex that
+        // merged, photon merging could have made this path too.
+        vmask merged_path = sees && ps.chain == (real)CHAIN_IN && ps.chain_k > R(0) && h.light > R(0);
+        if (merge && VANY(merged_path)) {
+            vreal pf = light_photon_pdf(sc, h.light, x, h.ng, v3_neg(ps.d), m.two_sided != R(0), pm_aim);
+            w_le = VSEL(w_le, mis_power((vreal)R(1), pf * ps.chain_k), merged_path);
+        }
 #endif
-        ps.L = v3_sel(ps.L, v3_add(ps.L, v3_mul(ps.beta, m.Le)), sees);
+        ps.L = v3_sel(ps.L, v3_add(ps.L, v3_scale(v3_mul(ps.beta, m.Le), w_le)), sees);
 #if CLPT_AUX
         vmask direct = sees && before_x;
         if (VANY(direct)) {
@@ -325,17 +368,35 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         vmask go = hit && ps.depth < lane_depth;
         vuint group = VUINT(ps.depth) * 2u + 1u;
 
+        LobeProbs pr = lobe_probs(&m, ps.depth < (real)rr_depth);
+        vmask nondelta = hit && m.nondelta != R(0);
 #if CLPT_PHOTONS
         // --- caustic photons at x, the first vertex with a non-delta part -----------
         vmask at_x = hit && ps.own == (real)OWN_BEFORE_X && m.nondelta != R(0);
         if (gather && VANY(at_x)) {
             Rand4 rg = rng_uniform4(seed, pixel, sample, group);  // .d: unused by light sampling
-            V3 Lc = photon_gather(&pm, &m, x, n, ps.d, rg.d, at_x);
+            V3 Lc = photon_gather(&pm, &m, pr, x, n, ps.d, rg.d, at_x, 0, lane_depth - ps.depth - R(1));
             ps.L = v3_sel(ps.L, v3_add(ps.L, v3_mul(ps.beta, Lc)), at_x);
         }
         if (prepass)
             go = go && !at_x;  // the pre-pass ends at x
         vmask pure_delta = m.nondelta == R(0);
+
+        // --- photon merging, weighted against path tracing ---------------------------
+        // A vertex merges with probability pm_merge_p (Russian roulette on the
+        // technique, which bounds its cost); the weights count that in (the
+        // host folds it into mis_k), so both sides still see the same pdfs.
+        vmask merge_here = go && nondelta && nd_count < (real)pm_merge_vertices;
+        if (merge && VANY(merge_here)) {
+            Rand4 rg = rng_uniform4(seed, pixel, sample, group);  // .d: unused by light sampling
+            vmask do_merge = merge_here && rg.d < pm_merge_p;
+            if (VANY(do_merge)) {
+                V3 Lm = photon_gather(&pm, &m, pr, x, n, ps.d, rg.d / pm_merge_p, do_merge, 1,
+                                      lane_depth - ps.depth - R(1));
+                ps.L = v3_sel(ps.L, v3_fma(v3_mul(ps.beta, Lm), R(1) / pm_merge_p, ps.L), do_merge);
+            }
+        }
+        nd_count = VSEL(nd_count, nd_count + R(1), nondelta);
 #endif
 
 #if CLPT_NEE
@@ -350,8 +411,9 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
             vreal cos_x = v3_dot(n, ls.wi);
             nee = nee && ls.valid && cos_x > R(0);
             if (VANY(nee)) {
-                V3 f = brdf_eval(&m, ps.d, n, ls.wi);
-                V3 c = v3_mul(v3_mul(ps.beta, f), v3_scale(ls.Le, cos_x / ls.pdf));
+                V3 f = bsdf_eval(&m, ps.d, n, ls.wi);
+                vreal w_l = mis_power(ls.pdf, bsdf_pdf(&m, pr, ps.d, n, ls.wi));
+                V3 c = v3_mul(v3_mul(ps.beta, f), v3_scale(ls.Le, w_l * cos_x / ls.pdf));
                 // The shadow ray runs from the offset origin to the light point
                 // itself: aimed along wi from there instead, it would cut into a
                 // sphere light near its silhouette and see the light block itself.
@@ -369,8 +431,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         vmask cont = go;
         if (VANY(go)) {
             Rand4 rs = rng_uniform4(seed, pixel, sample, group + 1u);
-            vmask no_absorb = ps.depth < (real)rr_depth;
-            cont = scatter(sc, &m, &ps, x, n, front, go, rs, no_absorb);
+            cont = scatter(sc, &m, pr, &ps, x, n, front, go, rs);
             ps.depth = VSEL(ps.depth, ps.depth + R(1), cont);
 #if CLPT_PHOTONS
             // x's lobe decides whether the path can be the photon map's; after
@@ -380,6 +441,17 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
             vmask after = ps.own == (real)OWN_AFTER_D || ps.own == (real)OWN_OWNED;
             own = VSEL(own, VSEL((vreal)R(OWN_NOT), (vreal)R(OWN_OWNED), pure_delta), after && hit);
             ps.own = own;
+            // Merging: a non-delta lobe starts a chain (with its pdf, if a merge
+            // happened at this vertex), purely specular vertices extend it, and
+            // a delta lobe of a vertex with a non-delta part ends it.
+            vmask took_nd = nondelta && !ps.specular;
+            vmask extend = pure_delta && (ps.chain == (real)CHAIN_AFTER_D || ps.chain == (real)CHAIN_IN);
+            vreal chain = VSEL((vreal)R(CHAIN_NONE), (vreal)R(CHAIN_IN), extend);
+            chain = VSEL(chain, (vreal)R(CHAIN_AFTER_D), took_nd);
+            vreal cos_o = v3_dot(n, ps.d);
+            vreal k = VSEL((vreal)R(0), pm_mis_k * cos_o / ps.pdf_prev, merge_here && ps.pdf_prev > R(0));
+            ps.chain_k = VSEL(ps.chain_k, k, took_nd);
+            ps.chain = VSEL(ps.chain, chain, cont);
 #endif
             n_bounce += vpopcount(cont);
         }

@@ -170,9 +170,27 @@ __kernel void probe_gather(__global const float4 *ph_pos, __global const float4 
     PhotonMap pm;
     pm.pos = ph_pos; pm.dir = ph_dir; pm.pow = ph_pow; pm.bucket_start = bucket_start;
     pm.mask = mask; pm.max_photons = max_photons; pm.budget = budget;
-    pm.radius = radius; pm.inv_cell = R(1) / radius; pm.cone_k = cone_k;
+    pm.radius = radius; pm.inv_cell = R(1) / radius; pm.cone_k = cone_k; pm.mis_k = R(0);
     __global const real *a = q + 10 * i;
     real3 x = (real3)(a[0], a[1], a[2]), n = (real3)(a[3], a[4], a[5]), d = (real3)(a[6], a[7], a[8]);
-    real3 L = photon_gather_one(&pm, x, n, d, kd.xyz, ks_n.xyz, ks_n.w, a[9]);
+    real3 L = photon_gather_one(&pm, x, n, d, kd.xyz, ks_n.xyz, ks_n.w, a[9], R(1), R(0), 0, R(INFINITY));
     out[3 * i] = L.x; out[3 * i + 1] = L.y; out[3 * i + 2] = L.z;
+}
+
+// For a light sample from each point: its pdf, and the pdf light_pdf_hit
+// gives the point when a ray along the sample's direction hits it (what a
+// BSDF-sampled hit of that light uses for its multiple-importance weight).
+__kernel void probe_light_pdf(__global const real4 *rec, uint8 counts,
+                              __global const real *px, __global const real *py, __global const real *pz,
+                              __global const real *u0, __global const real *u1, __global const real *u2,
+                              __global real *pdf_sample, __global real *pdf_hit)
+{
+    size_t i = get_global_id(0);
+    Scene s = probe_scene(rec, counts);
+    V3 x = LD3(px, py, pz, i);
+    LightSample ls = light_sample(&s, x, LD(u0, i), LD(u1, i), LD(u2, i));
+    Hit h = scene_intersect(&s, x, ls.wi);
+    vreal p = light_pdf_hit(&s, h.light, x, v3_fma(ls.wi, h.t, x), h.ng, h.t);
+    ST(VSEL((vreal)R(0), ls.pdf, ls.valid), pdf_sample, i);
+    ST(VSEL((vreal)R(0), p, h.t < R(INFINITY)), pdf_hit, i);
 }

@@ -1,0 +1,106 @@
+"""Multiple importance sampling: light sampling against BSDF sampling, and
+photon merging against path tracing.
+
+Each technique's weight must be computed from the same pdfs on both sides of
+the pair, or the weights of a path do not sum to one and the image is biased:
+the light pdf of a BSDF-sampled hit is checked against the pdf the light
+sampler used for the same point, the weights against their sum, and whole
+renders against the path tracer without merging."""
+
+import math
+
+import numpy as np
+import pytest
+
+import clpt
+from clpt.pack import pack_scene
+from clpt.photons import PhotonSettings
+
+
+def _lights_scene():
+    return clpt.Scene(shapes=[
+        clpt.Quad.from_vertices([(-0.5, 1, -0.5), (0.5, 1, -0.5), (0.5, 1, 0.5), (-0.5, 1, 0.5)],
+                                material="black", emission=(2, 2, 2), two_sided=True),
+        clpt.Triangle(vertices=((1.5, -1, 0), (1.5, 0, 0), (1.5, -1, 1)), material="black", emission=(3, 1, 1),
+                      two_sided=True),
+        clpt.Sphere(center=(-1.2, 0.3, 0.2), radius=0.25, material="black", emission=(1, 4, 1)),
+    ])
+
+
+@pytest.mark.parametrize("lanes", [1, 8])
+def test_light_pdf_of_a_hit_equals_the_samplers(probes, lanes):
+    """For light samples from random points (some inside the sphere light),
+    the pdf of the hit point as a BSDF-sampled ray sees it is the sampler's."""
+    probe = probes(lanes)
+    rng = np.random.default_rng(7)
+    n = 4096
+    x = rng.uniform(-1.0, 1.0, (n, 3)) * [1.0, 0.9, 1.0]
+    x[:256] = [-1.2, 0.3, 0.2] + rng.uniform(-0.1, 0.1, (256, 3))  # inside the sphere light
+    u = rng.random((3, n))
+    ps, ph = probe.run("probe_light_pdf", [x[:, 0], x[:, 1], x[:, 2], u[0], u[1], u[2]], 2,
+                       prefix=probe.scene_args(pack_scene(_lights_scene())))
+    ok = (ps > 0) & (ph > 0)
+    assert ok.sum() > 0.8 * n
+    rel = np.abs(ph[ok] / ps[ok] - 1)
+    # Grazing directions lose a little to the hit point's rounding; nearly all agree to float precision.
+    assert np.quantile(rel, 0.99) < 1e-3 and np.median(rel) < 1e-5, (np.quantile(rel, 0.99), rel.max())
+
+
+def test_power_heuristic_weights_sum_to_one():
+    """The kernels' weights (bsdf.h mis_power, photon_grid.h merge weight)
+    as numpy twins: for any pair of pdfs of one path they sum to 1."""
+    rng = np.random.default_rng(3)
+    a = 10.0 ** rng.uniform(-20, 20, 10000)
+    b = 10.0 ** rng.uniform(-20, 20, 10000)
+
+    def mis_power(p, q):  # weight of the technique with pdf p against one with pdf q
+        r = q / p
+        return 1.0 / (1.0 + r * r)
+    s = mis_power(a, b) + mis_power(b, a)
+    assert np.allclose(s, 1.0, rtol=1e-12)
+
+
+def _caustic_scene(size=24):
+    s = clpt.load_scene("cornell_box_small_bulb")
+    return clpt.Scene(camera=clpt.Camera(**{**s.camera.__dict__, "width": size, "height": size}),
+                      shapes=s.shapes, materials=s.materials, render=s.render)
+
+
+def test_zero_photons_gives_the_path_tracers_image_exactly(device_spec):
+    scene = _caustic_scene(16)
+    pt = clpt.Renderer(scene, device=device_spec, photons=False).render(16, seed=4, max_depth=6)
+    off = clpt.Renderer(scene, device=device_spec).render(16, seed=4, max_depth=6,
+                                                          photons=PhotonSettings(count=0))
+    assert np.array_equal(pt.image, off.image)
+    assert np.array_equal(pt.lum_var, off.lum_var)
+
+
+def test_merging_with_mis_converges_to_the_path_tracer(device_spec):
+    """Merging at every vertex, weighted against path tracing, adds up to the
+    unbiased image: block means agree with plain path tracing within noise
+    once the radius is small (the merge's blur is the only bias)."""
+    scene = _caustic_scene(24)
+    pt = clpt.Renderer(scene, device=device_spec, photons=False).render(4096, seed=1, max_depth=8)
+    pm = clpt.Renderer(scene, device=device_spec).render(
+        1024, seed=2, max_depth=8, photons=PhotonSettings(radius=0.002, count=20000, pilot=False))
+    assert pm.stats.nonfinite == 0 and len(pm.stats.photon_maps) == 1024 // 4
+    for img in (pt, pm):
+        assert np.isfinite(img.image).all()
+    # 4 x 4 blocks of 6 x 6 pixels: the difference of block means against their noise.
+    def blocks(a):
+        return a.reshape(4, 6, 4, 6, *a.shape[2:]).mean(axis=(1, 3))
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    d = blocks(pm.image @ lum) - blocks(pt.image @ lum)
+    var = blocks(pm.lum_var / pm.sample_count) / 36 + blocks(pt.lum_var / pt.sample_count) / 36
+    z = d / np.sqrt(var)
+    # The merge's per-pixel variance misses its photon noise shared within an
+    # iteration; a 6-sigma bound over 16 blocks still catches a weight error
+    # (a missing or doubled caustic is tens of sigma).
+    assert np.abs(z).max() < 6, z.round(1)
+
+
+@pytest.mark.parametrize("name", clpt.shipped_scenes())
+def test_no_nonfinite_sample_on_shipped_scenes(device_spec, name):
+    scene = clpt.load_scene(name)
+    res = clpt.Renderer(scene, device=device_spec).render(4, width=24, height=24, seed=9)
+    assert res.stats.nonfinite == 0 and np.isfinite(res.image).all()
