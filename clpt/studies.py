@@ -163,18 +163,20 @@ def knob_settings(has_photons: bool, max_depth: int = 8) -> list[Setting]:
     s += [Setting("filter", w, renderer={"aux": True}, render={"filter": FilterSettings(width=w)}, biased=w > 0)
           for w in (0, 1, 2, 3)]
     if has_photons:
-        s += [Setting("photons", n, renderer={"photons": n > 0},
-                      render={"photons": PhotonSettings(count=n)} if n else {}, biased=n > 0)
-              for n in (0, 10_000, 100_000, 1_000_000)]
-        s += [Setting("radius", r, render={"photons": PhotonSettings(radius=r)}, biased=True)
-              for r in (0.001, 0.002, 0.004, 0.008, 0.016)]
-        s += [Setting("cone_k", k, render={"photons": PhotonSettings(cone_k=k)}, biased=True) for k in (1.0, 1.1, 2.0, 4.0)]
-        s += [Setting("max_photons", m, render={"photons": PhotonSettings(max_photons=m)}, biased=True)
-              for m in (0, 16, 64, 256)]
-        s += [Setting("photon_mode", m, render={"photons": PhotonSettings(mode=m)}, biased=True)
-              for m in ("online", "offline")]
-        s += [Setting("progressive", a, render={"photons": PhotonSettings(progressive=True, alpha=a)}, biased=False)
-              for a in (0.5, 0.7)]
+        def ps(**kw):
+            return {"photons": PhotonSettings(**{"pilot": False, **kw})}
+        s += [Setting("photons", "off", renderer={"photons": False})]
+        s += [Setting("photons", f"{k}/sample", render=ps(photons_per_sample=k), biased=True)
+              for k in (0.05, 0.25, 1.0)]
+        s += [Setting("photons", "pilot", render={"photons": PhotonSettings()}, biased=True)]
+        s += [Setting("radius", r, render=ps(radius=r), biased=True) for r in (0.002, 0.004, 0.008, 0.016)]
+        s += [Setting("cone_k", k, render=ps(cone_k=k), biased=True) for k in (1.0, 1.1, 2.0)]
+        s += [Setting("merge_vertices", m, render=ps(merge_vertices=m), biased=True) for m in (1, 2, 1 << 20)]
+        s += [Setting("merge_probability", m, render=ps(merge_probability=m), biased=True) for m in (0.25, 0.5, 1.0)]
+        s += [Setting("photon_mode", m, render=ps(mode=m), biased=True) for m in ("merge", "online", "offline")]
+        s += [Setting("max_photons", m, render=ps(mode="online", max_photons=m), biased=True) for m in (0, 16)]
+        s += [Setting("progressive", a, render=ps(alpha=a), biased=True) for a in (0.5, 0.7, 0.9)]
+        s += [Setting("progressive", "fixed map", render=ps(progressive=False), biased=True)]
     return s
 
 
@@ -185,13 +187,15 @@ def convergence_settings(has_photons: bool) -> list[Setting]:
                  render={"filter": FilterSettings()}, biased=True),
          Setting("converge", "max_depth=2", renderer={"photons": False}, render={"max_depth": 2}, biased=True)]
     if has_photons:
-        c += [Setting("converge", "photons", biased=True),
-              Setting("converge", "photons progressive",
-                      render={"photons": PhotonSettings(progressive=True, alpha=0.5, spp_per_map=4)})]
+        c += [Setting("converge", "merging (progressive)", render={"photons": PhotonSettings(pilot=False)}),
+              Setting("converge", "merging, fixed map", biased=True,
+                      render={"photons": PhotonSettings(pilot=False, progressive=False)}),
+              Setting("converge", "owned map, online", biased=True, render={"photons": PhotonSettings(mode="online")})]
     return c
 
 
-PHOTON_KNOBS = ("photons", "radius", "cone_k", "max_photons", "photon_mode", "progressive")
+PHOTON_KNOBS = ("photons", "radius", "cone_k", "max_photons", "photon_mode", "progressive", "merge_vertices",
+                "merge_probability")
 
 
 def fit_slope(x, y) -> float:
@@ -284,20 +288,36 @@ def _plots(out: Path, rows, curves, title, log):
         return
     knobs = sorted({r["knob"] for r in rows if not r["knob"].startswith("converge")})
     pareto = set(_pareto(rows))
-    fig, ax = plt.subplots(figsize=(7, 5))
-    for i, k in enumerate(knobs):
+    # Small multiples: one panel per knob on shared axes, with the plain
+    # path tracer's point (the default max_depth row, photons off when the
+    # scene has them) in every panel to read each trade against.
+    base = next((r for r in rows if r["knob"] == "photons" and str(r["value"]) == "off"), None) or \
+        next((r for r in rows if r["knob"] == "max_depth" and str(r["value"]) == "8"), None)
+    cols = 4
+    nrows = -(-len(knobs) // cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(3.2 * cols, 2.6 * nrows), sharex=True, sharey=True,
+                             squeeze=False)
+    for ax, k in zip(axes.flat, knobs):
         pts = [r for r in rows if r["knob"] == k]
-        ax.loglog([p["seconds"] for p in pts], [p["relmse"] for p in pts], "o-", label=k, color=f"C{i % 10}",
-                  alpha=0.8, ms=4)
+        ax.loglog([p["seconds"] for p in pts], [p["relmse"] for p in pts], "o-", color="C0", ms=4)
         for p in pts:
             if f"{p['knob']}={p['value']}" in pareto:
-                ax.plot(p["seconds"], p["relmse"], "k*", ms=12, mfc="none")
-            ax.annotate(str(p["value"]), (p["seconds"], p["relmse"]), fontsize=6, alpha=0.7)
-    ax.set_xlabel("render time (s, steady state)")
-    ax.set_ylabel("relMSE")
-    ax.set_title(f"{title}: error against time, one knob at a time (stars: Pareto front)")
-    ax.legend(fontsize=7, ncol=2)
-    fig.tight_layout()
+                ax.plot(p["seconds"], p["relmse"], "k*", ms=11, mfc="none")
+            ax.annotate(str(p["value"]), (p["seconds"], p["relmse"]), fontsize=6, alpha=0.8,
+                        xytext=(3, 3), textcoords="offset points")
+        if base is not None:
+            ax.plot(base["seconds"], base["relmse"], "s", color="C3", ms=6, label="path tracing")
+        ax.set_title(k, fontsize=9)
+        ax.grid(True, which="both", alpha=0.2)
+    for ax in list(axes.flat)[len(knobs):]:
+        ax.set_visible(False)
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)", fontsize=8)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("relMSE", fontsize=8)
+    fig.suptitle(f"{title}: relMSE against time, one knob at a time (stars: Pareto front; "
+                 f"red square: path tracing)", fontsize=10)
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
     fig.savefig(out / "knobs.png", dpi=110)
     plt.close(fig)
     fig, ax = plt.subplots(figsize=(6, 4.5))
