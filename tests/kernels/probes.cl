@@ -179,7 +179,8 @@ __kernel void probe_gather(__global const float4 *ph_pos, __global const float4 
 
 // For a light sample from each point: its pdf, and the pdf light_pdf_hit
 // gives the point when a ray along the sample's direction hits it (what a
-// BSDF-sampled hit of that light uses for its multiple-importance weight).
+// BSDF-sampled hit of that light uses for its multiple-importance weight),
+// 0 where the ray meets something else first.
 __kernel void probe_light_pdf(__global const real4 *rec, uint8 counts,
                               __global const real *px, __global const real *py, __global const real *pz,
                               __global const real *u0, __global const real *u1, __global const real *u2,
@@ -192,5 +193,6 @@ __kernel void probe_light_pdf(__global const real4 *rec, uint8 counts,
     Hit h = scene_intersect(&s, x, ls.wi);
     vreal p = light_pdf_hit(&s, h.light, x, v3_fma(ls.wi, h.t, x), h.ng, h.t);
     ST(VSEL((vreal)R(0), ls.pdf, ls.valid), pdf_sample, i);
-    ST(VSEL((vreal)R(0), p, h.t < R(INFINITY)), pdf_hit, i);
+    // Only where the ray's first hit is the sampled point (not another light in the way).
+    ST(VSEL((vreal)R(0), p, fabs(h.t - ls.dist) < R(1e-4) * ls.dist), pdf_hit, i);
 }
