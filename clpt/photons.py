@@ -18,6 +18,7 @@ import pyopencl as cl
 import pyopencl.cltypes as clt
 
 RADIX_BITS = 8
+GRID_CELL_RADII = 2  # grid cells are cubes of this many gather radii (kernels/photon_grid.h)
 MAX_TABLE_BITS = 24
 # Photon-map modes of trace_paths (kernels/trace.cl PM_*).
 PM_OFF, PM_MERGE, PM_OWNED, PM_OFFLINE, PM_PREPASS = 0, 1, 2, 3, 4
@@ -59,11 +60,11 @@ class PhotonSettings:
     aim: str = "solid_angle"
     offline_spp: int = 16
     progressive: bool | None = None
-    photons_per_sample: float = 0.25
+    photons_per_sample: float = 0.05
     pilot: bool = True
     min_caustic_share: float = 1e-3
     alpha: float = 0.7
-    spp_per_map: int = 4
+    spp_per_map: int = 8
 
     def check(self):
         from .scene import SceneError
@@ -167,6 +168,7 @@ class PhotonMap:
         self.n_stored = 0
         self.n_emitted = 0
         self.radius = 0.0
+        self.inv_cell = 1.0
         self.sorted_keys = None
 
     def _alloc(self, n: int):
@@ -247,13 +249,14 @@ class PhotonMap:
         """Sort the n photon slots by bucket and fill bucket_start; returns the events."""
         q = self.dctx.queue
         self.radius = radius
+        self.inv_cell = 1.0 / (GRID_CELL_RADII * radius)
         table = 1 << self.table_bits
         cl.enqueue_fill_buffer(q, self.bucket_start, np.uint32(0), 0, 4 * (table + 1))
         cl.enqueue_fill_buffer(q, self.occ, np.uint32(0), 0, self.occ_bits // 8)
         events = []
         if n > 0:
             events.append(self._launch("photon_keys", self.k_keys, n, self.raw[0], np.uint32(n),
-                                       self.real(1.0 / radius), np.uint32(self.mask), self.keys[0], self.vals[0]))
+                                       self.real(self.inv_cell), np.uint32(self.mask), self.keys[0], self.vals[0]))
             chunk = np.uint32(-(-n // self.n_chunks))
             src = 0
             for shift in range(0, self.table_bits + 1, RADIX_BITS):
@@ -270,7 +273,7 @@ class PhotonMap:
                                        np.uint32(self.mask), self.bucket_start))
             self.sorted_keys = self.keys[src]
             events.append(self._launch("photon_occupancy", self.k_occ, n, self.raw[0], np.uint32(n),
-                                       self.real(1.0 / radius), np.uint32(self.occ_bits - 1), self.occ))
+                                       self.real(self.inv_cell), np.uint32(self.occ_bits - 1), self.occ))
         q.finish()
         return events
 
@@ -284,7 +287,7 @@ class PhotonMap:
                 self.real(self.radius), self.real(settings.cone_k), np.uint32(mode), self.real(mis_k),
                 np.uint32(min(settings.merge_vertices, 2 ** 31)), np.uint32(0 if settings.aim == "solid_angle" else 1),
                 self.real(p),
-                self.occ, np.uint32(self.occ_bits - 1)]
+                self.occ, np.uint32(self.occ_bits - 1), self.real(self.inv_cell)]
 
 
 def _device_seconds(events) -> float:

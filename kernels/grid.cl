@@ -100,11 +100,11 @@ __kernel void bucket_starts(__global const uint *keys, uint n, uint mask, __glob
 }
 
 // One work-item per slot: sets, in a bit table hashed like the buckets (with
-// its own mask), the bits of the 27 cells around a stored photon's cell. A
-// gather point whose own cell's bit is clear has no photon within the radius
-// (a set bit may be a hash collision), so most empty gathers end after one
-// vector test (photon_maybe). OR is order-free: the table is the same bits
-// every time.
+// its own mask), the bits of the 2 x 2 x 2 cells whose points can lie within
+// the radius of a stored photon (grid_lower_corner). A gather point whose own
+// cell's bit is clear has no photon within the radius (a set bit may be a
+// hash collision), so most empty gathers end after one vector test
+// (photon_maybe). OR is order-free: the table is the same bits every time.
 __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_cell, uint occ_mask,
                                __global uint *occ)
 {
@@ -114,10 +114,10 @@ __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_c
     float4 p = ph_pos[i];
     if (p.w == 0.0f)
         return;
-    int3 c = grid_cell(REAL3(p.xyz), inv_cell);
-    for (int dz = -1; dz <= 1; dz++)
-        for (int dy = -1; dy <= 1; dy++)
-            for (int dx = -1; dx <= 1; dx++) {
+    int3 c = grid_lower_corner(REAL3(p.xyz), inv_cell);
+    for (int dz = 0; dz <= 1; dz++)
+        for (int dy = 0; dy <= 1; dy++)
+            for (int dx = 0; dx <= 1; dx++) {
                 uint b = grid_bucket(c + (int3)(dx, dy, dz), occ_mask);
                 atomic_or(&occ[b >> 5], 1u << (b & 31u));
             }

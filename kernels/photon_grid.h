@@ -1,11 +1,13 @@
 // photon_grid.h: the caustic photon map's hash grid and its cone-filter gather.
 //
-// Cells are cubes of one gather radius. A cell's bucket is a hash of its y
-// and z plus its x, so the cells of an x-row sit in consecutive buckets.
-// Photons are sorted by bucket and bucket_start[b] is the first photon of
-// bucket b (bucket_start[table size] = photon count), so the three cells of a
-// row are one contiguous range of photons: a gather ball, which touches at
-// most the 3x3x3 cells around its centre, reads 9 ranges. A bucket may also
+// Cells are cubes of two gather radii (inv_cell = 1 / (2 r), set by the
+// host). A cell's bucket is a hash of its y and z plus its x, so the cells
+// of an x-row sit in consecutive buckets. Photons are sorted by bucket and
+// bucket_start[b] is the first photon of bucket b (bucket_start[table size]
+// = photon count), so the two cells of a row are one contiguous range of
+// photons. A gather ball of radius r around x lies within the 2 x 2 x 2
+// cells nearest to x (its own cell and, per axis, the neighbour on the side
+// of the half x is in: grid_lower_corner), so a gather reads 4 ranges. A bucket may also
 // hold photons of other cells: a photon counts only when its own cell is in
 // the row being visited, so none is counted twice. The sort is stable, so a
 // gather adds the same photons in the same order every time.
@@ -29,6 +31,16 @@ inline int grid_coord(real v, real inv_cell)
 inline int3 grid_cell(real3 p, real inv_cell)
 {
     return (int3)(grid_coord(p.x, inv_cell), grid_coord(p.y, inv_cell), grid_coord(p.z, inv_cell));
+}
+
+// The lowest of the 2 x 2 x 2 cells that hold every point within half a cell
+// (one radius) of p.
+inline int3 grid_lower_corner(real3 p, real inv_cell)
+{
+    real3 q = clamp(p * inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT);
+    real3 f = floor(q);
+    int3 c = (int3)((int)f.x, (int)f.y, (int)f.z);
+    return c - (int3)(q.x - f.x < R(0.5), q.y - f.y < R(0.5), q.z - f.z < R(0.5)) * (int3)(1);
 }
 
 inline uint grid_bucket(int3 c, uint mask)
@@ -86,24 +98,24 @@ inline real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, r
 {
     real r2 = pm->radius * pm->radius;
     real inv_kr = R(1) / (pm->cone_k * pm->radius);
-    int3 base = grid_cell(x, pm->inv_cell);
+    int3 base = grid_lower_corner(x, pm->inv_cell);
     real3 sum_d = (real3)(R(0)), sum_s = (real3)(R(0));
 #if CLPT_HAS_PHONG
     real3 refl = d - R(2) * dot(d, n) * n;
     int phong = ks.x > R(0) || ks.y > R(0) || ks.z > R(0);
 #endif
     uint found = 0;
-    for (int dz = -1; dz <= 1; dz++) {
-        for (int dy = -1; dy <= 1; dy++) {
-            int3 cell = base + (int3)(-1, dy, dz);  // first cell of the row
+    for (int dz = 0; dz <= 1; dz++) {
+        for (int dy = 0; dy <= 1; dy++) {
+            int3 cell = base + (int3)(0, dy, dz);  // first cell of the row
             uint b = grid_bucket(cell, pm->mask);
-            // Buckets b, b+1, b+2 hold the row; the last ones may wrap to bucket 0.
-            uint n_first = min(3u, pm->mask + 1u - b);
+            // Buckets b, b+1 hold the row; the last may wrap to bucket 0.
+            uint n_first = min(2u, pm->mask + 1u - b);
             uint s0 = pm->bucket_start[b], e0 = pm->bucket_start[b + n_first];
             uint s1 = 0u, e1 = 0u;
-            if (n_first < 3u) {
+            if (n_first < 2u) {
                 s1 = pm->bucket_start[0];
-                e1 = pm->bucket_start[3u - n_first];
+                e1 = pm->bucket_start[2u - n_first];
             }
             uint count = (e0 - s0) + (e1 - s1);
             if (count == 0u)
@@ -127,7 +139,7 @@ inline real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, r
                     if (p.w > max_bounces)
                         continue;
                     int3 pc = grid_cell(REAL3(p.xyz), pm->inv_cell);
-                    if (pc.y != cell.y || pc.z != cell.z || pc.x < cell.x || pc.x > cell.x + 2)
+                    if (pc.y != cell.y || pc.z != cell.z || pc.x < cell.x || pc.x > cell.x + 1)
                         continue;  // another cell's photon in these buckets
                     float4 dir = pm->dir[i];
                     real3 w_in = REAL3(dir.xyz);
@@ -156,7 +168,7 @@ inline real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, r
                     if (++found >= pm->max_photons)
                         goto done;
                 }
-                if (n_first == 3u)
+                if (n_first == 2u)
                     break;
             }
         }

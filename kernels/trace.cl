@@ -194,7 +194,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
                           __global const float4 *ph_pow, __global const uint *bucket_start,
                           uint pm_mask, uint pm_max, uint pm_budget, real pm_radius,
                           real pm_cone_k, uint pm_mode, real pm_mis_k, uint pm_merge_vertices, uint pm_aim, real pm_merge_p,
-                          __global const uint *pm_occ, uint pm_occ_mask
+                          __global const uint *pm_occ, uint pm_occ_mask, real pm_inv_cell
 #endif
                           )
 {
@@ -208,7 +208,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
     // The pre-pass gathers only a few times per pixel: subsampling noise would
     // not average out there, so it visits every photon.
     pm.budget = pm_mode == PM_PREPASS ? 0xFFFFFFFFu : pm_budget;
-    pm.radius = pm_radius; pm.inv_cell = R(1) / pm_radius; pm.cone_k = pm_cone_k;
+    pm.radius = pm_radius; pm.inv_cell = pm_inv_cell; pm.cone_k = pm_cone_k;
     pm.mis_k = pm_mis_k;
     pm.occ = pm_occ; pm.occ_mask = pm_occ_mask;
     int merge = pm_mode == PM_MERGE;

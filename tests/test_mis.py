@@ -82,7 +82,7 @@ def test_merging_with_mis_converges_to_the_path_tracer(device_spec):
     scene = _caustic_scene(24)
     pt = clpt.Renderer(scene, device=device_spec, photons=False).render(4096, seed=1, max_depth=8)
     pm = clpt.Renderer(scene, device=device_spec).render(
-        1024, seed=2, max_depth=8, photons=PhotonSettings(radius=0.002, count=20000, pilot=False))
+        1024, seed=2, max_depth=8, photons=PhotonSettings(radius=0.002, count=20000, spp_per_map=4, pilot=False))
     assert pm.stats.nonfinite == 0 and len(pm.stats.photon_maps) == 1024 // 4
     for img in (pt, pm):
         assert np.isfinite(img.image).all()

@@ -34,7 +34,8 @@ def gather(probe, pm, queries, kd=(0.5, 0.5, 0.5), ks=(0, 0, 0), shininess=0.0, 
     k = cl.Kernel(probe.program, "probe_gather")
     r4 = cl.cltypes.make_float4
     k(queue, (len(q),), None, *pm.sorted, pm.bucket_start, np.uint32(pm.mask),
-      np.uint32(max_photons or 0xFFFFFFFF), np.uint32(budget), probe.real(pm.radius), probe.real(cone_k), r4(*kd, 0), r4(*ks, shininess),
+      np.uint32(max_photons or 0xFFFFFFFF), np.uint32(budget), probe.real(pm.radius), probe.real(pm.inv_cell),
+      probe.real(cone_k), r4(*kd, 0), r4(*ks, shininess),
       qb, ob)
     cl.enqueue_copy(queue, out, ob)
     queue.finish()

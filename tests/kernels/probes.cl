@@ -163,14 +163,14 @@ __kernel void probe_accumulate(__global const real *x, uint n, __global pix_sum_
 // photon_gather_one for each query point (one per work-item, whatever the lanes).
 __kernel void probe_gather(__global const float4 *ph_pos, __global const float4 *ph_dir,
                            __global const float4 *ph_pow, __global const uint *bucket_start, uint mask,
-                           uint max_photons, uint budget, real radius, real cone_k, real4 kd, real4 ks_n,
+                           uint max_photons, uint budget, real radius, real inv_cell, real cone_k, real4 kd, real4 ks_n,
                            __global const real *q, __global real *out)
 {
     size_t i = get_global_id(0);
     PhotonMap pm;
     pm.pos = ph_pos; pm.dir = ph_dir; pm.pow = ph_pow; pm.bucket_start = bucket_start;
     pm.mask = mask; pm.max_photons = max_photons; pm.budget = budget;
-    pm.radius = radius; pm.inv_cell = R(1) / radius; pm.cone_k = cone_k; pm.mis_k = R(0);
+    pm.radius = radius; pm.inv_cell = inv_cell; pm.cone_k = cone_k; pm.mis_k = R(0);
     __global const real *a = q + 10 * i;
     real3 x = (real3)(a[0], a[1], a[2]), n = (real3)(a[3], a[4], a[5]), d = (real3)(a[6], a[7], a[8]);
     real3 L = photon_gather_one(&pm, x, n, d, kd.xyz, ks_n.xyz, ks_n.w, a[9], R(1), R(0), 0, R(INFINITY));
