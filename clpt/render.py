@@ -372,8 +372,6 @@ class Renderer:
         fset = filter.check() if filter is not None else None
         if fset is not None and not self.features.aux:
             raise SceneError("render: the filter needs the feature buffers: make the Renderer with aux=True")
-        if aset is not None and progressive:
-            raise SceneError("render: adaptive sampling and progressive photon mapping cannot be combined")
         frame = camera_frame(self.scene.camera, width, height)
         n_pix = width * height
         stats = RenderStats(build_seconds=self.build_seconds,
@@ -464,8 +462,11 @@ class Renderer:
 
         interrupted = self._run_threads(work, state, lock, progress, spp, n_pix, elapsed)
         if aset is not None and not interrupted and not state["stop"]:
+            # Progressive photons: each adaptive round gets the next iteration's map.
+            first_round_map = -(-uniform_spp // pset.spp_per_map) if progressive else 0
+            round_map = (lambda st, k: photon_map(st, first_round_map + k)) if progressive else None
             interrupted = self._adaptive_rounds(aset, max_depth, budget, n_pix, width, height, state, lock,
-                                                note_pass, stats, progress, spp, elapsed, time_limit)
+                                                note_pass, stats, progress, spp, elapsed, time_limit, round_map)
         if state["error"] is not None:
             raise state["error"]
         if time_limit is not None and state["done"] < spp and aset is None:
@@ -518,9 +519,10 @@ class Renderer:
         return interrupted
 
     def _adaptive_rounds(self, aset, max_depth, budget, n_pix, width, height, state, lock, note_pass, stats,
-                         progress, spp, elapsed, time_limit) -> bool:
+                         progress, spp, elapsed, time_limit, round_map=None) -> bool:
         """Adaptive passes until the pixels are below the threshold (error
-        scheme) or the sample budget or time runs out. True if interrupted."""
+        scheme) or the sample budget or time runs out; round_map(state, k),
+        if given, builds the photon map of round k first. True if interrupted."""
         luma = np.array([0.2126, 0.7152, 0.0722])
         stats.adaptive_rounds = 0
         try:
@@ -570,6 +572,8 @@ class Renderer:
 
                 def one(st, idx):
                     try:
+                        if round_map is not None:
+                            round_map(st, stats.adaptive_rounds)
                         if len(idx):
                             seconds, row = st.run(0, 0, pixels=pixels[idx], jobs=jobs[idx])
                             note_pass(st, -1, int(jobs[idx, 0].sum()) / n_pix, seconds, row)
