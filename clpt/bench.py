@@ -24,6 +24,8 @@ import time
 
 import numpy as np
 
+from .constants import LUMA
+
 
 def _cold_build_child(scene: str, device, lanes, precision, kernel, nee) -> dict:
     from .render import Renderer
@@ -196,7 +198,7 @@ def caustic_reference(scene, *, device=None, width=128, height=128, max_depth=64
         if ref_path is not None:
             save_image(ref_path, np.dstack([img, var]).astype(np.float32),
                        metadata={"clpt:reference_spp": ref_spp, "clpt:max_depth": max_depth})
-    lum = img @ np.array([0.2126, 0.7152, 0.0722])
+    lum = img @ LUMA
     rel = var / np.maximum(lum, 1e-3) ** 2
     return img, rel >= np.quantile(rel, 0.97)
 

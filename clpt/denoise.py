@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import pyopencl as cl
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
+from .constants import LUMA, LUMA_WEIGHTS
+
 ALBEDO_FLOOR = 1e-3
 
 
@@ -96,7 +97,8 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
     c = irr.astype(np.float32)
     v = v.astype(np.float32)
     has = (normal * normal).sum(-1) > 0
-    lum = lambda a: 0.2126 * a[..., 0] + 0.7152 * a[..., 1] + 0.0722 * a[..., 2]  # noqa: E731
+    wr, wg, wb = LUMA_WEIGHTS
+    lum = lambda a: wr * a[..., 0] + wg * a[..., 1] + wb * a[..., 2]  # noqa: E731  (float32, as the kernel)
     for it in range(settings.iterations):
         step = 1 << it
         acc = np.zeros_like(c)

@@ -17,6 +17,8 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.cltypes as clt
 
+from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
+
 RADIX_BITS = 8
 GRID_CELL_RADII = 2  # grid cells are cubes of this many gather radii (kernels/photon_grid.h)
 MAX_TABLE_BITS = 24
@@ -198,7 +200,7 @@ class PhotonMap:
         # A fixed local size (the kernels check their range): PoCL compiles a
         # kernel anew for each local size, and its own choice for large global
         # sizes overflowed the work-item stacks of the double-precision build.
-        local = 16 if self.dctx.is_cpu else 64
+        local = LOCAL_SIZE_CPU if self.dctx.is_cpu else LOCAL_SIZE_GPU
         kernel.set_args(*args)
         ev = cl.enqueue_nd_range_kernel(self.dctx.queue, kernel, (-(-max(1, global_size) // local) * local,), (local,))
         self.launches[name] = self.launches.get(name, 0) + 1

@@ -22,6 +22,7 @@ from pathlib import Path
 
 import pyopencl as cl
 
+from .constants import kernel_defines
 from .resources import kernel_dir
 
 # Device libraries in dependency order; entry files (*.cl) come after them.
@@ -50,10 +51,11 @@ def clear_cache() -> int:
 
 
 def stitch(entry_files, generated: dict[str, str] | None = None, after: str = "simd.h") -> str:
-    """Library files, then entry files, with #line markers. `generated` maps a
-    pseudo file name to text inserted right after the library file `after`."""
+    """The shared constants, library files, then entry files, with #line
+    markers. `generated` maps a pseudo file name to text inserted right after
+    the library file `after`."""
     kd = kernel_dir()
-    parts = []
+    parts = [f'#line 1 "<constants>"\n{kernel_defines()}']
     for name in list(LIBRARY_FILES) + list(entry_files):
         path = Path(name) if os.path.isabs(name) else kd / name
         parts.append(f'#line 1 "kernels/{path.name}"\n{path.read_text()}')

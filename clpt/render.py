@@ -29,12 +29,11 @@ from .device import DeviceContext, DeviceError, select_devices
 from .features import Features, scene_features
 from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
 from .adaptive import AdaptiveSettings, allocate_error, allocate_paper
+from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, LUMA, OFFSET_ABS
 from .denoise import ConeFilter, FilterSettings
 from .photons import PM_MERGE, PM_OFF, PM_OFFLINE, PM_OWNED, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
 from .scene import Scene, SceneError, load_scene
 
-LOCAL_SIZE_CPU = 16
-LOCAL_SIZE_GPU = 64
 PREPASS_SEED_SALT = 0x2545F491
 
 
@@ -153,7 +152,7 @@ class _DeviceState:
             recs = np.zeros((1, 4), dtype=real)
         self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
         self.counts = counts_arg(packed.counts)
-        self.eps_abs = packed.extent * (1e-13 if features.double else 2e-6)
+        self.eps_abs = packed.extent * OFFSET_ABS['double' if features.double else 'float']
         self.lum_scale = packed.lum_scale
         self.real = real
         self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
@@ -281,7 +280,7 @@ def _combine(states, which: str, n_pix: int, lum_scale: float = 1.0):
     count = total[:, 3]
     safe = np.maximum(count, 1.0)
     mean = total[:, :3] / safe[:, None]
-    lum_mean = (mean @ np.array([0.2126, 0.7152, 0.0722])) * lum_scale  # the kernels square scaled luminance
+    lum_mean = (mean @ LUMA) * lum_scale  # the kernels square scaled luminance
     var = np.maximum(total_sq / safe - lum_mean ** 2, 0.0) * (safe / np.maximum(safe - 1.0, 1.0)) / lum_scale ** 2
     return mean, var, count
 
@@ -523,7 +522,6 @@ class Renderer:
         """Adaptive passes until the pixels are below the threshold (error
         scheme) or the sample budget or time runs out; round_map(state, k),
         if given, builds the photon map of round k first. True if interrupted."""
-        luma = np.array([0.2126, 0.7152, 0.0722])
         stats.adaptive_rounds = 0
         try:
             while True:
@@ -535,7 +533,7 @@ class Renderer:
                 if left <= 0:
                     break
                 shape = (height, width)
-                lum = (mean @ luma).reshape(shape)
+                lum = (mean @ LUMA).reshape(shape)
                 if aset.scheme == "error":
                     # A round spends at most an eighth of the budget, so later rounds
                     # see what the earlier ones achieved.

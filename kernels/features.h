@@ -20,6 +20,9 @@
 #if !defined(CLPT_HAS_TRIANGLE_LIGHTS) || !defined(CLPT_HAS_SPHERE_LIGHTS)
 #error "clpt: every CLPT_HAS_<kind>_LIGHTS flag must be defined"
 #endif
+#if !defined(CLPT_LUMA_R) || !defined(CLPT_OFFSET_REL_FLOAT)
+#error "clpt: the generated constants (clpt/constants.py) must come first"
+#endif
 #if !defined(CLPT_PHOTONS) || !defined(CLPT_AUX)
 #error "clpt: CLPT_PHOTONS and CLPT_AUX must be defined"
 #endif

@@ -139,7 +139,7 @@ inline V3 v3_sel4(V3 a, real4 b, vmask m)
     return v3(VSEL(a.x, (vreal)b.x, m), VSEL(a.y, (vreal)b.y, m), VSEL(a.z, (vreal)b.z, m));
 }
 inline vreal v3_max_comp(V3 a) { return fmax(a.x, fmax(a.y, a.z)); }
-inline vreal v3_luminance(V3 a) { return R(0.2126) * a.x + R(0.7152) * a.y + R(0.0722) * a.z; }
+inline vreal v3_luminance(V3 a) { return R(CLPT_LUMA_R) * a.x + R(CLPT_LUMA_G) * a.y + R(CLPT_LUMA_B) * a.z; }
 // Reflect incoming direction d about normal n (both unit): d - 2 (d.n) n.
 inline V3 v3_reflect(V3 d, V3 n) { return v3_fma(n, R(-2) * v3_dot(d, n), d); }
 
