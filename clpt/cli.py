@@ -44,7 +44,8 @@ def _add_render_options(p):
                                                         "'all', or a comma list (default: PYOPENCL_CTX, a GPU, "
                                                         "else the CPU)")
     p.add_argument("--lanes", type=int, default=None, choices=(1, 2, 4, 8, 16),
-                   help="paths per work-item (default: 8 on an AVX2 CPU, 1 on a GPU)")
+                   help="paths per work-item (default: tuned per device; see `clpt devices -v`)")
+    p.add_argument("--local-size", type=int, default=None, help="work-group size (default: tuned per device)")
     p.add_argument("--precision", choices=("float", "double"), default="float")
     p.add_argument("--kernel", choices=("specialized", "generic", "baked"), default="specialized",
                    help="kernel build: only the scene's features (default), everything, or the scene "
@@ -158,8 +159,8 @@ def _photon_settings(a):
 
 
 def _renderer_kwargs(a):
-    kw = dict(device=a.device, lanes=a.lanes, precision=a.precision, kernel=a.kernel, nee=not a.no_nee,
-              use_cache=not a.no_cache)
+    kw = dict(device=a.device, lanes=a.lanes, local_size=a.local_size, precision=a.precision, kernel=a.kernel,
+              nee=not a.no_nee, use_cache=not a.no_cache)
     if getattr(a, "photons", None) == 0:
         kw["photons"] = False
     return kw
@@ -180,6 +181,7 @@ def cmd_render(a) -> int:
             b = st.build
             print(f"device: {st.dctx.label}", file=sys.stderr)
             print(f"kernel: {st.features.describe()}", file=sys.stderr)
+            print(f"tuning: {st.tuning.describe()}", file=sys.stderr)
             print(f"build: {b.seconds:.3f}s ({'cache hit' if b.cache_hit else 'compiled'}, key {b.key})",
                   file=sys.stderr)
     show, end = _progress_printer(sys.stderr, not a.quiet and (a.progress or sys.stderr.isatty()))
@@ -238,11 +240,28 @@ def cmd_render(a) -> int:
 
 
 def cmd_devices(a) -> int:
-    from .device import list_devices
+    from .device import DeviceContext, list_devices, select_devices
 
     devs = list_devices()
     for d in devs:
         print(d.line())
+        if a.verbose:
+            from . import tune
+
+            dctx = DeviceContext(select_devices(f"{d.platform_index}:{d.device_index}")[0])
+            dev = dctx.device
+            print(f"    float vector width: native {dev.native_vector_width_float}, preferred "
+                  f"{dev.preferred_vector_width_float}; max work-group {dev.max_work_group_size}; "
+                  f"max allocation {d.max_alloc / 2**30:.1f} GiB")
+            q = tune.query_tuning(dctx)
+            if q is not None:
+                print(f"    defaults: {q.describe()}")
+            else:
+                print(f"    defaults: measured per kernel the first time it is built (else "
+                      f"{tune.fallback_tuning(dctx).describe()})")
+            for e in tune.cached_choices(dctx):
+                print(f"    measured: lanes {e['lanes']}, local size {e['local_size']}, pass {e['pass_seconds']:g} s "
+                      f"({e['why']})")
     if not devs:
         print("no OpenCL devices found", file=sys.stderr)
         return 1
@@ -419,6 +438,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_tradeoff)
 
     p = sub.add_parser("devices", help="list the OpenCL devices")
+    p.add_argument("-v", "--verbose", action="store_true", help="also the vector widths and the tuned defaults")
     p.set_defaults(func=cmd_devices)
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.set_defaults(func=cmd_scenes)

@@ -6,7 +6,9 @@ cached, dumped (``CLPT_DUMP_KERNELS=dir``) and named in build errors; there
 are no include paths. Built program binaries are cached on disk, keyed by the
 stitched source, the sorted build options and the device/driver identity:
 ``$CLPT_CACHE_DIR``, else ``$XDG_CACHE_HOME/clpt``, else ``~/.cache/clpt``.
-``clpt cache --clear`` empties it.
+``clpt cache --clear`` empties it (and the tuned settings beside it).
+pyopencl's own binary cache is not used: it would make a build that misses
+ours (after ``clpt cache --clear``, or a cold build in ``clpt bench``) warm.
 """
 
 from __future__ import annotations
@@ -43,10 +45,12 @@ def cache_dir() -> Path:
 
 
 def clear_cache() -> int:
-    """Remove every cached kernel binary; returns how many there were."""
+    """Remove every cached kernel binary and the tuned settings; returns how
+    many kernel binaries there were."""
     d = cache_dir() / "kernels"
     n = len(list(d.glob("*.bin"))) if d.is_dir() else 0
-    shutil.rmtree(d, ignore_errors=True)
+    for sub in ("kernels", "tune"):
+        shutil.rmtree(cache_dir() / sub, ignore_errors=True)
     return n
 
 
@@ -110,7 +114,8 @@ def build(dctx, source: str, options, use_cache: bool = True):
             except (cl.Error, OSError):
                 path.unlink(missing_ok=True)  # stale or damaged entry: rebuild below
         try:
-            prg = cl.Program(dctx.context, source).build(options=options, devices=[dctx.device])
+            prg = cl.Program(dctx.context, source).build(options=options, devices=[dctx.device],
+                                                         cache_dir=False)
         except cl.RuntimeError as e:
             dumped = _dump(source, options, key)
             raise KernelBuildError(f"kernel build failed on {dctx.label} with options {' '.join(options)}; "

@@ -24,7 +24,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.cltypes as clt
 
-from . import program
+from . import program, tune
 from .device import DeviceContext, DeviceError, select_devices
 from .features import Features, scene_features
 from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
@@ -130,6 +130,17 @@ class _Sums:
         return s64[:, :4] - s64[:, 4:], sq64[:, 0] - sq64[:, 1]
 
 
+def kernel_source(packed: PackedScene | None, features: Features) -> str:
+    """The stitched program a scene's build compiles (without a baked scene's
+    records when packed is None)."""
+    generated = {}
+    if features.mode == "baked" and packed is not None:
+        generated["<baked scene>"] = _baked_source(packed.records, features.double)
+    entries = (["trace.cl"] + (["photons.cl", "grid.cl"] if features.photons else [])
+               + (["filter.cl"] if features.aux else []))
+    return program.stitch(entries, generated)
+
+
 class _DeviceState:
     """Everything one device holds for one scene: programs, kernels, buffers."""
 
@@ -138,12 +149,7 @@ class _DeviceState:
         self.features = features
         self.packed = packed
         real = np.float64 if features.double else np.float32
-        generated = {}
-        if features.mode == "baked":
-            generated["<baked scene>"] = _baked_source(packed.records, features.double)
-        entries = (["trace.cl"] + (["photons.cl", "grid.cl"] if features.photons else [])
-                   + (["filter.cl"] if features.aux else []))
-        source = program.stitch(entries, generated)
+        source = kernel_source(packed, features)
         self.program, self.build = program.build(dctx, source, features.options(), use_cache=use_cache)
         self.kernel = cl.Kernel(self.program, "trace_paths")
         mf = cl.mem_flags
@@ -294,9 +300,9 @@ class Renderer:
     has caustic casters (purely specular objects); False never compiles it.
     """
 
-    def __init__(self, scene, *, device=None, lanes: int | None = None, precision: str = "float",
-                 kernel: str = "specialized", nee: bool = True, photons: bool | None = None,
-                 aux: bool = False, use_cache: bool = True, accumulate: str = "auto"):
+    def __init__(self, scene, *, device=None, lanes: int | None = None, local_size: int | None = None,
+                 precision: str = "float", kernel: str = "specialized", nee: bool = True,
+                 photons: bool | None = None, aux: bool = False, use_cache: bool = True, accumulate: str = "auto"):
         if isinstance(scene, (str, Path)):
             scene = load_scene(scene)
         if not isinstance(scene, Scene):
@@ -305,6 +311,11 @@ class Renderer:
             raise ValueError(f"precision must be 'float' or 'double' (got {precision!r})")
         if accumulate not in ("auto", "double", "kahan"):
             raise ValueError(f"accumulate must be 'auto', 'double' or 'kahan' (got {accumulate!r})")
+        if lanes is not None and lanes not in tune.LANE_WIDTHS:
+            raise ValueError(f"lanes must be one of {', '.join(map(str, tune.LANE_WIDTHS))} (got {lanes!r})")
+        if local_size is not None and (isinstance(local_size, bool) or not isinstance(local_size, int)
+                                       or local_size < 1):
+            raise ValueError(f"local_size must be a positive integer (got {local_size!r})")
         self.scene = scene
         self.packed = pack_scene(scene)
         use_photons = self.packed.has_caustics and photons is not False
@@ -315,11 +326,26 @@ class Renderer:
                 raise DeviceError(f"{dctx.label} has no double precision (cl_khr_fp64); "
                                   f"render with precision='float'")
             acc_double = dctx.fp64 if accumulate == "auto" else accumulate == "double"
-            n_lanes = lanes or dctx.default_lanes()
-            feats = scene_features(self.packed, lanes=n_lanes, double=precision == "double",
-                                   accum_double=acc_double or precision == "double", mode=kernel, nee=nee,
-                                   photons=use_photons, aux=aux)
-            self.states.append(_DeviceState(dctx, self.packed, feats, use_cache))
+            if local_size is not None and local_size > dctx.device.max_work_group_size:
+                raise DeviceError(f"local size {local_size} is above {dctx.label}'s maximum work-group size "
+                                  f"{dctx.device.max_work_group_size}")
+
+            def feats(n_lanes):
+                return scene_features(self.packed, lanes=n_lanes, double=precision == "double",
+                                      accum_double=acc_double or precision == "double", mode=kernel, nee=nee,
+                                      photons=use_photons, aux=aux)
+
+            f = feats(lanes or 1)
+            rs = scene.render
+            tuning, st = tune.choose(dctx, kernel_source(None, f), f.options(),
+                                     lambda n: _DeviceState(dctx, self.packed, feats(n), use_cache), scene.camera,
+                                     lanes=lanes, local_size=local_size, max_depth=rs.max_depth,
+                                     rr_depth=rs.rr_depth, use_cache=use_cache)
+            if st is None:
+                st = _DeviceState(dctx, self.packed, feats(tuning.lanes), use_cache)
+            st.local = tuning.local_size
+            st.tuning = tuning
+            self.states.append(st)
         self.features = self.states[0].features
 
     @property
@@ -330,7 +356,7 @@ class Renderer:
                rr_depth: int | None = None, width: int | None = None, height: int | None = None,
                photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
                filter: FilterSettings | None = None, progress=None, preview=None,
-               time_limit: float | None = None, pass_seconds: float = 0.25) -> RenderResult:
+               time_limit: float | None = None, pass_seconds: float | None = None) -> RenderResult:
         """Render; keywords override the scene's settings.
 
         spp is the average number of samples per pixel (with adaptive
@@ -338,7 +364,10 @@ class Renderer:
         total_spp, elapsed_seconds, samples_per_second) is called after each
         pass; preview(image) every filter.interval passes with the filtered
         image so far. Ctrl-C (KeyboardInterrupt) ends the render early with
-        what is done."""
+        what is done. pass_seconds: how long a pass should take (default: the
+        device's tuned choice)."""
+        if pass_seconds is None:
+            pass_seconds = self.states[0].tuning.pass_seconds
         rs = self.scene.render
         spp = rs.spp if spp is None else spp
         seed = rs.seed if seed is None else seed
