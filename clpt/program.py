@@ -132,3 +132,17 @@ def build(dctx, source: str, options, use_cache: bool = True):
         except (cl.Error, OSError):
             pass  # a cache that cannot be written only costs the next build
     return prg, BuildInfo(seconds, False, key, options)
+
+
+def event_seconds(event) -> float:
+    """Device time of a finished kernel launch, from its profiling event (nan if
+    the queue has no profiling)."""
+    try:
+        return (event.profile.end - event.profile.start) * 1e-9
+    except cl.Error:
+        return float("nan")
+
+
+def note_time(times: dict, name: str, event):
+    """Append a finished launch's device time to times[name]."""
+    times.setdefault(name, []).append(event_seconds(event))

@@ -52,6 +52,7 @@ class RenderStats:
     adaptive_rounds: int = 0
     photon_pilot: dict | None = None  # what the pilot measured and chose (PhotonSettings.pilot)
     launches: dict = field(default_factory=dict)  # kernel name -> launches, all devices
+    kernel_seconds: dict = field(default_factory=dict)  # kernel name -> device seconds per launch (profiling)
 
     @property
     def rays(self) -> int:
@@ -166,10 +167,15 @@ class _DeviceState:
         self.pmap = PhotonMap(dctx, self.program, real) if features.photons else None
         self.filter = ConeFilter(dctx, self.program) if features.aux else None
         self.launches = {}
+        self.kernel_times = {}  # kernel name -> device seconds of each launch since allocate()
 
-    def allocate(self, n_pix: int, caustic_buffer: bool):
+    def allocate(self, n_pix: int, caustic_buffer: bool, width: int | None = None):
         lanes = self.features.lanes
         groups = -(-n_pix // lanes)
+        tw = self.features.tile_width
+        if tw > 1:  # one work-item per tile (width None: one image row)
+            w = width or n_pix
+            groups = -(-w // tw) * -(-(n_pix // w) // (lanes // tw))
         self.global_size = -(-groups // self.local) * self.local
         need = n_pix * 40 * (2 if caustic_buffer else 1) + self.global_size * 16
         dev = self.dctx.device
@@ -212,6 +218,9 @@ class _DeviceState:
         for k, v in self.pmap.launches.items():
             self.launches[k] = self.launches.get(k, 0) + v
         self.pmap.launches.clear()
+        for k, v in self.pmap.kernel_times.items():
+            self.kernel_times.setdefault(k, []).extend(v)
+        self.pmap.kernel_times.clear()
         return {**info, "radius": radius, "seed": seed}
 
     def run(self, s0: int, n: int, prepass: bool = False, pixels=None, jobs=None):
@@ -243,12 +252,28 @@ class _DeviceState:
             args += self.pmap.kernel_args(self.pm_settings, mode)
         self.kernel.set_args(*args)
         t0 = time.perf_counter()
-        cl.enqueue_nd_range_kernel(q, self.kernel, (global_size,), (self.local,))
+        ev = cl.enqueue_nd_range_kernel(q, self.kernel, (global_size,), (self.local,))
         stats = self.stats_host[:global_size]
-        cl.enqueue_copy(q, stats, self.stats_buf)
+        cl.enqueue_copy(q, stats, self.stats_buf)  # blocking: the launch has finished
         seconds = time.perf_counter() - t0
+        program.note_time(self.kernel_times, "trace_paths", ev)
         self.launches["trace_paths"] = self.launches.get("trace_paths", 0) + 1
         return seconds, stats.sum(axis=0, dtype=np.uint64)
+
+    def buffer_bytes(self) -> dict[str, int]:
+        """Device memory per buffer this state holds (after a render)."""
+        out = {"scene records": self.scene_buf.size}
+        for name, sums in (("pixel sums", getattr(self, "main", None)), ("caustic sums", getattr(self, "caustic", None))):
+            if sums is not None:
+                out[name] = sums.pix_sum.size + sums.pix_sq.size
+        if hasattr(self, "stats_buf"):
+            out["work-item stats"] = self.stats_buf.size
+            out["adaptive lists"] = self.list_buf.size + self.jobs_buf.size
+        if getattr(self, "aux", None):
+            out["feature buffers"] = sum(b.size for b in self.aux)
+        if self.pmap is not None:
+            out.update(self.pmap.buffer_bytes())
+        return out
 
     def read_aux(self):
         """Per-pixel feature sums: (normal xyz, count), (albedo rgb, distance), (emission rgb, 0)."""
@@ -302,7 +327,8 @@ class Renderer:
 
     def __init__(self, scene, *, device=None, lanes: int | None = None, local_size: int | None = None,
                  precision: str = "float", kernel: str = "specialized", nee: bool = True,
-                 photons: bool | None = None, aux: bool = False, use_cache: bool = True, accumulate: str = "auto"):
+                 photons: bool | None = None, aux: bool = False, use_cache: bool = True, accumulate: str = "auto",
+                 tiles: bool = False):
         if isinstance(scene, (str, Path)):
             scene = load_scene(scene)
         if not isinstance(scene, Scene):
@@ -333,7 +359,7 @@ class Renderer:
             def feats(n_lanes):
                 return scene_features(self.packed, lanes=n_lanes, double=precision == "double",
                                       accum_double=acc_double or precision == "double", mode=kernel, nee=nee,
-                                      photons=use_photons, aux=aux)
+                                      photons=use_photons, aux=aux, tiles=tiles)
 
             f = feats(lanes or 1)
             rs = scene.render
@@ -405,9 +431,10 @@ class Renderer:
         stats = RenderStats(build_seconds=self.build_seconds,
                             cache_hits=sum(s.build.cache_hit for s in self.states))
         for st in self.states:
-            st.allocate(n_pix, caustic_buffer=offline)
+            st.allocate(n_pix, caustic_buffer=offline, width=width)
             st.set_frame(frame, width, height, max_depth, rr_depth, seed)
             st.launches = {}
+            st.kernel_times = {}
 
         lock = threading.Lock()
         uniform_spp = spp if aset is None else min(spp, aset.min_spp)
@@ -506,6 +533,11 @@ class Renderer:
         for st in self.states:
             for k, v in st.launches.items():
                 stats.launches[k] = stats.launches.get(k, 0) + v
+            if st.filter is not None:
+                st.kernel_times.update(st.filter.kernel_times)
+                st.filter.kernel_times = {}
+            for k, v in st.kernel_times.items():
+                stats.kernel_seconds.setdefault(k, []).extend(v)
         return RenderResult(image=image, sample_count=count.reshape(height, width).astype(np.uint32),
                             lum_var=var.reshape(height, width),
                             spp=int(count.max()) if n_pix else 0, seed=seed, max_depth=max_depth,

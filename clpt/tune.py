@@ -142,7 +142,7 @@ def measure_candidates(states, frame_args) -> dict:
 
     n_pix = TRIAL_SIZE * TRIAL_SIZE
     for st in states:
-        st.allocate(n_pix, caustic_buffer=False)
+        st.allocate(n_pix, caustic_buffer=False, width=TRIAL_SIZE)
         st.set_frame(*frame_args)
         if st.features.photons:
             ps = PhotonSettings()

@@ -3,6 +3,9 @@
 // here rather than a silently disabled feature.
 
 
+#if !defined(CLPT_TILE_W)
+#error "clpt: CLPT_TILE_W must be defined (1: lanes take a row of pixels)"
+#endif
 #if !defined(CLPT_LANES) || !defined(CLPT_DOUBLE) || !defined(CLPT_ACCUM_DOUBLE) || !defined(CLPT_GENERIC) \
     || !defined(CLPT_BAKED) || !defined(CLPT_NEE)
 #error "clpt: CLPT_LANES, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC, CLPT_BAKED and CLPT_NEE must be defined"

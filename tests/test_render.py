@@ -55,12 +55,15 @@ def test_pass_splits_and_work_group_sizes_do_not_change_a_bit(cbox):
 
 @pytest.mark.parametrize("scene", ["cornell_box", "cornell_box_caustics"])
 def test_lane_widths_and_kernel_builds_agree_bit_for_bit(device_spec, scene):
-    """The scalar, 4- and 8-lane kernels, generic, specialized and baked, run
-    the same IEEE operations per path in the same order."""
-    ref = clpt.render(scene, spp=3, width=24, height=24, device=device_spec)
-    for lanes, kernel in ((1, "specialized"), (4, "generic"), (8, "generic"), (8, "baked")):
-        img = clpt.render(scene, spp=3, width=24, height=24, device=device_spec, lanes=lanes, kernel=kernel)
-        assert np.array_equal(img, ref), (lanes, kernel)
+    """The scalar, 4-, 8- and 16-lane kernels, generic, specialized and baked,
+    lanes on a row of pixels or on a tile, run the same IEEE operations per
+    path in the same order."""
+    ref = clpt.render(scene, spp=3, width=26, height=23, device=device_spec)
+    for lanes, kernel, tiles in ((1, "specialized", False), (4, "generic", False), (8, "generic", False),
+                                 (8, "baked", False), (16, "specialized", True), (4, "generic", True)):
+        img = clpt.render(scene, spp=3, width=26, height=23, device=device_spec, lanes=lanes, kernel=kernel,
+                          tiles=tiles)
+        assert np.array_equal(img, ref), (lanes, kernel, tiles)
 
 
 @pytest.mark.parametrize("name", shipped_scenes())
