@@ -81,10 +81,10 @@ def query_tuning(dctx) -> Tuning | None:
     return None
 
 
-def fallback_tuning(dctx) -> Tuning:
+def fallback_tuning(dctx, note: str = "not measured: CLPT_TUNE=query") -> Tuning:
     w = register_width(dctx.device)
     return Tuning(w, LOCAL_SIZE_CPU, PASS_SECONDS, "query",
-                  f"native float width {dctx.device.native_vector_width_float} (not measured: CLPT_TUNE=query)")
+                  f"native float width {dctx.device.native_vector_width_float} ({note})")
 
 
 def tune_key(dctx, source: str, options) -> str:
@@ -176,7 +176,7 @@ def choose(dctx, source: str, options, make_state, camera, *, lanes=None, local_
     base = None if policy == "measure" and dctx.is_cpu and lanes is None else query_tuning(dctx)
     state = None
     if base is None and (lanes is not None or policy == "query"):
-        base = fallback_tuning(dctx)
+        base = fallback_tuning(dctx, "not measured: CLPT_TUNE=query" if lanes is None else "lanes given")
     if base is None:
         key = tune_key(dctx, source, options)
         base = load(key) if use_cache else None
