@@ -466,8 +466,18 @@ class Renderer:
             if offline:  # the caustic buffer
                 st.run(0, min(pset.offline_spp, spp), prepass=True)
 
-        def take(per_spp):
+        # With several devices, each one's first (one-sample) pass is a sample
+        # index reserved for it, so a device that starts late (a slower build or
+        # photon map) still gets work instead of finding every sample taken.
+        reserved = {}
+        if len(self.states) > 1 and not progressive:
+            reserved = {id(st): i for i, st in enumerate(self.states[:uniform_spp])}
+            state["next"] = len(reserved)
+
+        def take(st, per_spp):
             with lock:
+                if id(st) in reserved and state["error"] is None:
+                    return reserved.pop(id(st)), 1
                 if state["stop"] or state["next"] >= uniform_spp:
                     return None
                 s0 = state["next"]
@@ -492,7 +502,7 @@ class Renderer:
                 if pset is not None and not progressive:
                     photon_map(st, 0)
                 while True:
-                    job = take(per_spp)
+                    job = take(st, per_spp)
                     if job is None:
                         return
                     s0, n = job
