@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -131,15 +132,22 @@ class _Sums:
         return s64[:, :4] - s64[:, 4:], sq64[:, 0] - sq64[:, 1]
 
 
-def kernel_source(packed: PackedScene | None, features: Features) -> str:
-    """The stitched program a scene's build compiles (without a baked scene's
-    records when packed is None)."""
+def kernel_sources(packed: PackedScene | None, features: Features) -> list[str]:
+    """The stitched programs a scene's build compiles (without a baked scene's
+    records when packed is None): the path pass (and the filter), and for
+    scenes with caustic photons the photon pass and grid build apart, so that
+    the two build in parallel."""
     generated = {}
     if features.mode == "baked" and packed is not None:
         generated["<baked scene>"] = _baked_source(packed.records, features.double)
-    entries = (["trace.cl"] + (["photons.cl", "grid.cl"] if features.photons else [])
-               + (["filter.cl"] if features.aux else []))
-    return program.stitch(entries, generated)
+    out = [program.stitch(["trace.cl"] + (["filter.cl"] if features.aux else []), generated)]
+    if features.photons:
+        out.append(program.stitch(["photons.cl", "grid.cl"], generated))
+    return out
+
+
+def kernel_source(packed: PackedScene | None, features: Features) -> str:
+    return "\n".join(kernel_sources(packed, features))
 
 
 class _DeviceState:
@@ -150,8 +158,18 @@ class _DeviceState:
         self.features = features
         self.packed = packed
         real = np.float64 if features.double else np.float32
-        source = kernel_source(packed, features)
-        self.program, self.build = program.build(dctx, source, features.options(), use_cache=use_cache)
+        sources = kernel_sources(packed, features)
+        t0 = time.perf_counter()
+        if len(sources) == 1:
+            built = [program.build(dctx, sources[0], features.options(), use_cache=use_cache)]
+        else:  # the OpenCL compilers release the GIL: the programs build at once
+            with ThreadPoolExecutor(len(sources)) as pool:
+                built = list(pool.map(lambda s: program.build(dctx, s, features.options(), use_cache=use_cache),
+                                      sources))
+        self.program = built[0][0]
+        self.photon_program = built[1][0] if len(built) > 1 else None
+        self.build = program.BuildInfo(time.perf_counter() - t0, all(b.cache_hit for _, b in built),
+                                       "+".join(b.key for _, b in built), built[0][1].options)
         self.kernel = cl.Kernel(self.program, "trace_paths")
         mf = cl.mem_flags
         recs = np.ascontiguousarray(packed.records, dtype=real)
@@ -164,7 +182,7 @@ class _DeviceState:
         self.real = real
         self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
         self.launched = False
-        self.pmap = PhotonMap(dctx, self.program, real) if features.photons else None
+        self.pmap = PhotonMap(dctx, self.photon_program, real) if features.photons else None
         self.filter = ConeFilter(dctx, self.program) if features.aux else None
         self.launches = {}
         self.kernel_times = {}  # kernel name -> device seconds of each launch since allocate()

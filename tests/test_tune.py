@@ -26,6 +26,7 @@ def test_queried_defaults_and_explicit_choices(device_spec):
         clpt.Renderer("cornell_box", device=device_spec, local_size=0)
 
 
+@pytest.mark.portability
 def test_measured_choice_is_cached_and_changes_no_bit(device_spec, monkeypatch):
     monkeypatch.setenv("CLPT_TUNE", "measure")
     scene = clpt.load_scene("cornell_box")  # nothing measured before: CLPT_TUNE=query for the other tests
