@@ -169,7 +169,8 @@ def measure(scenes, *, device=None, lanes=(None,), local_sizes=(None,), precisio
             probe = r.render(1, width=width, height=height, max_depth=max_depth)
             row["pass_spp"] = max(1, int(pass_seconds / max(probe.stats.render_seconds, 1e-6)))
             row["rates"], row["ray_rates"] = [], []
-            row["_times"] = {k: list(x) for k, x in first.stats.kernel_seconds.items()}  # their first launches
+            # Their first launches (left out of the summary); the path pass per sample per pixel.
+            row["_times"] = {k: list(x) for k, x in first.stats.kernel_seconds.items()}
             row["memory_bytes"] = st.buffer_bytes()
             rows.append(row)
             runners.append(r)
@@ -200,8 +201,8 @@ def measure(scenes, *, device=None, lanes=(None,), local_sizes=(None,), precisio
                 res.stats.camera_rays, res.stats.bounce_rays, res.stats.shadow_rays)
             row["nonfinite"] = res.stats.nonfinite
             for k, x in res.stats.kernel_seconds.items():
-                if k == "trace_paths":  # per sample per pixel, the 1-sample probe pass left out
-                    x = [t / p[2] for t, p in zip(x, res.stats.passes)][1:]
+                if k == "trace_paths":  # per sample per pixel
+                    x = [t / p[2] for t, p in zip(x, res.stats.passes)]
                 row["_times"].setdefault(k, []).extend(x)
     for row in rows:
         row["msamples_per_s"] = statistics.median(row["rates"])
