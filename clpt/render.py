@@ -158,19 +158,6 @@ class _DeviceState:
         self.features = features
         self.packed = packed
         real = np.float64 if features.double else np.float32
-        sources = kernel_sources(packed, features)
-        t0 = time.perf_counter()
-        if len(sources) == 1:
-            built = [program.build(dctx, sources[0], features.options(), use_cache=use_cache)]
-        else:  # the OpenCL compilers release the GIL: the programs build at once
-            with ThreadPoolExecutor(len(sources)) as pool:
-                built = list(pool.map(lambda s: program.build(dctx, s, features.options(), use_cache=use_cache),
-                                      sources))
-        self.program = built[0][0]
-        self.photon_program = built[1][0] if len(built) > 1 else None
-        self.build = program.BuildInfo(time.perf_counter() - t0, all(b.cache_hit for _, b in built),
-                                       "+".join(b.key for _, b in built), built[0][1].options)
-        self.kernel = cl.Kernel(self.program, "trace_paths")
         mf = cl.mem_flags
         recs = np.ascontiguousarray(packed.records, dtype=real)
         if recs.size == 0:
@@ -180,9 +167,37 @@ class _DeviceState:
         self.eps_abs = packed.extent * OFFSET_ABS['double' if features.double else 'float']
         self.lum_scale = packed.lum_scale
         self.real = real
+        sources = kernel_sources(packed, features)
+        t0 = time.perf_counter()
+
+        def build(source):
+            return program.build(dctx, source, features.options(), use_cache=use_cache)
+
+        def build_photons(source):
+            # Then a one-photon map: PoCL generates the photon kernels' machine code
+            # at their first launch, here while the path pass is still compiling.
+            prg, info = build(source)
+            pmap = PhotonMap(dctx, prg, real)
+            pmap.build(self.scene_buf, self.counts, self.eps_abs, features.lanes, 0, PhotonSettings(count=1),
+                       0.01 * max(packed.size, 1e-30))
+            pmap.launches.clear()
+            pmap.kernel_times.clear()
+            return pmap, info
+
+        if len(sources) == 1:
+            built = [build(sources[0])]
+            self.pmap = None
+        else:  # the OpenCL compilers release the GIL: the programs build at once
+            with ThreadPoolExecutor(2) as pool:
+                photon_side = pool.submit(build_photons, sources[1])
+                built = [build(sources[0]), photon_side.result()]
+            self.pmap = built[1][0]
+        self.program = built[0][0]
+        self.build = program.BuildInfo(time.perf_counter() - t0, all(b.cache_hit for _, b in built),
+                                       "+".join(b.key for _, b in built), built[0][1].options)
+        self.kernel = cl.Kernel(self.program, "trace_paths")
         self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
         self.launched = False
-        self.pmap = PhotonMap(dctx, self.photon_program, real) if features.photons else None
         self.filter = ConeFilter(dctx, self.program) if features.aux else None
         self.launches = {}
         self.kernel_times = {}  # kernel name -> device seconds of each launch since allocate()
@@ -380,17 +395,28 @@ class Renderer:
                                       photons=use_photons, aux=aux, tiles=tiles)
 
             f = feats(lanes or 1)
-            rs = scene.render
             tuning, st = tune.choose(dctx, kernel_source(None, f), f.options(),
-                                     lambda n: _DeviceState(dctx, self.packed, feats(n), use_cache), scene.camera,
-                                     lanes=lanes, local_size=local_size, max_depth=rs.max_depth,
-                                     rr_depth=rs.rr_depth, use_cache=use_cache)
+                                     lambda n: _DeviceState(dctx, self.packed, feats(n), use_cache), self._trial,
+                                     lanes=lanes, local_size=local_size, use_cache=use_cache)
             if st is None:
                 st = _DeviceState(dctx, self.packed, feats(tuning.lanes), use_cache)
             st.local = tuning.local_size
             st.tuning = tuning
             self.states.append(st)
         self.features = self.states[0].features
+
+    def _trial(self, st, spp: int, seed: int):
+        """Render spp samples per pixel of a tune.TRIAL_SIZE square image the
+        default way on state st alone; (samples/s of the passes after the
+        one-sample probe, seconds per spp)."""
+        shell = Renderer.__new__(Renderer)
+        shell.scene, shell.packed, shell.states, shell.features = self.scene, self.packed, [st], st.features
+        n = tune.TRIAL_SIZE
+        res = shell.render(spp, width=n, height=n, seed=seed, pass_seconds=1e9)
+        passes = res.stats.passes[1:] or res.stats.passes
+        secs = max(sum(p[3] for p in passes), 1e-9)
+        done = sum(p[2] for p in passes)
+        return done * n * n / secs, secs / max(done, 1)
 
     @property
     def build_seconds(self) -> float:

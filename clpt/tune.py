@@ -134,42 +134,29 @@ def cached_choices(dctx) -> list[dict]:
     return out
 
 
-def measure_candidates(states, frame_args) -> dict:
-    """Samples/s of each state (a _DeviceState of one lane width) on a small
-    image, in interleaved rounds; returns {lanes: median Msamples/s} and the
-    fixed cost of a launch."""
-    from .photons import PM_ONLINE, PhotonSettings
-
-    n_pix = TRIAL_SIZE * TRIAL_SIZE
-    for st in states:
-        st.allocate(n_pix, caustic_buffer=False, width=TRIAL_SIZE)
-        st.set_frame(*frame_args)
-        if st.features.photons:
-            ps = PhotonSettings()
-            st.build_photons(frame_args[-1], ps, ps.radius_for(st.packed.size), PM_ONLINE)
-        st.run(0, 1)  # the lazy device compile
+def measure_candidates(states, trial) -> dict:
+    """Samples/s of each state (a _DeviceState of one lane width) rendering
+    the scene's default way (photons included) on a small image, in
+    interleaved rounds: {"msamples_per_s": {lanes: median}, "launch_seconds":
+    the fixed cost of an empty launch}. trial(st, spp, seed) renders and
+    returns (samples/s of the timed passes, seconds per spp)."""
     per_spp = {}
     for st in states:
-        t, _ = st.run(1, 2)
-        per_spp[st.features.lanes] = max(t / 2, 1e-6)
+        trial(st, 1, 0)  # the lazy device compile
+        per_spp[st.features.lanes] = trial(st, 2, 1)[1]
     rates = {st.features.lanes: [] for st in states}
-    s0 = 3
-    for _ in range(TRIAL_ROUNDS):
+    for r in range(TRIAL_ROUNDS):
         for st in states:
-            n = max(1, int(TRIAL_PASS_SECONDS / per_spp[st.features.lanes]))
-            t, _ = st.run(s0, n)
-            s0 += n
-            rates[st.features.lanes].append(n * n_pix / t / 1e6)
+            n = max(1, int(TRIAL_PASS_SECONDS / max(per_spp[st.features.lanes], 1e-6)))
+            rates[st.features.lanes].append(trial(st, n, 2 + r)[0] / 1e6)
     overhead = min(st.run(0, 0)[0] for st in states for _ in range(3))
     return {"msamples_per_s": {k: statistics.median(v) for k, v in rates.items()}, "launch_seconds": overhead}
 
 
-def choose(dctx, source: str, options, make_state, camera, *, lanes=None, local_size=None, max_depth=8,
-           rr_depth=5, use_cache=True):
+def choose(dctx, source: str, options, make_state, trial, *, lanes=None, local_size=None, use_cache=True):
     """(Tuning, the built _DeviceState of the chosen width if choosing built
-    one, else None). make_state(lanes) builds a _DeviceState of that width."""
-    from .pack import camera_frame
-
+    one, else None). make_state(lanes) builds a _DeviceState of that width;
+    trial as for measure_candidates."""
     policy = os.environ.get("CLPT_TUNE", "auto").lower()
     if policy not in ("auto", "query", "measure"):
         raise ValueError(f"CLPT_TUNE must be auto, query or measure (got {policy!r})")
@@ -185,8 +172,7 @@ def choose(dctx, source: str, options, make_state, camera, *, lanes=None, local_
         # The candidates build in parallel (the OpenCL compilers release the GIL).
         with ThreadPoolExecutor() as pool:
             states = list(pool.map(make_state, sorted({1, register_width(dctx.device)})))
-        frame = camera_frame(camera, TRIAL_SIZE, TRIAL_SIZE)
-        m = measure_candidates(states, (frame, TRIAL_SIZE, TRIAL_SIZE, max_depth, rr_depth, 1))
+        m = measure_candidates(states, trial)
         rates = m["msamples_per_s"]
         best = max(rates, key=rates.get)
         # A pass long enough that the fixed cost of a launch stays under 1%.
