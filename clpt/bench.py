@@ -300,7 +300,12 @@ def to_csv(rows) -> str:
 def compare(rows, old_rows) -> str:
     """Ratios new/old of samples/s and of each kernel's median time, per scene,
     device and variant found in both runs."""
-    old = {(r["scene"], r["device"], r["variant"]): r for r in old_rows}
+    def key(r):  # rows of an older clpt bench (no variant): their resolved lanes and kernel
+        v = r.get("variant") or variant_label({"lanes": r.get("lanes"), "local_size": None, "precision": "float",
+                                                "kernel": r.get("kernel", "specialized"), "tiles": False})
+        return r["scene"], r["device"], v
+
+    old = {key(r): r for r in old_rows}
     lines = [["scene", "device", "variant", "old Msamples/s", "new", "new/old", "kernels new/old (time)"]]
     missing = 0
     for r in rows:
@@ -308,6 +313,7 @@ def compare(rows, old_rows) -> str:
         if o is None:
             missing += 1
             continue
+        o.setdefault("kernel_ms", {})
         ks = ", ".join(f"{k} {r['kernel_ms'][k]['median'] / o['kernel_ms'][k]['median']:.2f}"
                        for k in r.get("kernel_ms", {}) if k in o.get("kernel_ms", {}) and o["kernel_ms"][k]["median"] > 0)
         lines.append([r["scene"], _short(r["device"]), r["variant"], f"{o['msamples_per_s']:.3f}",
