@@ -29,7 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
+from .constants import LUMA
+
 DARK_FLOOR = 1e-3  # luminance below which relative errors are measured against this
 
 

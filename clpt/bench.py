@@ -1,18 +1,36 @@
-"""`clpt bench`: throughput and kernel build times, per device and build.
+"""`clpt bench`: throughput, per-kernel device times, memory and build times,
+per scene, device and kernel variant; a table, CSV or JSON, and ratios
+against an earlier run's JSON (--compare).
 
-- cold build: in a fresh subprocess whose clpt and PoCL caches are empty
-  folders; the program build and the first launch are reported apart (PoCL
-  generates machine code lazily at a kernel's first launch).
-- warm build: in this process, from the build cache.
-- steady state: after a warm-up launch, every configuration renders in turn,
+- variants: every combination of the lane widths, work-group sizes,
+  precisions, kernel builds (specialized, generic, baked) and lane layouts
+  (rows of pixels, or 2-D tiles) asked for, on every device asked for
+  (``--device pocl,intel``). "auto" lanes or local size is the device's tuned
+  default (clpt/tune.py), as a render without options gets it.
+- steady state: after a warm-up render, every configuration renders in turn,
   round after round (so that a machine whose speed drifts affects them all
-  alike); each round times one pass on the host around the kernel and its
-  small stats read-back. Medians and ranges over the rounds are reported, in
-  samples/s and rays/s (camera, bounce and shadow rays, counted by the kernel).
+  alike). Samples/s are timed on the host around each pass (the kernel and
+  its small stats read-back), after a one-sample probe pass; medians and
+  ranges over the rounds. Rays/s count camera, bounce and shadow rays.
+- kernels: device times of every kernel launch from OpenCL profiling events
+  (path pass, photon pass, grid build, filter), the first launch of each
+  (a lazy device compile on PoCL) left out; medians and ranges. The path
+  pass (trace_paths) is given per sample per pixel of the timed passes.
+- memory: device bytes per buffer after a render.
+- cold build: in a fresh subprocess whose clpt and PoCL caches are empty
+  folders (pyopencl's binary cache is not used at all), with the variant's
+  resolved lanes and local size (no tuning measurement): the program build
+  and the first launch (PoCL generates machine code lazily then) apart.
+- warm build: a second Renderer in this process, from the build cache.
+- --mitsuba: Mitsuba 3 (its LLVM variant, if installed; never a
+  dependency) renders its own cornell_box() at the same size and depth
+  (its max_depth is clpt's plus one) in the same rounds.
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import itertools
 import json
 import os
@@ -24,24 +42,28 @@ import time
 
 import numpy as np
 
+from .constants import LUMA
 
-def _cold_build_child(scene: str, device, lanes, precision, kernel, nee) -> dict:
+
+def _cold_build_child(scene: str, device, lanes, local_size, precision, kernel, nee, tiles) -> dict:
     from .render import Renderer
 
     t0 = time.perf_counter()
-    r = Renderer(scene, device=device, lanes=lanes, precision=precision, kernel=kernel, nee=nee)
+    r = Renderer(scene, device=device, lanes=lanes, local_size=local_size, precision=precision, kernel=kernel,
+                 nee=nee, tiles=tiles)
     t_build = time.perf_counter() - t0
     res = r.render(1, width=16, height=16)
-    return {"build_seconds": t_build, "first_launch_seconds": res.stats.first_launch_seconds}
+    return {"build_seconds": t_build, "first_launch_seconds": res.stats.first_launch_seconds,
+            "total_seconds": time.perf_counter() - t0}
 
 
-def cold_build(scene: str, device, lanes, precision, kernel, nee) -> dict | None:
+def cold_build(scene: str, device: str, lanes, local_size, precision, kernel, nee, tiles=False) -> dict | None:
     """Build and first launch in a fresh process with empty caches."""
     with tempfile.TemporaryDirectory() as tmp:
-        env = dict(os.environ, CLPT_CACHE_DIR=os.path.join(tmp, "clpt"), POCL_CACHE_DIR=os.path.join(tmp, "pocl"))
-        code = ("import json; from clpt.bench import _cold_build_child; "
-                f"print(json.dumps(_cold_build_child({scene!r}, {device!r}, {lanes!r}, {precision!r}, "
-                f"{kernel!r}, {nee!r})))")
+        env = dict(os.environ, CLPT_CACHE_DIR=os.path.join(tmp, "clpt"), POCL_CACHE_DIR=os.path.join(tmp, "pocl"),
+                   PYOPENCL_NO_CACHE="1")
+        args = ", ".join(repr(x) for x in (scene, device, lanes, local_size, precision, kernel, nee, tiles))
+        code = f"import json; from clpt.bench import _cold_build_child; print(json.dumps(_cold_build_child({args})))"
         p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
         if p.returncode != 0:
             print(f"clpt bench: cold build failed:\n{p.stderr.strip()}", file=sys.stderr)
@@ -49,33 +71,124 @@ def cold_build(scene: str, device, lanes, precision, kernel, nee) -> dict | None
         return json.loads(p.stdout.strip().splitlines()[-1])
 
 
-def measure(scenes, *, device=None, lanes=(None,), kernels=("specialized",), precision="float", nee=True,
-            width=256, height=256, max_depth=8, rounds=5, pass_seconds=0.3, cold=True) -> list[dict]:
+def device_spec(dev) -> str:
+    """The platform:device selection of a pyopencl Device."""
+    import pyopencl as cl
+
+    for pi, p in enumerate(cl.get_platforms()):
+        for di, d in enumerate(p.get_devices()):
+            if d == dev:
+                return f"{pi}:{di}"
+    raise ValueError(f"device {dev.name} not found")
+
+
+def variant_label(v: dict) -> str:
+    """A variant as asked for (auto choices unresolved), the key --compare matches on."""
+    return (f"lanes={v['lanes'] or 'auto'} local={v['local_size'] or 'auto'} {v['precision']} {v['kernel']} "
+            f"{'tiles' if v['tiles'] else 'rows'}")
+
+
+def _summary(values) -> dict:
+    return {"median": statistics.median(values), "min": min(values), "max": max(values), "n": len(values)}
+
+
+def _kernel_summary(times: dict) -> dict:
+    """Per kernel, ms per launch with the first launch left out (all if there is one)."""
+    out = {}
+    for name, v in times.items():
+        v = [x for x in v if x == x]  # no profiling: nan
+        if v:
+            out[name] = {k: (x * 1e3 if k != "n" else x) for k, x in _summary(v[1:] or v).items()}
+    return out
+
+
+class _Mitsuba:
+    """Mitsuba 3's cornell_box() at the bench's size and depth."""
+
+    def __init__(self, width, height, max_depth):
+        try:
+            import mitsuba as mi
+        except ImportError:
+            raise SystemExit("clpt bench: --mitsuba needs Mitsuba 3 (pip install mitsuba); it is for measuring "
+                             "only, never a dependency") from None
+        variants = mi.variants()
+        self.variant = next((v for v in ("llvm_ad_rgb", "llvm_rgb", "scalar_rgb") if v in variants), variants[0])
+        mi.set_variant(self.variant)
+        self.mi = mi
+        box = mi.cornell_box()
+        box["sensor"]["film"]["width"], box["sensor"]["film"]["height"] = width, height
+        box["integrator"] = {"type": "path", "max_depth": max_depth + 1}
+        self.scene = mi.load_dict(box)
+        self.n_pix = width * height
+        self.render(4)
+
+    def render(self, spp: int) -> float:
+        import drjit as dr
+
+        t0 = time.perf_counter()
+        img = self.mi.render(self.scene, spp=spp, seed=int(t0 * 1e3) & 0xFFFF)
+        dr.eval(img)
+        dr.sync_thread()
+        return time.perf_counter() - t0
+
+
+def measure(scenes, *, device=None, lanes=(None,), local_sizes=(None,), precisions=("float",),
+            kernels=("specialized",), tiles=(False,), nee=True, width=256, height=256, max_depth=8, rounds=5,
+            pass_seconds=0.3, cold=True, mitsuba=False, log=None) -> list[dict]:
     from .device import select_devices
     from .render import Renderer
 
     rows, runners = [], []
-    for dev, scene, n_lanes, kernel in itertools.product(select_devices(device), scenes, lanes, kernels):
-        row = {"scene": scene, "kernel": kernel, "resolution": f"{width}x{height}", "max_depth": max_depth}
-        if cold:
-            c = cold_build(scene, device, n_lanes, precision, kernel, nee)
-            if c:
-                row["cold_build_seconds"] = c["build_seconds"]
-                row["cold_first_launch_seconds"] = c["first_launch_seconds"]
-        r = Renderer(scene, device=dev, lanes=n_lanes, precision=precision, kernel=kernel, nee=nee)
-        r.render(1, width=width, height=height, max_depth=max_depth)  # warm-up: the lazy device compile
-        warm = Renderer(scene, device=dev, lanes=n_lanes, precision=precision, kernel=kernel, nee=nee)
-        row["warm_build_seconds"] = warm.states[0].build.seconds
-        row["warm_build_cache_hit"] = bool(warm.states[0].build.cache_hit)
-        # Pass size for about pass_seconds, from a timed 1-sample pass.
-        probe = r.render(1, width=width, height=height, max_depth=max_depth)
-        spp = max(1, int(pass_seconds / max(probe.stats.render_seconds, 1e-6)))
-        row.update(device=r.states[0].dctx.label, features=r.features.describe(), lanes=r.features.lanes,
-                   pass_spp=spp, rates=[], ray_rates=[])
-        rows.append(row)
-        runners.append(r)
+    combos = list(itertools.product(lanes, local_sizes, precisions, kernels, tiles))
+    for dev, scene in itertools.product(select_devices(device), scenes):
+        spec = device_spec(dev)
+        for n_lanes, local, precision, kernel, tiled in combos:
+            v = {"lanes": n_lanes, "local_size": local, "precision": precision, "kernel": kernel, "tiles": tiled}
+            r = Renderer(scene, device=dev, lanes=n_lanes, local_size=local, precision=precision, kernel=kernel,
+                         nee=nee, tiles=tiled)
+            st = r.states[0]
+            row = {"scene": scene, "device": st.dctx.label, "platform": st.dctx.platform, "device_spec": spec,
+                   "variant": variant_label(v), "resolution": f"{width}x{height}", "max_depth": max_depth,
+                   **{k: x for k, x in v.items() if k not in ("lanes", "local_size")},
+                   "lanes": st.features.lanes, "local_size": st.local, "tuning": st.tuning.describe(),
+                   "features": r.features.describe()}
+            if log:
+                log(f"{scene} on {st.dctx.label}: {row['variant']} ({st.features.lanes} lanes, local {st.local})")
+            if cold:
+                c = cold_build(scene, spec, st.features.lanes, st.local, precision, kernel, nee, tiled)
+                if c:
+                    row["cold_build_seconds"] = c["build_seconds"]
+                    row["cold_first_launch_seconds"] = c["first_launch_seconds"]
+            first = r.render(1, width=width, height=height, max_depth=max_depth)  # warm-up: the lazy device compile
+            warm = Renderer(scene, device=dev, lanes=st.features.lanes, local_size=st.local, precision=precision,
+                            kernel=kernel, nee=nee, tiles=tiled)
+            row["warm_build_seconds"] = warm.states[0].build.seconds
+            row["warm_build_cache_hit"] = bool(warm.states[0].build.cache_hit)
+            del warm
+            # Pass size for about pass_seconds, from a timed 1-sample pass.
+            probe = r.render(1, width=width, height=height, max_depth=max_depth)
+            row["pass_spp"] = max(1, int(pass_seconds / max(probe.stats.render_seconds, 1e-6)))
+            row["rates"], row["ray_rates"] = [], []
+            # Their first launches (left out of the summary); the path pass per sample per pixel.
+            row["_times"] = {k: list(x) for k, x in first.stats.kernel_seconds.items()}
+            row["memory_bytes"] = st.buffer_bytes()
+            rows.append(row)
+            runners.append(r)
+    mi = None
+    if mitsuba:
+        mi = _Mitsuba(width, height, max_depth)
+        per = mi.render(1)
+        mrow = {"scene": "cornell_box", "device": f"Mitsuba 3 ({mi.variant})", "platform": "Mitsuba 3",
+                "variant": f"mitsuba {mi.variant} max_depth={max_depth + 1}", "resolution": f"{width}x{height}",
+                "max_depth": max_depth, "pass_spp": max(1, int(pass_seconds / max(per, 1e-6))), "rates": [],
+                "ray_rates": [], "_times": {}}
+        rows.append(mrow)
+        runners.append(mi)
     for i in range(rounds):
         for row, r in zip(rows, runners):
+            if r is mi:
+                row["rates"].append(row["pass_spp"] * mi.n_pix / mi.render(row["pass_spp"]) / 1e6)
+                continue
             res = r.render(row["pass_spp"], width=width, height=height, max_depth=max_depth, seed=i + 1,
                            pass_seconds=1e9)
             passes = res.stats.passes[1:] or res.stats.passes  # after the 1-sample probe pass
@@ -87,42 +200,168 @@ def measure(scenes, *, device=None, lanes=(None,), kernels=("specialized",), pre
             row["camera_rays"], row["bounce_rays"], row["shadow_rays"] = (
                 res.stats.camera_rays, res.stats.bounce_rays, res.stats.shadow_rays)
             row["nonfinite"] = res.stats.nonfinite
+            for k, x in res.stats.kernel_seconds.items():
+                if k == "trace_paths":  # per sample per pixel
+                    x = [t / p[2] for t, p in zip(x, res.stats.passes)]
+                row["_times"].setdefault(k, []).extend(x)
     for row in rows:
         row["msamples_per_s"] = statistics.median(row["rates"])
         row["msamples_per_s_range"] = [min(row["rates"]), max(row["rates"])]
-        row["mrays_per_s"] = statistics.median(row.pop("ray_rates"))
+        rr = row.pop("ray_rates")
+        if rr:
+            row["mrays_per_s"] = statistics.median(rr)
+        row["kernel_ms"] = _kernel_summary(row.pop("_times"))
     return rows
 
 
 def _split(s, conv=str):
-    return tuple(conv(x) for x in s.split(",")) if s else (None,)
+    if not s:
+        return (None,)
+    return tuple(None if x.strip() == "auto" else conv(x) for x in s.split(","))
+
+
+def _bool_list(s):
+    names = {"rows": False, "tiles": True}
+    out = []
+    for x in s.split(","):
+        if x not in names:
+            raise SystemExit(f"clpt bench: --layout takes rows and/or tiles (got {x!r})")
+        out.append(names[x])
+    return tuple(out)
+
+
+def _short(device: str) -> str:
+    return device.replace("(R)", "").replace("Processor ", "").replace("  ", " ")
+
+
+def format_table(rows) -> str:
+    head = ["scene", "device", "variant", "lanes", "local", "Msamples/s", "range", "Mrays/s", "path ms/spp",
+            "cold build+launch s", "warm s", "device MiB"]
+    lines = [head]
+    for r in rows:
+        lo, hi = r["msamples_per_s_range"]
+        k = r.get("kernel_ms", {}).get("trace_paths")
+        cold = (f"{r['cold_build_seconds']:.2f}+{r['cold_first_launch_seconds']:.2f}"
+                if "cold_build_seconds" in r else "")
+        mem = sum(r["memory_bytes"].values()) / 2**20 if r.get("memory_bytes") else None
+        lines.append([r["scene"], _short(r["device"]), r["variant"], str(r.get("lanes", "")),
+                      str(r.get("local_size", "")), f"{r['msamples_per_s']:.3f}", f"{lo:.2f}-{hi:.2f}",
+                      f"{r['mrays_per_s']:.1f}" if "mrays_per_s" in r else "",
+                      f"{k['median']:.2f}" if k else "", cold,
+                      f"{r['warm_build_seconds']:.3f}" if "warm_build_seconds" in r else "",
+                      f"{mem:.1f}" if mem is not None else ""])
+    widths = [max(len(x[i]) for x in lines) for i in range(len(head))]
+    return "\n".join("  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in lines)
+
+
+def format_kernels(rows) -> str:
+    out = []
+    for r in rows:
+        if not r.get("kernel_ms"):
+            continue
+        out.append(f"{r['scene']} on {_short(r['device'])}, {r['variant']}:")
+        for name, k in r["kernel_ms"].items():
+            unit = "ms/spp" if name == "trace_paths" else "ms"
+            out.append(f"  {name:16s} {k['median']:9.3f} {unit:6s} (range {k['min']:.3f}-{k['max']:.3f}, "
+                       f"{k['n']} launches)")
+    return "\n".join(out)
+
+
+def format_memory(rows) -> str:
+    out, seen = [], set()
+    for r in rows:
+        key = (r["scene"], r["device"], r.get("precision"))
+        if not r.get("memory_bytes") or key in seen:
+            continue
+        seen.add(key)
+        parts = ", ".join(f"{k} {v / 2**20:.2f}" for k, v in r["memory_bytes"].items())
+        out.append(f"{r['scene']} on {_short(r['device'])} ({r.get('precision')}), MiB: {parts}")
+    return "\n".join(out)
+
+
+def to_csv(rows) -> str:
+    kernels = sorted({k for r in rows for k in r.get("kernel_ms", {})})
+    fields = ["scene", "device", "platform", "variant", "lanes", "local_size", "precision", "kernel", "tiles",
+              "msamples_per_s", "msamples_min", "msamples_max", "mrays_per_s", "cold_build_seconds",
+              "cold_first_launch_seconds", "warm_build_seconds", "device_bytes"] + [f"{k}_ms" for k in kernels]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=fields, extrasaction="ignore")
+    w.writeheader()
+    for r in rows:
+        flat = dict(r, msamples_min=r["msamples_per_s_range"][0], msamples_max=r["msamples_per_s_range"][1],
+                    device_bytes=sum(r.get("memory_bytes", {}).values()) or "")
+        for k in kernels:
+            if k in r.get("kernel_ms", {}):
+                flat[f"{k}_ms"] = r["kernel_ms"][k]["median"]
+        w.writerow(flat)
+    return buf.getvalue()
+
+
+def compare(rows, old_rows) -> str:
+    """Ratios new/old of samples/s and of each kernel's median time, per scene,
+    device and variant found in both runs."""
+    def key(r):  # rows of an older clpt bench (no variant): their resolved lanes and kernel
+        v = r.get("variant") or variant_label({"lanes": r.get("lanes"), "local_size": None, "precision": "float",
+                                                "kernel": r.get("kernel", "specialized"), "tiles": False})
+        return r["scene"], r["device"], v
+
+    old = {key(r): r for r in old_rows}
+    lines = [["scene", "device", "variant", "old Msamples/s", "new", "new/old", "kernels new/old (time)"]]
+    missing = 0
+    for r in rows:
+        o = old.get((r["scene"], r["device"], r["variant"]))
+        if o is None:
+            missing += 1
+            continue
+        o.setdefault("kernel_ms", {})
+        ks = ", ".join(f"{k} {r['kernel_ms'][k]['median'] / o['kernel_ms'][k]['median']:.2f}"
+                       for k in r.get("kernel_ms", {}) if k in o.get("kernel_ms", {}) and o["kernel_ms"][k]["median"] > 0)
+        lines.append([r["scene"], _short(r["device"]), r["variant"], f"{o['msamples_per_s']:.3f}",
+                      f"{r['msamples_per_s']:.3f}", f"{r['msamples_per_s'] / o['msamples_per_s']:.2f}x", ks])
+    widths = [max(len(x[i]) for x in lines) for i in range(len(lines[0]))]
+    text = "\n".join("  ".join(c.ljust(w) for c, w in zip(line, widths)).rstrip() for line in lines)
+    if missing:
+        text += f"\n({missing} of {len(rows)} rows have no match in the old run)"
+    return text
 
 
 def run_bench(a) -> int:
     from .resources import shipped_scenes
 
     scenes = shipped_scenes() if a.scene == ["all"] else a.scene
-    rows = measure(scenes, device=a.device, lanes=_split(a.lanes, int), kernels=_split(a.kernel),
-                   precision=a.precision, nee=not a.no_nee, width=a.width, height=a.height,
-                   max_depth=a.max_depth, rounds=a.rounds, cold=not a.no_cold)
+    old = None
+    if a.compare:
+        try:
+            with open(a.compare) as f:
+                old = json.load(f)
+        except (OSError, ValueError) as e:
+            raise SystemExit(f"clpt bench: cannot read {a.compare}: {e}") from None
+    rows = measure(scenes, device=a.device, lanes=_split(a.lanes, int), local_sizes=_split(a.local_size, int),
+                   precisions=tuple(a.precision.split(",")), kernels=_split(a.kernel), tiles=_bool_list(a.layout),
+                   nee=not a.no_nee, width=a.width, height=a.height, max_depth=a.max_depth, rounds=a.rounds,
+                   cold=not a.no_cold, mitsuba=a.mitsuba,
+                   log=None if a.json or a.csv else (lambda m: print(m, file=sys.stderr)))
     if a.json:
-        print(json.dumps(rows, indent=2))
-        return 0
-    for r in rows:
-        lo, hi = r["msamples_per_s_range"]
-        print(f"{r['scene']} on {r['device']}")
-        print(f"  kernel      {r['features']}")
-        print(f"  throughput  {r['msamples_per_s']:.3f} Msamples/s (range {lo:.3f}-{hi:.3f} over {a.rounds} rounds), "
-              f"{r['mrays_per_s']:.2f} Mrays/s")
-        print(f"  rays        {r['rays_per_sample']:.2f} per sample: camera {r['camera_rays']}, bounce "
-              f"{r['bounce_rays']}, shadow {r['shadow_rays']} (last round)")
-        if "cold_build_seconds" in r:
-            print(f"  cold build  {r['cold_build_seconds']:.3f} s program + {r['cold_first_launch_seconds']:.3f} s "
-                  f"first launch (device code generation)")
-        print(f"  warm build  {r['warm_build_seconds']:.3f} s "
-              f"({'cache hit' if r['warm_build_cache_hit'] else 'cache miss'})")
-        if r["nonfinite"]:
-            print(f"  non-finite  {r['nonfinite']} samples dropped")
+        print(json.dumps(rows, indent=1))
+    elif a.csv:
+        print(to_csv(rows), end="")
+    else:
+        print(f"{len(rows)} configurations, {a.rounds} interleaved rounds each, medians (and ranges) of "
+              f"samples/s at {a.width}x{a.height}, depth {a.max_depth}:")
+        print(format_table(rows))
+        print("\nkernel device times (profiling events, first launch left out):")
+        print(format_kernels(rows))
+        print("\ndevice memory per buffer:")
+        print(format_memory(rows))
+        tunings = {(r["device"], r.get("tuning")) for r in rows if r.get("tuning") and "lanes=auto" in r["variant"]}
+        if tunings:
+            print("\ntuned defaults:")
+            for dev, t in sorted(tunings):
+                print(f"  {_short(dev)}: {t}")
+    if old is not None:
+        print(("\n" if not (a.json or a.csv) else "") + f"against {a.compare}:",
+              file=sys.stderr if a.json or a.csv else sys.stdout)
+        print(compare(rows, old), file=sys.stderr if a.json or a.csv else sys.stdout)
     return 0
 
 
@@ -196,7 +435,7 @@ def caustic_reference(scene, *, device=None, width=128, height=128, max_depth=64
         if ref_path is not None:
             save_image(ref_path, np.dstack([img, var]).astype(np.float32),
                        metadata={"clpt:reference_spp": ref_spp, "clpt:max_depth": max_depth})
-    lum = img @ np.array([0.2126, 0.7152, 0.0722])
+    lum = img @ LUMA
     rel = var / np.maximum(lum, 1e-3) ** 2
     return img, rel >= np.quantile(rel, 0.97)
 

@@ -44,7 +44,8 @@ def _add_render_options(p):
                                                         "'all', or a comma list (default: PYOPENCL_CTX, a GPU, "
                                                         "else the CPU)")
     p.add_argument("--lanes", type=int, default=None, choices=(1, 2, 4, 8, 16),
-                   help="paths per work-item (default: 8 on an AVX2 CPU, 1 on a GPU)")
+                   help="paths per work-item (default: tuned per device; see `clpt devices -v`)")
+    p.add_argument("--local-size", type=int, default=None, help="work-group size (default: tuned per device)")
     p.add_argument("--precision", choices=("float", "double"), default="float")
     p.add_argument("--kernel", choices=("specialized", "generic", "baked"), default="specialized",
                    help="kernel build: only the scene's features (default), everything, or the scene "
@@ -158,8 +159,8 @@ def _photon_settings(a):
 
 
 def _renderer_kwargs(a):
-    kw = dict(device=a.device, lanes=a.lanes, precision=a.precision, kernel=a.kernel, nee=not a.no_nee,
-              use_cache=not a.no_cache)
+    kw = dict(device=a.device, lanes=a.lanes, local_size=a.local_size, precision=a.precision, kernel=a.kernel,
+              nee=not a.no_nee, use_cache=not a.no_cache)
     if getattr(a, "photons", None) == 0:
         kw["photons"] = False
     return kw
@@ -180,6 +181,7 @@ def cmd_render(a) -> int:
             b = st.build
             print(f"device: {st.dctx.label}", file=sys.stderr)
             print(f"kernel: {st.features.describe()}", file=sys.stderr)
+            print(f"tuning: {st.tuning.describe()}", file=sys.stderr)
             print(f"build: {b.seconds:.3f}s ({'cache hit' if b.cache_hit else 'compiled'}, key {b.key})",
                   file=sys.stderr)
     show, end = _progress_printer(sys.stderr, not a.quiet and (a.progress or sys.stderr.isatty()))
@@ -238,11 +240,28 @@ def cmd_render(a) -> int:
 
 
 def cmd_devices(a) -> int:
-    from .device import list_devices
+    from .device import DeviceContext, list_devices, select_devices
 
     devs = list_devices()
     for d in devs:
         print(d.line())
+        if a.verbose:
+            from . import tune
+
+            dctx = DeviceContext(select_devices(f"{d.platform_index}:{d.device_index}")[0])
+            dev = dctx.device
+            print(f"    float vector width: native {dev.native_vector_width_float}, preferred "
+                  f"{dev.preferred_vector_width_float}; max work-group {dev.max_work_group_size}; "
+                  f"max allocation {d.max_alloc / 2**30:.1f} GiB")
+            q = tune.query_tuning(dctx)
+            if q is not None:
+                print(f"    defaults: {q.describe()}")
+            else:
+                print(f"    defaults: measured per kernel the first time it is built (else "
+                      f"{tune.fallback_tuning(dctx).describe()})")
+            for e in tune.cached_choices(dctx):
+                print(f"    measured: lanes {e['lanes']}, local size {e['local_size']}, pass {e['pass_seconds']:g} s "
+                      f"({e['why']})")
     if not devs:
         print("no OpenCL devices found", file=sys.stderr)
         return 1
@@ -371,11 +390,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-depth", type=int, default=8)
     p.add_argument("--rounds", type=int, default=5, help="timed passes per configuration, taken in turn")
     p.add_argument("--no-cold", action="store_true", help="skip the cold-build measurement (a subprocess)")
-    p.add_argument("--json", action="store_true", help="print the results as JSON")
-    p.add_argument("--device", "-d", default=None, help="as for render")
-    p.add_argument("--lanes", default=None, help="paths per work-item, or a comma list to compare (1,4,8)")
+    p.add_argument("--json", action="store_true", help="print the results as JSON (for --compare)")
+    p.add_argument("--csv", action="store_true", help="print the results as CSV")
+    p.add_argument("--compare", metavar="OLD.json", help="also print ratios against an earlier --json run")
+    p.add_argument("--device", "-d", default=None, help="as for render; a comma list measures each device")
+    p.add_argument("--lanes", default=None, help="paths per work-item, or a comma list to compare (auto,1,8,16)")
+    p.add_argument("--local-size", default=None, help="work-group size, or a comma list (auto,16,64)")
     p.add_argument("--kernel", default="specialized", help="specialized, generic, baked, or a comma list")
-    p.add_argument("--precision", choices=("float", "double"), default="float")
+    p.add_argument("--precision", default="float", help="float, double, or float,double")
+    p.add_argument("--layout", default="rows", help="lanes on a row of pixels (rows), on a 2-D tile (tiles), "
+                                                     "or rows,tiles")
+    p.add_argument("--mitsuba", action="store_true", help="also time Mitsuba 3's cornell_box() (if installed)")
     p.add_argument("--no-nee", action="store_true")
     p.set_defaults(func=cmd_bench)
 
@@ -419,6 +444,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_tradeoff)
 
     p = sub.add_parser("devices", help="list the OpenCL devices")
+    p.add_argument("-v", "--verbose", action="store_true", help="also the vector widths and the tuned defaults")
     p.set_defaults(func=cmd_devices)
     p = sub.add_parser("scenes", help="list the shipped scenes")
     p.set_defaults(func=cmd_scenes)

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 import pyopencl as cl
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
+from .constants import LUMA, LUMA_WEIGHTS
+from .program import note_time
+
 ALBEDO_FLOOR = 1e-3
 
 
@@ -51,6 +53,7 @@ class ConeFilter:
     def __init__(self, dctx, program):
         self.dctx = dctx
         self.kernel = cl.Kernel(program, "cone_filter")
+        self.kernel_times = {}  # "cone_filter" -> device seconds per launch
 
     def __call__(self, color, var, normal, albedo, depth, settings: FilterSettings):
         """Filtered colour (H x W x 3 float32) from the guides (H x W arrays)."""
@@ -75,15 +78,18 @@ class ConeFilter:
         nb = buf4(normal)
         ab = buf4(albedo, depth)
         src = 0
+        events = []
         for it in range(settings.iterations):
-            self.kernel(q, (n,), None, c[src], vb[src], nb, ab, np.uint32(w), np.uint32(h),
+            events.append(self.kernel(q, (n,), None, c[src], vb[src], nb, ab, np.uint32(w), np.uint32(h),
                         np.int32(settings.width), np.int32(1 << it), np.float32(settings.sigma_normal),
                         np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
-                        np.float32(settings.sigma_luminance), c[1 - src], vb[1 - src])
+                        np.float32(settings.sigma_luminance), c[1 - src], vb[1 - src]))
             src = 1 - src
         out = np.empty((n, 4), np.float32)
         cl.enqueue_copy(q, out, c[src])
         q.finish()
+        for ev in events:
+            note_time(self.kernel_times, "cone_filter", ev)
         return (out[:, :3].reshape(h, w, 3) * alb).astype(np.float32)
 
 
@@ -96,7 +102,8 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
     c = irr.astype(np.float32)
     v = v.astype(np.float32)
     has = (normal * normal).sum(-1) > 0
-    lum = lambda a: 0.2126 * a[..., 0] + 0.7152 * a[..., 1] + 0.0722 * a[..., 2]  # noqa: E731
+    wr, wg, wb = LUMA_WEIGHTS
+    lum = lambda a: wr * a[..., 0] + wg * a[..., 1] + wb * a[..., 2]  # noqa: E731  (float32, as the kernel)
     for it in range(settings.iterations):
         step = 1 << it
         acc = np.zeros_like(c)

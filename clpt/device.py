@@ -5,9 +5,14 @@ so one image can be rendered on several devices at once.
 
 Selection (``--device``, ``clpt.render(device=...)``): an index into
 ``list_devices()`` ("1"), a platform:device pair as in PYOPENCL_CTX ("0:1"),
-a case-insensitive substring of the device or platform name ("pocl",
-"nvidia"), "all", or several of these separated by commas. Without one,
-PYOPENCL_CTX is honoured, then a GPU is preferred, then any CPU.
+a name, "all", or several of these separated by commas. A name is matched
+case-insensitively: first exactly, against the device name, the platform
+name and the platform's short name (``pocl``, ``intel``, ``nvidia``, ``amd``:
+the first device of that platform); else as a substring of the device or
+platform name, which must then pick out one device (an ambiguous name is
+refused with the list of its matches). Without a selection, PYOPENCL_CTX is
+honoured, then a GPU is preferred, then PoCL's CPU device, then any CPU, so
+registering another CPU runtime does not change the default.
 """
 
 from __future__ import annotations
@@ -35,9 +40,10 @@ class DeviceInfo:
     max_alloc: int
     fp64: bool
     driver: str
+    short: str = ""
 
     def line(self) -> str:
-        return (f"[{self.index}] {self.platform_index}:{self.device_index}  {self.name}  ({self.platform}; "
+        return (f"[{self.index}] {self.platform_index}:{self.device_index}  {self.name}  ({self.platform} = {self.short}; "
                 f"{self.kind}, {self.compute_units} units, {self.global_mem / 2**30:.1f} GiB, "
                 f"fp64 {'yes' if self.fp64 else 'no'}, driver {self.driver})")
 
@@ -70,6 +76,19 @@ def _all_devices():
     return out
 
 
+def platform_short_name(platform_name: str) -> str:
+    """A platform's short name for --device: pocl, intel, nvidia, amd, or the
+    first word of its name, lowercased, without (R)/(TM)."""
+    low = platform_name.lower()
+    if "portable computing language" in low or "pocl" in low:
+        return "pocl"
+    for known in ("intel", "nvidia", "amd", "apple", "rusticl", "clover"):
+        if known in low:
+            return known
+    words = low.replace("(r)", "").replace("(tm)", "").split()
+    return words[0] if words else low
+
+
 def device_has_fp64(dev) -> bool:
     return bool(dev.double_fp_config) or "cl_khr_fp64" in dev.extensions
 
@@ -80,7 +99,8 @@ def list_devices() -> list[DeviceInfo]:
         infos.append(DeviceInfo(index=i, platform_index=pi, device_index=di, name=d.name.strip(),
                                 platform=p.name.strip(), kind=_kind(d), compute_units=d.max_compute_units,
                                 global_mem=d.global_mem_size, max_alloc=d.max_mem_alloc_size,
-                                fp64=device_has_fp64(d), driver=d.driver_version))
+                                fp64=device_has_fp64(d), driver=d.driver_version,
+                                short=platform_short_name(p.name.strip())))
     return infos
 
 
@@ -107,11 +127,22 @@ def _match(spec: str, found) -> list:
             raise DeviceError(f"no device {i}: there are {len(found)} (see `clpt devices`)")
         return [found[i][3]]
     low = spec.lower()
-    hits = [d for _, _, p, d in found if low in d.name.lower() or low in p.name.lower()]
+    exact = [d for _, _, p, d in found
+             if low in (d.name.strip().lower(), p.name.strip().lower(), platform_short_name(p.name.strip()))]
+    if exact:
+        return exact[:1]
+    hits = [(pi, di, p, d) for pi, di, p, d in found if low in d.name.lower() or low in p.name.lower()]
+    if len(hits) == 1:
+        return [hits[0][3]]
+
+    def listing(entries):
+        return "; ".join(f"{pi}:{di} {d.name.strip()} ({p.name.strip()} = {platform_short_name(p.name.strip())})"
+                         for pi, di, p, d in entries)
+
     if not hits:
-        names = "; ".join(f"{d.name.strip()} ({p.name.strip()})" for _, _, p, d in found)
-        raise DeviceError(f"no OpenCL device matches {spec!r}; available: {names}")
-    return hits[:1]
+        raise DeviceError(f"no OpenCL device matches {spec!r}; available: {listing(found)}")
+    raise DeviceError(f"{spec!r} matches {len(hits)} devices: {listing(hits)}; "
+                      f"name one exactly, by platform:device, or by a platform's short name")
 
 
 def select_devices(spec=None) -> list:
@@ -135,7 +166,8 @@ def select_devices(spec=None) -> list:
             spec = env
     if spec is None:
         gpus = [d for _, _, _, d in found if d.type & cl.device_type.GPU]
-        cpus = [d for _, _, _, d in found if d.type & cl.device_type.CPU]
+        cpus = [d for _, _, p, d in found if d.type & cl.device_type.CPU]
+        cpus.sort(key=lambda d: platform_short_name(d.platform.name.strip()) != "pocl")  # stable: PoCL first
         return [(gpus or cpus or [found[0][3]])[0]]
     out = []
     for part in str(spec).split(","):
@@ -162,14 +194,6 @@ class DeviceContext:
     @property
     def label(self) -> str:
         return f"{self.name} ({self.platform})"
-
-    def default_lanes(self) -> int:
-        """Paths per work-item: a CPU's float SIMD width (8 on AVX2), 1 on a GPU,
-        whose hardware already runs work-items in lockstep."""
-        if not self.is_cpu:
-            return 1
-        w = self.device.preferred_vector_width_float or self.device.native_vector_width_float or 4
-        return 8 if w >= 8 else 4
 
     def identity(self) -> str:
         d = self.device

@@ -21,6 +21,7 @@ KERNEL_MODES = ("specialized", "generic", "baked")
 @dataclass(frozen=True)
 class Features:
     lanes: int = 8
+    tiles: bool = False        # lanes cover a 2-D tile of pixels instead of a run of one row
     double: bool = False
     accum_double: bool = True  # per-pixel sums in fp64, else Kahan-compensated float
     mode: str = "specialized"
@@ -41,6 +42,7 @@ class Features:
     def defines(self) -> dict[str, int]:
         d = {
             "CLPT_LANES": self.lanes,
+            "CLPT_TILE_W": self.tile_width,
             "CLPT_DOUBLE": int(self.double),
             "CLPT_ACCUM_DOUBLE": int(self.accum_double),
             "CLPT_GENERIC": int(self.mode == "generic"),
@@ -64,31 +66,37 @@ class Features:
                 d[f"CLPT_NUM_{name}"] = n
         return d
 
+    @property
+    def tile_width(self) -> int:
+        """Width of a work-item's tile of pixels (1: a run of one row)."""
+        return {16: 4, 8: 4, 4: 2}.get(self.lanes, 1) if self.tiles else 1
+
     def options(self) -> list[str]:
         return sorted(f"-D{k}={v}" for k, v in self.defines().items())
 
     def describe(self) -> str:
-        on = [k for k, v in asdict(self).items() if v is True and k not in ("double", "accum_double")]
+        on = [k for k, v in asdict(self).items() if v is True and k not in ("double", "accum_double", "tiles")]
         counts = ""
         if self.counts:
             counts = " counts=" + ",".join(str(c) for c in self.counts)
-        return (f"{self.mode} lanes={self.lanes} {'double' if self.double else 'float'} "
+        tiles = f" tiles={self.tile_width}x{self.lanes // self.tile_width}" if self.tile_width > 1 else ""
+        return (f"{self.mode} lanes={self.lanes}{tiles} {'double' if self.double else 'float'} "
                 f"sums={'double' if self.accum_double else 'kahan-float'} "
                 f"features={'+'.join(on) or 'none'}{counts}")
 
 
 def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False, accum_double: bool = True,
                    mode: str = "specialized", nee: bool = True, photons: bool | None = None,
-                   aux: bool = False) -> Features:
+                   aux: bool = False, tiles: bool = False) -> Features:
     """photons: None turns them on exactly when the scene has caustic casters."""
     if mode not in KERNEL_MODES:
         raise ValueError(f"kernel mode must be one of {', '.join(KERNEL_MODES)} (got {mode!r})")
     use_photons = packed.has_caustics if photons is None else bool(photons) and packed.has_caustics
     if mode == "generic":
-        return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
+        return Features(lanes=lanes, tiles=tiles, double=double, accum_double=accum_double, mode=mode, nee=nee,
                         photons=use_photons, aux=aux)
     return Features(
-        lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
+        lanes=lanes, tiles=tiles, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
         spheres=packed.count("spheres") > 0,
         quads=packed.count("quads") > 0,
         triangles=packed.count("triangles") > 0,

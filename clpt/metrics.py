@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
+from .constants import LUMA
+
 
 
 def rmse(img, ref) -> float:

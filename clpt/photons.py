@@ -17,6 +17,9 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.cltypes as clt
 
+from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
+from .program import note_time
+
 RADIX_BITS = 8
 GRID_CELL_RADII = 2  # grid cells are cubes of this many gather radii (kernels/photon_grid.h)
 MAX_TABLE_BITS = 24
@@ -165,6 +168,8 @@ class PhotonMap:
         self.capacity = -1
         self.n_chunks = 64 if dctx.is_cpu else 1024  # a multiple of the local size: every chunk work-item exists
         self.launches = {}
+        self.kernel_times = {}  # kernel name -> device seconds per launch
+        self._events = []
         self.n_stored = 0
         self.n_emitted = 0
         self.radius = 0.0
@@ -194,15 +199,29 @@ class PhotonMap:
                               f"use fewer photons") from None
         self.capacity = n
 
+    def buffer_bytes(self) -> dict[str, int]:
+        """Device memory per buffer of the photon map (none before the first build)."""
+        if self.capacity < 0:
+            return {}
+        return {"photons as traced": sum(b.size for b in self.raw), "photons sorted": sum(b.size for b in self.sorted),
+                "photon sort keys": sum(b.size for b in self.keys + self.vals),
+                "photon grid": self.bucket_start.size + self.hist.size + self.counter.size + self.occ.size}
+
     def _launch(self, name, kernel, global_size, *args):
         # A fixed local size (the kernels check their range): PoCL compiles a
         # kernel anew for each local size, and its own choice for large global
         # sizes overflowed the work-item stacks of the double-precision build.
-        local = 16 if self.dctx.is_cpu else 64
+        local = LOCAL_SIZE_CPU if self.dctx.is_cpu else LOCAL_SIZE_GPU
         kernel.set_args(*args)
         ev = cl.enqueue_nd_range_kernel(self.dctx.queue, kernel, (-(-max(1, global_size) // local) * local,), (local,))
         self.launches[name] = self.launches.get(name, 0) + 1
+        self._events.append((name, ev))
         return ev
+
+    def _note_times(self):
+        for name, ev in self._events:
+            note_time(self.kernel_times, name, ev)
+        self._events = []
 
     def build(self, scene_buf, counts, eps_abs, lanes: int, seed: int, settings: PhotonSettings, radius: float):
         """Trace settings.count photons and build the grid for `radius`.
@@ -225,6 +244,7 @@ class PhotonMap:
         grid_events = self.build_grid(n, radius)
         self.n_stored = int(stored[0])
         self.n_emitted = n
+        self._note_times()
         return {"stored": self.n_stored, "trace_seconds": _device_seconds(events),
                 "grid_seconds": _device_seconds(grid_events), "host_seconds": time.perf_counter() - t_host}
 
@@ -243,6 +263,7 @@ class PhotonMap:
         self.n_stored = n
         self.n_emitted = n
         events = self.build_grid(n, radius)
+        self._note_times()
         return {"stored": n, "grid_seconds": _device_seconds(events)}
 
     def build_grid(self, n: int, radius: float):

@@ -6,7 +6,9 @@ cached, dumped (``CLPT_DUMP_KERNELS=dir``) and named in build errors; there
 are no include paths. Built program binaries are cached on disk, keyed by the
 stitched source, the sorted build options and the device/driver identity:
 ``$CLPT_CACHE_DIR``, else ``$XDG_CACHE_HOME/clpt``, else ``~/.cache/clpt``.
-``clpt cache --clear`` empties it.
+``clpt cache --clear`` empties it (and the tuned settings beside it).
+pyopencl's own binary cache is not used: it would make a build that misses
+ours (after ``clpt cache --clear``, or a cold build in ``clpt bench``) warm.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from pathlib import Path
 
 import pyopencl as cl
 
+from .constants import kernel_defines
 from .resources import kernel_dir
 
 # Device libraries in dependency order; entry files (*.cl) come after them.
@@ -42,18 +45,21 @@ def cache_dir() -> Path:
 
 
 def clear_cache() -> int:
-    """Remove every cached kernel binary; returns how many there were."""
+    """Remove every cached kernel binary and the tuned settings; returns how
+    many kernel binaries there were."""
     d = cache_dir() / "kernels"
     n = len(list(d.glob("*.bin"))) if d.is_dir() else 0
-    shutil.rmtree(d, ignore_errors=True)
+    for sub in ("kernels", "tune"):
+        shutil.rmtree(cache_dir() / sub, ignore_errors=True)
     return n
 
 
 def stitch(entry_files, generated: dict[str, str] | None = None, after: str = "simd.h") -> str:
-    """Library files, then entry files, with #line markers. `generated` maps a
-    pseudo file name to text inserted right after the library file `after`."""
+    """The shared constants, library files, then entry files, with #line
+    markers. `generated` maps a pseudo file name to text inserted right after
+    the library file `after`."""
     kd = kernel_dir()
-    parts = []
+    parts = [f'#line 1 "<constants>"\n{kernel_defines()}']
     for name in list(LIBRARY_FILES) + list(entry_files):
         path = Path(name) if os.path.isabs(name) else kd / name
         parts.append(f'#line 1 "kernels/{path.name}"\n{path.read_text()}')
@@ -108,7 +114,8 @@ def build(dctx, source: str, options, use_cache: bool = True):
             except (cl.Error, OSError):
                 path.unlink(missing_ok=True)  # stale or damaged entry: rebuild below
         try:
-            prg = cl.Program(dctx.context, source).build(options=options, devices=[dctx.device])
+            prg = cl.Program(dctx.context, source).build(options=options, devices=[dctx.device],
+                                                         cache_dir=False)
         except cl.RuntimeError as e:
             dumped = _dump(source, options, key)
             raise KernelBuildError(f"kernel build failed on {dctx.label} with options {' '.join(options)}; "
@@ -125,3 +132,17 @@ def build(dctx, source: str, options, use_cache: bool = True):
         except (cl.Error, OSError):
             pass  # a cache that cannot be written only costs the next build
     return prg, BuildInfo(seconds, False, key, options)
+
+
+def event_seconds(event) -> float:
+    """Device time of a finished kernel launch, from its profiling event (nan if
+    the queue has no profiling)."""
+    try:
+        return (event.profile.end - event.profile.start) * 1e-9
+    except cl.Error:
+        return float("nan")
+
+
+def note_time(times: dict, name: str, event):
+    """Append a finished launch's device time to times[name]."""
+    times.setdefault(name, []).append(event_seconds(event))

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,17 +25,16 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.cltypes as clt
 
-from . import program
+from . import program, tune
 from .device import DeviceContext, DeviceError, select_devices
 from .features import Features, scene_features
 from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
 from .adaptive import AdaptiveSettings, allocate_error, allocate_paper
+from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, LUMA, OFFSET_ABS
 from .denoise import ConeFilter, FilterSettings
 from .photons import PM_MERGE, PM_OFF, PM_OFFLINE, PM_OWNED, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
 from .scene import Scene, SceneError, load_scene
 
-LOCAL_SIZE_CPU = 16
-LOCAL_SIZE_GPU = 64
 PREPASS_SEED_SALT = 0x2545F491
 
 
@@ -53,6 +53,7 @@ class RenderStats:
     adaptive_rounds: int = 0
     photon_pilot: dict | None = None  # what the pilot measured and chose (PhotonSettings.pilot)
     launches: dict = field(default_factory=dict)  # kernel name -> launches, all devices
+    kernel_seconds: dict = field(default_factory=dict)  # kernel name -> device seconds per launch (profiling)
 
     @property
     def rays(self) -> int:
@@ -131,6 +132,24 @@ class _Sums:
         return s64[:, :4] - s64[:, 4:], sq64[:, 0] - sq64[:, 1]
 
 
+def kernel_sources(packed: PackedScene | None, features: Features) -> list[str]:
+    """The stitched programs a scene's build compiles (without a baked scene's
+    records when packed is None): the path pass (and the filter), and for
+    scenes with caustic photons the photon pass and grid build apart, so that
+    the two build in parallel."""
+    generated = {}
+    if features.mode == "baked" and packed is not None:
+        generated["<baked scene>"] = _baked_source(packed.records, features.double)
+    out = [program.stitch(["trace.cl"] + (["filter.cl"] if features.aux else []), generated)]
+    if features.photons:
+        out.append(program.stitch(["photons.cl", "grid.cl"], generated))
+    return out
+
+
+def kernel_source(packed: PackedScene | None, features: Features) -> str:
+    return "\n".join(kernel_sources(packed, features))
+
+
 class _DeviceState:
     """Everything one device holds for one scene: programs, kernels, buffers."""
 
@@ -139,32 +158,57 @@ class _DeviceState:
         self.features = features
         self.packed = packed
         real = np.float64 if features.double else np.float32
-        generated = {}
-        if features.mode == "baked":
-            generated["<baked scene>"] = _baked_source(packed.records, features.double)
-        entries = (["trace.cl"] + (["photons.cl", "grid.cl"] if features.photons else [])
-                   + (["filter.cl"] if features.aux else []))
-        source = program.stitch(entries, generated)
-        self.program, self.build = program.build(dctx, source, features.options(), use_cache=use_cache)
-        self.kernel = cl.Kernel(self.program, "trace_paths")
         mf = cl.mem_flags
         recs = np.ascontiguousarray(packed.records, dtype=real)
         if recs.size == 0:
             recs = np.zeros((1, 4), dtype=real)
         self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
         self.counts = counts_arg(packed.counts)
-        self.eps_abs = packed.extent * (1e-13 if features.double else 2e-6)
+        self.eps_abs = packed.extent * OFFSET_ABS['double' if features.double else 'float']
         self.lum_scale = packed.lum_scale
         self.real = real
+        sources = kernel_sources(packed, features)
+        t0 = time.perf_counter()
+
+        def build(source):
+            return program.build(dctx, source, features.options(), use_cache=use_cache)
+
+        def build_photons(source):
+            # Then a one-photon map: PoCL generates the photon kernels' machine code
+            # at their first launch, here while the path pass is still compiling.
+            prg, info = build(source)
+            pmap = PhotonMap(dctx, prg, real)
+            pmap.build(self.scene_buf, self.counts, self.eps_abs, features.lanes, 0, PhotonSettings(count=1),
+                       0.01 * max(packed.size, 1e-30))
+            pmap.launches.clear()
+            pmap.kernel_times.clear()
+            return pmap, info
+
+        if len(sources) == 1:
+            built = [build(sources[0])]
+            self.pmap = None
+        else:  # the OpenCL compilers release the GIL: the programs build at once
+            with ThreadPoolExecutor(2) as pool:
+                photon_side = pool.submit(build_photons, sources[1])
+                built = [build(sources[0]), photon_side.result()]
+            self.pmap = built[1][0]
+        self.program = built[0][0]
+        self.build = program.BuildInfo(time.perf_counter() - t0, all(b.cache_hit for _, b in built),
+                                       "+".join(b.key for _, b in built), built[0][1].options)
+        self.kernel = cl.Kernel(self.program, "trace_paths")
         self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
         self.launched = False
-        self.pmap = PhotonMap(dctx, self.program, real) if features.photons else None
         self.filter = ConeFilter(dctx, self.program) if features.aux else None
         self.launches = {}
+        self.kernel_times = {}  # kernel name -> device seconds of each launch since allocate()
 
-    def allocate(self, n_pix: int, caustic_buffer: bool):
+    def allocate(self, n_pix: int, caustic_buffer: bool, width: int | None = None):
         lanes = self.features.lanes
         groups = -(-n_pix // lanes)
+        tw = self.features.tile_width
+        if tw > 1:  # one work-item per tile (width None: one image row)
+            w = width or n_pix
+            groups = -(-w // tw) * -(-(n_pix // w) // (lanes // tw))
         self.global_size = -(-groups // self.local) * self.local
         need = n_pix * 40 * (2 if caustic_buffer else 1) + self.global_size * 16
         dev = self.dctx.device
@@ -207,6 +251,9 @@ class _DeviceState:
         for k, v in self.pmap.launches.items():
             self.launches[k] = self.launches.get(k, 0) + v
         self.pmap.launches.clear()
+        for k, v in self.pmap.kernel_times.items():
+            self.kernel_times.setdefault(k, []).extend(v)
+        self.pmap.kernel_times.clear()
         return {**info, "radius": radius, "seed": seed}
 
     def run(self, s0: int, n: int, prepass: bool = False, pixels=None, jobs=None):
@@ -238,12 +285,28 @@ class _DeviceState:
             args += self.pmap.kernel_args(self.pm_settings, mode)
         self.kernel.set_args(*args)
         t0 = time.perf_counter()
-        cl.enqueue_nd_range_kernel(q, self.kernel, (global_size,), (self.local,))
+        ev = cl.enqueue_nd_range_kernel(q, self.kernel, (global_size,), (self.local,))
         stats = self.stats_host[:global_size]
-        cl.enqueue_copy(q, stats, self.stats_buf)
+        cl.enqueue_copy(q, stats, self.stats_buf)  # blocking: the launch has finished
         seconds = time.perf_counter() - t0
+        program.note_time(self.kernel_times, "trace_paths", ev)
         self.launches["trace_paths"] = self.launches.get("trace_paths", 0) + 1
         return seconds, stats.sum(axis=0, dtype=np.uint64)
+
+    def buffer_bytes(self) -> dict[str, int]:
+        """Device memory per buffer this state holds (after a render)."""
+        out = {"scene records": self.scene_buf.size}
+        for name, sums in (("pixel sums", getattr(self, "main", None)), ("caustic sums", getattr(self, "caustic", None))):
+            if sums is not None:
+                out[name] = sums.pix_sum.size + sums.pix_sq.size
+        if hasattr(self, "stats_buf"):
+            out["work-item stats"] = self.stats_buf.size
+            out["adaptive lists"] = self.list_buf.size + self.jobs_buf.size
+        if getattr(self, "aux", None):
+            out["feature buffers"] = sum(b.size for b in self.aux)
+        if self.pmap is not None:
+            out.update(self.pmap.buffer_bytes())
+        return out
 
     def read_aux(self):
         """Per-pixel feature sums: (normal xyz, count), (albedo rgb, distance), (emission rgb, 0)."""
@@ -281,7 +344,7 @@ def _combine(states, which: str, n_pix: int, lum_scale: float = 1.0):
     count = total[:, 3]
     safe = np.maximum(count, 1.0)
     mean = total[:, :3] / safe[:, None]
-    lum_mean = (mean @ np.array([0.2126, 0.7152, 0.0722])) * lum_scale  # the kernels square scaled luminance
+    lum_mean = (mean @ LUMA) * lum_scale  # the kernels square scaled luminance
     var = np.maximum(total_sq / safe - lum_mean ** 2, 0.0) * (safe / np.maximum(safe - 1.0, 1.0)) / lum_scale ** 2
     return mean, var, count
 
@@ -295,9 +358,10 @@ class Renderer:
     has caustic casters (purely specular objects); False never compiles it.
     """
 
-    def __init__(self, scene, *, device=None, lanes: int | None = None, precision: str = "float",
-                 kernel: str = "specialized", nee: bool = True, photons: bool | None = None,
-                 aux: bool = False, use_cache: bool = True, accumulate: str = "auto"):
+    def __init__(self, scene, *, device=None, lanes: int | None = None, local_size: int | None = None,
+                 precision: str = "float", kernel: str = "specialized", nee: bool = True,
+                 photons: bool | None = None, aux: bool = False, use_cache: bool = True, accumulate: str = "auto",
+                 tiles: bool = False):
         if isinstance(scene, (str, Path)):
             scene = load_scene(scene)
         if not isinstance(scene, Scene):
@@ -306,6 +370,11 @@ class Renderer:
             raise ValueError(f"precision must be 'float' or 'double' (got {precision!r})")
         if accumulate not in ("auto", "double", "kahan"):
             raise ValueError(f"accumulate must be 'auto', 'double' or 'kahan' (got {accumulate!r})")
+        if lanes is not None and lanes not in tune.LANE_WIDTHS:
+            raise ValueError(f"lanes must be one of {', '.join(map(str, tune.LANE_WIDTHS))} (got {lanes!r})")
+        if local_size is not None and (isinstance(local_size, bool) or not isinstance(local_size, int)
+                                       or local_size < 1):
+            raise ValueError(f"local_size must be a positive integer (got {local_size!r})")
         self.scene = scene
         self.packed = pack_scene(scene)
         use_photons = self.packed.has_caustics and photons is not False
@@ -316,12 +385,38 @@ class Renderer:
                 raise DeviceError(f"{dctx.label} has no double precision (cl_khr_fp64); "
                                   f"render with precision='float'")
             acc_double = dctx.fp64 if accumulate == "auto" else accumulate == "double"
-            n_lanes = lanes or dctx.default_lanes()
-            feats = scene_features(self.packed, lanes=n_lanes, double=precision == "double",
-                                   accum_double=acc_double or precision == "double", mode=kernel, nee=nee,
-                                   photons=use_photons, aux=aux)
-            self.states.append(_DeviceState(dctx, self.packed, feats, use_cache))
+            if local_size is not None and local_size > dctx.device.max_work_group_size:
+                raise DeviceError(f"local size {local_size} is above {dctx.label}'s maximum work-group size "
+                                  f"{dctx.device.max_work_group_size}")
+
+            def feats(n_lanes):
+                return scene_features(self.packed, lanes=n_lanes, double=precision == "double",
+                                      accum_double=acc_double or precision == "double", mode=kernel, nee=nee,
+                                      photons=use_photons, aux=aux, tiles=tiles)
+
+            f = feats(lanes or 1)
+            tuning, st = tune.choose(dctx, kernel_source(None, f), f.options(),
+                                     lambda n: _DeviceState(dctx, self.packed, feats(n), use_cache), self._trial,
+                                     lanes=lanes, local_size=local_size, use_cache=use_cache)
+            if st is None:
+                st = _DeviceState(dctx, self.packed, feats(tuning.lanes), use_cache)
+            st.local = tuning.local_size
+            st.tuning = tuning
+            self.states.append(st)
         self.features = self.states[0].features
+
+    def _trial(self, st, spp: int, seed: int):
+        """Render spp samples per pixel of a tune.TRIAL_SIZE square image the
+        default way on state st alone; (samples/s of the passes after the
+        one-sample probe, seconds per spp)."""
+        shell = Renderer.__new__(Renderer)
+        shell.scene, shell.packed, shell.states, shell.features = self.scene, self.packed, [st], st.features
+        n = tune.TRIAL_SIZE
+        res = shell.render(spp, width=n, height=n, seed=seed, pass_seconds=1e9)
+        passes = res.stats.passes[1:] or res.stats.passes
+        secs = max(sum(p[3] for p in passes), 1e-9)
+        done = sum(p[2] for p in passes)
+        return done * n * n / secs, secs / max(done, 1)
 
     @property
     def build_seconds(self) -> float:
@@ -331,7 +426,7 @@ class Renderer:
                rr_depth: int | None = None, width: int | None = None, height: int | None = None,
                photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
                filter: FilterSettings | None = None, progress=None, preview=None,
-               time_limit: float | None = None, pass_seconds: float = 0.25) -> RenderResult:
+               time_limit: float | None = None, pass_seconds: float | None = None) -> RenderResult:
         """Render; keywords override the scene's settings.
 
         spp is the average number of samples per pixel (with adaptive
@@ -339,7 +434,10 @@ class Renderer:
         total_spp, elapsed_seconds, samples_per_second) is called after each
         pass; preview(image) every filter.interval passes with the filtered
         image so far. Ctrl-C (KeyboardInterrupt) ends the render early with
-        what is done."""
+        what is done. pass_seconds: how long a pass should take (default: the
+        device's tuned choice)."""
+        if pass_seconds is None:
+            pass_seconds = self.states[0].tuning.pass_seconds
         rs = self.scene.render
         spp = rs.spp if spp is None else spp
         seed = rs.seed if seed is None else seed
@@ -377,9 +475,10 @@ class Renderer:
         stats = RenderStats(build_seconds=self.build_seconds,
                             cache_hits=sum(s.build.cache_hit for s in self.states))
         for st in self.states:
-            st.allocate(n_pix, caustic_buffer=offline)
+            st.allocate(n_pix, caustic_buffer=offline, width=width)
             st.set_frame(frame, width, height, max_depth, rr_depth, seed)
             st.launches = {}
+            st.kernel_times = {}
 
         lock = threading.Lock()
         uniform_spp = spp if aset is None else min(spp, aset.min_spp)
@@ -411,8 +510,18 @@ class Renderer:
             if offline:  # the caustic buffer
                 st.run(0, min(pset.offline_spp, spp), prepass=True)
 
-        def take(per_spp):
+        # With several devices, each one's first (one-sample) pass is a sample
+        # index reserved for it, so a device that starts late (a slower build or
+        # photon map) still gets work instead of finding every sample taken.
+        reserved = {}
+        if len(self.states) > 1 and not progressive:
+            reserved = {id(st): i for i, st in enumerate(self.states[:uniform_spp])}
+            state["next"] = len(reserved)
+
+        def take(st, per_spp):
             with lock:
+                if id(st) in reserved and state["error"] is None:
+                    return reserved.pop(id(st)), 1
                 if state["stop"] or state["next"] >= uniform_spp:
                     return None
                 s0 = state["next"]
@@ -437,7 +546,7 @@ class Renderer:
                 if pset is not None and not progressive:
                     photon_map(st, 0)
                 while True:
-                    job = take(per_spp)
+                    job = take(st, per_spp)
                     if job is None:
                         return
                     s0, n = job
@@ -478,6 +587,11 @@ class Renderer:
         for st in self.states:
             for k, v in st.launches.items():
                 stats.launches[k] = stats.launches.get(k, 0) + v
+            if st.filter is not None:
+                st.kernel_times.update(st.filter.kernel_times)
+                st.filter.kernel_times = {}
+            for k, v in st.kernel_times.items():
+                stats.kernel_seconds.setdefault(k, []).extend(v)
         return RenderResult(image=image, sample_count=count.reshape(height, width).astype(np.uint32),
                             lum_var=var.reshape(height, width),
                             spp=int(count.max()) if n_pix else 0, seed=seed, max_depth=max_depth,
@@ -523,7 +637,6 @@ class Renderer:
         """Adaptive passes until the pixels are below the threshold (error
         scheme) or the sample budget or time runs out; round_map(state, k),
         if given, builds the photon map of round k first. True if interrupted."""
-        luma = np.array([0.2126, 0.7152, 0.0722])
         stats.adaptive_rounds = 0
         try:
             while True:
@@ -535,7 +648,7 @@ class Renderer:
                 if left <= 0:
                     break
                 shape = (height, width)
-                lum = (mean @ luma).reshape(shape)
+                lum = (mean @ LUMA).reshape(shape)
                 if aset.scheme == "error":
                     # A round spends at most an eighth of the budget, so later rounds
                     # see what the earlier ones achieved.

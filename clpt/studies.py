@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics
+from .constants import LUMA
 from .adaptive import AdaptiveSettings
 from .denoise import FilterSettings
 from .image import load_image, save_image
@@ -108,7 +109,7 @@ def caustic_region(scene, width, height, device=None):
     if not r.features.photons:
         return None
     res = r.render(16, width=width, height=height, photons=PhotonSettings(mode="offline"))
-    lum = res.caustic_image @ np.array([0.2126, 0.7152, 0.0722])
+    lum = res.caustic_image @ LUMA
     return lum >= 0.05 * max(float(lum.max()), 1e-12)
 
 

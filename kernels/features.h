@@ -3,6 +3,9 @@
 // here rather than a silently disabled feature.
 
 
+#if !defined(CLPT_TILE_W)
+#error "clpt: CLPT_TILE_W must be defined (1: lanes take a row of pixels)"
+#endif
 #if !defined(CLPT_LANES) || !defined(CLPT_DOUBLE) || !defined(CLPT_ACCUM_DOUBLE) || !defined(CLPT_GENERIC) \
     || !defined(CLPT_BAKED) || !defined(CLPT_NEE)
 #error "clpt: CLPT_LANES, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC, CLPT_BAKED and CLPT_NEE must be defined"
@@ -19,6 +22,9 @@
 #endif
 #if !defined(CLPT_HAS_TRIANGLE_LIGHTS) || !defined(CLPT_HAS_SPHERE_LIGHTS)
 #error "clpt: every CLPT_HAS_<kind>_LIGHTS flag must be defined"
+#endif
+#if !defined(CLPT_LUMA_R) || !defined(CLPT_OFFSET_REL_FLOAT)
+#error "clpt: the generated constants (clpt/constants.py) must come first"
 #endif
 #if !defined(CLPT_PHOTONS) || !defined(CLPT_AUX)
 #error "clpt: CLPT_PHOTONS and CLPT_AUX must be defined"

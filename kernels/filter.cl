@@ -33,7 +33,7 @@ __kernel void cone_filter(__global const float4 *color_in, __global const float 
     float3 np = normal[i].xyz;
     float4 ap = albedo_depth[i];
     int has_n = dot(np, np) > 0.0f;
-    float lp = 0.2126f * cp.x + 0.7152f * cp.y + 0.0722f * cp.z;
+    float lp = (float)CLPT_LUMA_R * cp.x + (float)CLPT_LUMA_G * cp.y + (float)CLPT_LUMA_B * cp.z;
     float3 acc = (float3)(0.0f);
     float wsum = 1.0f, w2v = vp;  // the centre tap
     for (int dy = -radius; dy <= radius; dy++) {
@@ -59,7 +59,7 @@ __kernel void cone_filter(__global const float4 *color_in, __global const float 
             w *= exp(-dot(da, da) / (sigma_albedo * sigma_albedo));
             w *= exp(-fabs(ap.w - aq.w) / (sigma_depth * fmax(ap.w, 1e-6f) * r * (float)step + 1e-12f));
             float4 cq = color_in[j];
-            float lq = 0.2126f * cq.x + 0.7152f * cq.y + 0.0722f * cq.z;
+            float lq = (float)CLPT_LUMA_R * cq.x + (float)CLPT_LUMA_G * cq.y + (float)CLPT_LUMA_B * cq.z;
             float vq = var_in[j];
             w *= exp(-fabs(lp - lq) / (sigma_lum * sqrt(vp + vq) + 1e-6f));
             if (!(w > 0.0f))

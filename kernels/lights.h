@@ -58,7 +58,7 @@ inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, v
             // Cone towards the centre; 1 - cos(theta_max) without cancellation.
             vreal sin2 = fmin(rad * rad / d2, R(1));
             vreal omc = sin2 / (R(1) + vsafe_sqrt(R(1) - sin2));
-            V3 axis = v3_scale(dc, rsqrt(d2));
+            V3 axis = v3_scale(dc, vrsqrt(d2));
             V3 lc = sample_uniform_cone(u1, u2, omc);
             V3 wc = frame_to_world(axis, lc.x, lc.y, lc.z);
             real4 sphere = (real4)(p.x, p.y, p.z, rad);

@@ -24,7 +24,7 @@ inline vreal caster_cone(real4 obj, V3 y, V3 n, vmask two_sided, uint aim_mode, 
     vmask full = (obj.w < R(0)) || d2 <= obj.w * obj.w;
     vreal sin2 = fmin(obj.w * obj.w / d2, R(1));
     *omc = VSEL(sin2 / (R(1) + vsafe_sqrt(R(1) - sin2)), (vreal)R(2), full);  // 1 - cos(theta_max)
-    *axis = v3_scale(dc, rsqrt(d2));
+    *axis = v3_scale(dc, vrsqrt(d2));
     if (aim_mode != 0)
         return (vreal)R(1);
     // Solid angle times the largest cosine at the light within the cone: zero

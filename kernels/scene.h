@@ -88,9 +88,9 @@ inline Scene scene_make(__global const real4 *records, uint8 counts, real eps_ab
 // error proportional to it) plus a scene-relative floor, so that the same
 // scene scaled by 1e-4 or 1e4, or moved far from the origin, renders alike.
 #if CLPT_DOUBLE
-#define OFFSET_REL R(1e-12)
+#define OFFSET_REL R(CLPT_OFFSET_REL_DOUBLE)
 #else
-#define OFFSET_REL R(2e-6)
+#define OFFSET_REL R(CLPT_OFFSET_REL_FLOAT)
 #endif
 inline vreal offset_distance(const Scene *sc, V3 p)
 {

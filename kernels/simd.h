@@ -132,14 +132,17 @@ inline V3 v3_cross(V3 a, V3 b)
 {
     return v3(a.y * b.z - a.z * b.y, a.z * b.x - a.x * b.z, a.x * b.y - a.y * b.x);
 }
-inline V3 v3_normalize(V3 a) { return v3_scale(a, rsqrt(v3_dot(a, a))); }
+// 1 / sqrt rather than rsqrt: Intel's CPU runtime rounds rsqrt differently
+// at different vector widths, which would break bit-identity across lanes.
+inline vreal vrsqrt(vreal x) { return R(1) / sqrt(x); }
+inline V3 v3_normalize(V3 a) { return v3_scale(a, vrsqrt(v3_dot(a, a))); }
 inline V3 v3_sel(V3 a, V3 b, vmask m) { return v3(VSEL(a.x, b.x, m), VSEL(a.y, b.y, m), VSEL(a.z, b.z, m)); }
 inline V3 v3_sel4(V3 a, real4 b, vmask m)
 {
     return v3(VSEL(a.x, (vreal)b.x, m), VSEL(a.y, (vreal)b.y, m), VSEL(a.z, (vreal)b.z, m));
 }
 inline vreal v3_max_comp(V3 a) { return fmax(a.x, fmax(a.y, a.z)); }
-inline vreal v3_luminance(V3 a) { return R(0.2126) * a.x + R(0.7152) * a.y + R(0.0722) * a.z; }
+inline vreal v3_luminance(V3 a) { return R(CLPT_LUMA_R) * a.x + R(CLPT_LUMA_G) * a.y + R(CLPT_LUMA_B) * a.z; }
 // Reflect incoming direction d about normal n (both unit): d - 2 (d.n) n.
 inline V3 v3_reflect(V3 d, V3 n) { return v3_fma(n, R(-2) * v3_dot(d, n), d); }
 

@@ -7,7 +7,8 @@
 // size, so an image is bit-identical however it was scheduled.
 //
 // Launch: one work-item per group of CLPT_LANES consecutive pixels (row-major
-// index group * CLPT_LANES + lane), each taking samples [sample_begin,
+// index group * CLPT_LANES + lane; with CLPT_TILE_W > 1, per tile of
+// CLPT_TILE_W x CLPT_LANES / CLPT_TILE_W pixels, tiles in row-major order), each taking samples [sample_begin,
 // sample_begin + n_samples) and max_depth; or, when n_list > 0 (adaptive
 // sampling), one work-item per CLPT_LANES entries of pix_list, each entry a
 // pixel with its own (samples, max depth, first sample index) in pix_jobs:
@@ -60,7 +61,7 @@
 //     pre-pass: follow the camera path to x, gather there, and stop.
 //   PM_OFF (0) ignores the photon map.
 //
-// Flags: CLPT_LANES, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC, CLPT_BAKED, CLPT_NEE,
+// Flags: CLPT_LANES, CLPT_TILE_W, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC, CLPT_BAKED, CLPT_NEE,
 //   CLPT_PHOTONS, CLPT_AUX, CLPT_HAS_{SPHERES,QUADS,TRIANGLES,PLANES}, CLPT_HAS_{PHONG,MIRROR,GLASS},
 //   CLPT_HAS_{TRIANGLE,SPHERE}_LIGHTS, CLPT_NUM_* (when not generic).
 
@@ -226,9 +227,23 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
     vreal lane_n, lane_depth;
     vmask pix_ok;
     if (n_list == 0) {
+#if CLPT_TILE_W > 1
+        // The lanes cover a tile of CLPT_TILE_W x (CLPT_LANES / CLPT_TILE_W) pixels;
+        // work-items take tiles in row-major order.
+        uint tiles_x = (width + CLPT_TILE_W - 1) / CLPT_TILE_W;
+        uint tile = group_offset + gid;
+        vuint px = (vuint)((tile % tiles_x) * CLPT_TILE_W) + VLANE_IDS % CLPT_TILE_W;
+        vuint py = (vuint)((tile / tiles_x) * (CLPT_LANES / CLPT_TILE_W)) + VLANE_IDS / CLPT_TILE_W;
+        pix_ok = VREAL(px) < (real)width && VREAL(py) < (real)height;
+        pixel = py * width + px;
+        for (int l = 0; l < CLPT_LANES; l++)
+            if (!VLANE_M(pix_ok, l))
+                VLANE_U(pixel, l) = 0xFFFFFFFFu;  // outside the image: no pixel
+#else
         uint first = (group_offset + gid) * CLPT_LANES;
         pixel = (vuint)first + VLANE_IDS;
         pix_ok = VREAL(VLANE_IDS) < (real)(first < n_pix ? min(n_pix - first, (uint)CLPT_LANES) : 0u);
+#endif
         s_begin = (vuint)sample_begin;
         lane_n = (vreal)(real)n_samples;
         lane_depth = (vreal)(real)max_depth;

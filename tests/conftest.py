@@ -12,6 +12,10 @@ import pytest
 
 # An isolated build cache: tests must not depend on (or fill) the user's.
 os.environ.setdefault("CLPT_CACHE_DIR", tempfile.mkdtemp(prefix="clpt-test-cache-"))
+# Defaults from device queries only: a runtime whose best lane width is
+# measured (clpt/tune.py) would otherwise measure for every new kind of scene.
+# tests/test_tune.py measures on purpose.
+os.environ.setdefault("CLPT_TUNE", "query")
 
 import pyopencl as cl  # noqa: E402
 

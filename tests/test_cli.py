@@ -1,6 +1,7 @@
 """The command line: images written with metadata, clean errors with exit
 codes, Ctrl-C writing what was rendered, `python -m clpt`."""
 
+import json
 import os
 import signal
 import subprocess
@@ -84,3 +85,29 @@ def test_time_limit(tmp_path, device_spec):
     assert main(["render", "--spp", "1000000", "--width", "32", "--height", "32", "--time-limit", "1.5",
                  "-o", str(tmp_path / "t.png"), "-q", *dev]) == 0
     assert time.time() - t0 < 30
+
+
+def test_devices_verbose_shows_defaults(capsys):
+    assert main(["devices", "-v"]) == 0
+    out = capsys.readouterr().out
+    assert "float vector width: native" in out and "defaults:" in out
+
+
+def test_bench_table_csv_json_and_compare(tmp_path, device_spec, capsys):
+    dev = ["--device", device_spec] if device_spec else []
+    args = ["bench", "cornell_box", "--width", "16", "--height", "16", "--rounds", "2", "--no-cold",
+            "--lanes", "auto,4", *dev]
+    assert main(args + ["--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)
+    assert [r["variant"].split()[0] for r in rows] == ["lanes=auto", "lanes=4"] and rows[1]["lanes"] == 4
+    for r in rows:
+        assert r["msamples_per_s"] > 0 and len(r["rates"]) == 2
+        assert r["kernel_ms"]["trace_paths"]["median"] > 0 and r["memory_bytes"]["pixel sums"] == 16 * 16 * 40
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps(rows))
+    assert main(args + ["--compare", str(old)]) == 0
+    out = capsys.readouterr().out
+    assert "path ms/spp" in out and "trace_paths" in out and f"against {old}" in out and "x  " in out
+    assert main(args + ["--csv"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("scene,device,platform,variant") and len(lines) == 3

@@ -22,13 +22,13 @@ import numpy as np
 import pytest
 
 import clpt
+from clpt.constants import LUMA
 from clpt.pack import camera_frame
 
 from analytic import pixel_average, sphere_light_on_floor, sub_pixel_rays
 from stats import assert_mean_within
 from test_furnace import furnace
 
-LUMA = np.array([0.2126, 0.7152, 0.0722])
 K = 5.0        # sigmas allowed for a mean over an image or a block of pixels
 K_PIXEL = 6.0  # sigmas allowed for one pixel among a few hundred
 W = 16         # default image side

@@ -23,6 +23,8 @@ import clpt
 
 from stats import assert_mean_within
 
+pytestmark = pytest.mark.portability
+
 RES = 16
 
 

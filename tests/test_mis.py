@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 import clpt
+from clpt.constants import LUMA
 from clpt.pack import pack_scene
 from clpt.photons import PhotonSettings
 
@@ -89,7 +90,7 @@ def test_merging_with_mis_converges_to_the_path_tracer(device_spec):
     # 4 x 4 blocks of 6 x 6 pixels: the difference of block means against their noise.
     def blocks(a):
         return a.reshape(4, 6, 4, 6, *a.shape[2:]).mean(axis=(1, 3))
-    lum = np.array([0.2126, 0.7152, 0.0722])
+    lum = LUMA
     d = blocks(pm.image @ lum) - blocks(pt.image @ lum)
     var = blocks(pm.lum_var / pm.sample_count) / 36 + blocks(pt.lum_var / pt.sample_count) / 36
     z = d / np.sqrt(var)

@@ -27,6 +27,7 @@ def test_render_api_returns_linear_float_image(device_spec):
     assert np.isfinite(img).all() and img.min() >= 0 and img.mean() > 0.05
 
 
+@pytest.mark.portability
 def test_same_seed_same_image_other_seed_other_image(cbox):
     a = cbox.render(4, seed=7, width=32, height=32).image
     b = cbox.render(4, seed=7, width=32, height=32).image
@@ -35,6 +36,7 @@ def test_same_seed_same_image_other_seed_other_image(cbox):
     assert not np.array_equal(a, c)
 
 
+@pytest.mark.portability
 def test_pass_splits_and_work_group_sizes_do_not_change_a_bit(cbox):
     """Samples are added to a pixel one by one, in sample order, whatever the
     launches; the RNG is keyed by (pixel, sample), so any schedule gives the
@@ -53,14 +55,25 @@ def test_pass_splits_and_work_group_sizes_do_not_change_a_bit(cbox):
     assert np.array_equal(one_pass.image, small_groups.image)
 
 
+@pytest.mark.portability
 @pytest.mark.parametrize("scene", ["cornell_box", "cornell_box_caustics"])
 def test_lane_widths_and_kernel_builds_agree_bit_for_bit(device_spec, scene):
-    """The scalar, 4- and 8-lane kernels, generic, specialized and baked, run
-    the same IEEE operations per path in the same order."""
-    ref = clpt.render(scene, spp=3, width=24, height=24, device=device_spec)
-    for lanes, kernel in ((1, "specialized"), (4, "generic"), (8, "generic"), (8, "baked")):
-        img = clpt.render(scene, spp=3, width=24, height=24, device=device_spec, lanes=lanes, kernel=kernel)
-        assert np.array_equal(img, ref), (lanes, kernel)
+    """The scalar, 4-, 8- and 16-lane kernels, generic, specialized and baked,
+    lanes on a row of pixels or on a tile, run the same IEEE operations per
+    path in the same order. Exception: Intel's CPU runtime compiles the baked
+    caustic scene at 8 lanes to other bits (about 150 of 1800 values, by up
+    to 2e-5; neither FP_CONTRACT OFF nor correctly rounded division and sqrt
+    change that), so off PoCL a baked build is held to float noise."""
+    ref = clpt.render(scene, spp=3, width=26, height=23, device=device_spec)
+    ref_platform = clpt.device.select_devices(device_spec)[0].platform.name.lower()
+    for lanes, kernel, tiles in ((1, "specialized", False), (4, "generic", False), (8, "generic", False),
+                                 (8, "baked", False), (16, "specialized", True), (4, "generic", True)):
+        img = clpt.render(scene, spp=3, width=26, height=23, device=device_spec, lanes=lanes, kernel=kernel,
+                          tiles=tiles)
+        if kernel == "baked" and "portable computing language" not in ref_platform:
+            assert np.allclose(img, ref, rtol=1e-4, atol=1e-5), (lanes, kernel, tiles)
+        else:
+            assert np.array_equal(img, ref), (lanes, kernel, tiles)
 
 
 @pytest.mark.parametrize("name", shipped_scenes())
@@ -83,6 +96,7 @@ def test_bad_render_arguments_are_scene_errors(cbox):
             cbox.render(**{"spp": 1, **kw})
 
 
+@pytest.mark.portability
 def test_quad_light_over_diffuse_plane(device_spec):
     """Direct light only (max depth 1): a diffuse floor of albedo rho under a
     one-sided quad light of radiance Le shows L = rho / pi * Le * E(x) with E
@@ -119,6 +133,7 @@ def test_quad_light_over_diffuse_plane(device_spec):
     assert_mean_within(res.image[..., 0].mean(), expected.mean(), sigma + 1e-4 * expected.mean())
 
 
+@pytest.mark.portability
 def test_sphere_light_over_diffuse_plane(device_spec):
     """Direct light only: a sphere light of radius r and radiance Le whose centre
     is at distance D from a floor point, seen at angle theta from the floor's
@@ -146,6 +161,7 @@ def test_kahan_sums_match_double_sums(device_spec):
     assert np.allclose(a.lum_var, b.lum_var, rtol=1e-5, atol=1e-7)
 
 
+@pytest.mark.portability
 def test_two_devices_render_one_image(device_spec):
     """Two contexts (here on the same device) pull sample ranges from one
     render; the sums add up to the single-device image, photons included."""

@@ -6,6 +6,8 @@ import pytest
 
 from stats import ALPHA, chi2_test, sidak
 
+pytestmark = pytest.mark.portability
+
 N = 1 << 18
 
 

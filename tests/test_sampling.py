@@ -8,6 +8,8 @@ import pytest
 
 from stats import ALPHA, chi2_test, sidak
 
+pytestmark = pytest.mark.portability
+
 N = 200_000
 LANES = (1, 8)
 

@@ -1,0 +1,193 @@
+"""Per-device defaults: paths per work-item (lanes), work-group size and pass
+length, from device queries where they predict the fastest choice, else from
+a short measurement the first time a device meets a kernel.
+
+- GPU: 1 lane (the hardware runs work-items in lockstep), work-groups of
+  LOCAL_SIZE_GPU.
+- PoCL on a CPU: lanes = the native float vector width it reports (16 with
+  AVX-512, 8 with AVX2). PoCL does not vectorize a path tracer's loop across
+  work-items, but compiles the lanes' vector types straight to the ISA's
+  registers, so the register width is the best width (measured on the
+  AVX-512 machine: 11.4 Msamples/s at 16 lanes, 7.3 at 8, 4.0 at 4, 1.6 at 1,
+  on the Cornell box).
+- Other CPU runtimes (Intel's): measured. Intel's compiler vectorizes across
+  work-items itself, so 1 lane is also vector code; which of that and the
+  register width wins depends on the kernel (16 on the Cornell box, 1 with
+  the caustic photon gather), and narrower explicit widths were slowest on
+  both. Both candidates are built and timed in interleaved rounds on a 64x64
+  image; the faster one is kept.
+
+Every choice changes speed only: images are bit-identical across lanes and
+work-group sizes (tests/test_render.py). A measured choice is cached as JSON
+beside the kernel build cache (program.cache_dir() / "tune"), keyed by the
+device and driver identity, the kernel source and the build options, less
+the lane count and the scene's primitive counts (so scenes with the same
+kinds of shapes, lobes and lights share one measurement); ``clpt cache
+--clear`` removes it. An explicit lanes or local_size
+always wins. CLPT_TUNE=query never measures (an unpredicted device gets its
+register width; the test suite runs so, for speed); CLPT_TUNE=measure
+measures on every CPU, PoCL included (to check the queries' predictions).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import statistics
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass
+
+from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
+from .program import cache_dir
+
+LANE_WIDTHS = (1, 2, 4, 8, 16)
+PASS_SECONDS = 0.25
+TRIAL_SIZE = 64          # image side of an autotune trial
+TRIAL_ROUNDS = 3
+TRIAL_PASS_SECONDS = 0.08
+
+
+@dataclass(frozen=True)
+class Tuning:
+    lanes: int
+    local_size: int
+    pass_seconds: float
+    how: str   # "explicit", "query", "measured", "cached"
+    why: str
+
+    def describe(self) -> str:
+        return (f"lanes {self.lanes}, local size {self.local_size}, pass {self.pass_seconds:g} s "
+                f"({self.how}: {self.why})")
+
+
+def register_width(device) -> int:
+    """The widest supported lane count not above the device's native float width."""
+    w = device.native_vector_width_float or device.preferred_vector_width_float or 4
+    return max(x for x in LANE_WIDTHS if x <= max(w, 1))
+
+
+def query_tuning(dctx) -> Tuning | None:
+    """The choice device queries predict, or None where they do not."""
+    if not dctx.is_cpu:
+        local = min(LOCAL_SIZE_GPU, dctx.device.max_work_group_size)
+        return Tuning(1, local, PASS_SECONDS, "query", "a GPU runs work-items in lockstep: 1 lane")
+    if dctx.is_pocl:
+        w = register_width(dctx.device)
+        return Tuning(w, LOCAL_SIZE_CPU, PASS_SECONDS, "query",
+                      f"PoCL compiles lane vectors to the ISA's registers: native float width "
+                      f"{dctx.device.native_vector_width_float}")
+    return None
+
+
+def fallback_tuning(dctx, note: str = "not measured: CLPT_TUNE=query") -> Tuning:
+    w = register_width(dctx.device)
+    return Tuning(w, LOCAL_SIZE_CPU, PASS_SECONDS, "query",
+                  f"native float width {dctx.device.native_vector_width_float} ({note})")
+
+
+def tune_key(dctx, source: str, options) -> str:
+    h = hashlib.sha256()
+    kept = [o for o in options if not o.startswith(("-DCLPT_LANES=", "-DCLPT_NUM_"))]
+    for part in (dctx.identity(), source, "\0".join(kept)):
+        h.update(part.encode())
+        h.update(b"\1")
+    return h.hexdigest()[:32]
+
+
+def _path(key: str):
+    return cache_dir() / "tune" / f"{key}.json"
+
+
+def load(key: str) -> Tuning | None:
+    try:
+        d = json.loads(_path(key).read_text())
+        return Tuning(int(d["lanes"]), int(d["local_size"]), float(d["pass_seconds"]), "cached", d["why"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def save(key: str, t: Tuning, dctx, measured: dict):
+    p = _path(key)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp = p.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps({**asdict(t), "device": dctx.label, "identity": dctx.identity(),
+                                   "measured": measured}, indent=1))
+        os.replace(tmp, p)
+    except OSError:
+        pass  # an unwritable cache only costs the next run a measurement
+
+
+def cached_choices(dctx) -> list[dict]:
+    """The measured choices cached for this device (for `clpt devices -v`)."""
+    d = cache_dir() / "tune"
+    out = []
+    for p in sorted(d.glob("*.json")) if d.is_dir() else []:
+        try:
+            e = json.loads(p.read_text())
+        except (OSError, ValueError):
+            continue
+        if e.get("identity") == dctx.identity():
+            out.append(e)
+    return out
+
+
+def measure_candidates(states, trial) -> dict:
+    """Samples/s of each state (a _DeviceState of one lane width) rendering
+    the scene's default way (photons included) on a small image, in
+    interleaved rounds: {"msamples_per_s": {lanes: median}, "launch_seconds":
+    the fixed cost of an empty launch}. trial(st, spp, seed) renders and
+    returns (samples/s of the timed passes, seconds per spp)."""
+    per_spp = {}
+    for st in states:
+        trial(st, 1, 0)  # the lazy device compile
+        per_spp[st.features.lanes] = trial(st, 2, 1)[1]
+    rates = {st.features.lanes: [] for st in states}
+    for r in range(TRIAL_ROUNDS):
+        for st in states:
+            n = max(1, int(TRIAL_PASS_SECONDS / max(per_spp[st.features.lanes], 1e-6)))
+            rates[st.features.lanes].append(trial(st, n, 2 + r)[0] / 1e6)
+    overhead = min(st.run(0, 0)[0] for st in states for _ in range(3))
+    return {"msamples_per_s": {k: statistics.median(v) for k, v in rates.items()}, "launch_seconds": overhead}
+
+
+def choose(dctx, source: str, options, make_state, trial, *, lanes=None, local_size=None, use_cache=True):
+    """(Tuning, the built _DeviceState of the chosen width if choosing built
+    one, else None). make_state(lanes) builds a _DeviceState of that width;
+    trial as for measure_candidates."""
+    policy = os.environ.get("CLPT_TUNE", "auto").lower()
+    if policy not in ("auto", "query", "measure"):
+        raise ValueError(f"CLPT_TUNE must be auto, query or measure (got {policy!r})")
+    base = None if policy == "measure" and dctx.is_cpu and lanes is None else query_tuning(dctx)
+    state = None
+    if base is None and (lanes is not None or policy == "query"):
+        base = fallback_tuning(dctx, "not measured: CLPT_TUNE=query" if lanes is None else "lanes given")
+    if base is None:
+        key = tune_key(dctx, source, options)
+        base = load(key) if use_cache else None
+    if base is None:
+        t0 = time.perf_counter()
+        # The candidates build in parallel (the OpenCL compilers release the GIL).
+        with ThreadPoolExecutor() as pool:
+            states = list(pool.map(make_state, sorted({1, register_width(dctx.device)})))
+        m = measure_candidates(states, trial)
+        rates = m["msamples_per_s"]
+        best = max(rates, key=rates.get)
+        # A pass long enough that the fixed cost of a launch stays under 1%.
+        pass_s = min(0.5, max(PASS_SECONDS, 100 * m["launch_seconds"]))
+        why = (f"measured {', '.join(f'{k} lanes {v:.2f}' for k, v in sorted(rates.items()))} Msamples/s "
+               f"on {TRIAL_SIZE}x{TRIAL_SIZE}, launch cost {m['launch_seconds'] * 1e3:.1f} ms, "
+               f"in {time.perf_counter() - t0:.1f} s")
+        base = Tuning(best, LOCAL_SIZE_CPU, pass_s, "measured", why)
+        if use_cache:
+            save(key, base, dctx, m)
+        state = next(st for st in states if st.features.lanes == best)
+    if lanes is None and local_size is None:
+        return base, state
+    if lanes is not None and lanes != base.lanes:
+        state = None
+    given = ", ".join(f"{k} {v}" for k, v in (("lanes", lanes), ("local size", local_size)) if v is not None)
+    return Tuning(lanes or base.lanes, local_size or base.local_size, base.pass_seconds, "explicit",
+                  f"{given} given; otherwise {base.how}: {base.why}"), state
