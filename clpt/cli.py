@@ -415,6 +415,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference", default=None, help="reference EXR: read if it exists, else rendered and saved")
     p.add_argument("--ref-spp", type=int, default=16384)
     p.add_argument("--max-depth", type=int, default=64, help="path depth of the equal-time renders (default 64)")
+    p.add_argument("--cpu-time", action="store_true",
+                   help="equal CPU time of this process instead of equal wall time (for a machine shared with other work)")
     p.add_argument("--device", "-d", default=None)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=lambda a: __import__("clpt.bench", fromlist=["x"]).run_bench_photons(a))

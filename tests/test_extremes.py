@@ -639,15 +639,17 @@ def test_zero_photons_is_photon_mapping_off(caustics, caustics_pt):
 
 
 # A map whose gathers find nothing: the path-traced part of the image alone.
-NOTHING_FOUND = clpt.PhotonSettings(count=1, radius=1e-7)
+# The owned photon map (mode "online"): the path-traced part of the image is
+# the same whatever the map, so a gather can only add light.
+NOTHING_FOUND = clpt.PhotonSettings(count=1, radius=1e-7, mode="online")
 
 
 @pytest.mark.parametrize("settings", [
-    clpt.PhotonSettings(count=1),
-    clpt.PhotonSettings(radius=1e-7),
-    clpt.PhotonSettings(radius=1e-18),
-    clpt.PhotonSettings(radius=10.0),
-    clpt.PhotonSettings(radius=1e30, count=100_000),
+    clpt.PhotonSettings(count=1, mode="online"),
+    clpt.PhotonSettings(radius=1e-7, mode="online"),
+    clpt.PhotonSettings(radius=1e-18, mode="online"),
+    clpt.PhotonSettings(radius=10.0, mode="online"),
+    clpt.PhotonSettings(radius=1e30, count=100_000, mode="online"),
 ], ids=["one-photon", "radius-1e-7", "radius-1e-18", "radius-10", "radius-1e30"])
 def test_photon_extremes_only_add_caustics(caustics, settings):
     """With one seed the path-traced part of the image is the same whatever
@@ -661,12 +663,12 @@ def test_photon_extremes_only_add_caustics(caustics, settings):
     base = _photon_render(caustics, NOTHING_FOUND, seed)
     res = _photon_render(caustics, settings, seed)
     assert_finite(res)
-    assert res.stats.photon_maps[0]["stored"] <= settings.count
+    assert res.stats.photon_maps[0]["stored"] <= res.photons.count
     assert (res.image >= base.image * (1 - 1e-6)).all(), "a gather took light away"
     if settings.radius < 1e-3 or settings.radius > 1e20:
         assert np.allclose(res.image, base.image, rtol=1e-6, atol=0), "no photon may be found"
-    default = _photon_render(caustics, clpt.PhotonSettings(), seed)
-    if settings.count > 1:  # one photon carries the whole caustic's power into one bright spot
+    default = _photon_render(caustics, clpt.PhotonSettings(mode="online"), seed)
+    if res.photons.count > 1:  # one photon carries the whole caustic's power into one bright spot
         m, m_default = lum(res.image).mean(), lum(default.image).mean()
         sigma = math.hypot(image_sigma(res), image_sigma(default))
         assert m <= m_default + K * sigma, f"brighter than the default photon map: {m:.5g} > {m_default:.5g} + {K} sigma"
@@ -677,7 +679,7 @@ def test_vanishing_photon_radius(caustics_scene, caustics, device_spec):
     float renderer rejects it with a SceneError saying so; in double it is
     representable, finds no photon and gives exactly the image of a map
     whose gathers find nothing, never 0 / 0."""
-    tiny = clpt.PhotonSettings(radius=1e-30, count=100_000)
+    tiny = clpt.PhotonSettings(radius=1e-30, count=100_000, mode="online")
     with pytest.raises(clpt.SceneError, match="too small"):
         caustics.render(4, width=W, height=W, seed=2, photons=tiny)
     r = clpt.Renderer(caustics_scene, device=device_spec, precision="double")
