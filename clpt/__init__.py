@@ -6,7 +6,7 @@
 """
 
 from .adaptive import AdaptiveSettings
-from .denoise import FilterSettings
+from .denoise import FilterSettings, OidnSettings
 from .device import DeviceError, list_devices
 from .features import Features, scene_features
 from .image import load_image, save_image
@@ -20,7 +20,7 @@ from .scene import (Box, Camera, Material, Plane, Quad, RenderSettings, Scene, S
 __version__ = "0.1.0"
 
 __all__ = [
-    "AdaptiveSettings", "FilterSettings", "PhotonSettings",
+    "AdaptiveSettings", "FilterSettings", "OidnSettings", "PhotonSettings",
     "Box", "Camera", "DeviceError", "Features", "KernelBuildError", "Material", "Plane", "Quad", "RenderResult",
     "RenderSettings", "RenderStats", "Renderer", "Scene", "SceneError", "Sphere", "Triangle", "clear_cache",
     "list_devices", "load_image", "load_scene", "parse_scene", "render", "save_image", "scene_features",

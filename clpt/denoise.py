@@ -1,10 +1,21 @@
-"""The edge-aware cone filter (kernels/filter.cl), run from the host.
+"""Denoisers: the edge-aware cone filter (kernels/filter.cl), and Intel Open
+Image Denoise (OIDN) when pyoidn is installed (pip install 'clpt[oidn]').
 
-The image is divided by the first-hit albedo (demodulated), filtered in
-`iterations` a-trous passes of a cone kernel of `width` pixels (steps 1, 2,
-4, ...), with weights cut where normals, depths, albedos or values (beyond
-their noise) differ, and multiplied by the albedo again. A numpy twin of the
-kernel (`reference_cone_filter`) is there for the tests.
+Both are fed from the renderer's feature buffers (render.py, CLPT_AUX):
+per pixel the normal, albedo and depth of the first surface seen (mirrors
+and glass as surfaces of albedo kr + kt; or, with aux_specular="through",
+the first non-delta vertex seen through them, their throughput folded into
+its albedo), a flag for pixels that see an emitter (whose albedo is then the
+emitter's own colour), the emission seen directly, and the photon map's
+caustic part. Both leave the directly seen emission out and add it back.
+
+The cone filter also leaves out the caustics (already a density estimate;
+filtering them again spreads them). The rest is divided by the albedo
+(demodulated), its fireflies are clamped (filter.cl: a pixel brighter than
+all 8 neighbours by more than `firefly_k` standard errors), and `iterations`
+a-trous passes of a cone kernel of `width` pixels (steps 1, 2, 4, ...)
+smooth it where normals, depths, albedos, emitter flags and values (beyond
+the pixel's noise) agree. A numpy twin (`reference_cone_filter`) is there for the tests.
 """
 
 from __future__ import annotations
@@ -18,26 +29,76 @@ from .constants import LUMA, LUMA_WEIGHTS
 from .program import note_time
 
 ALBEDO_FLOOR = 1e-3
+MAX_WIDTH = 16
+LOCAL_SIZE = 64
+OIDN_AUX = ("clean", "noisy", "none")
 
 
 @dataclass(frozen=True)
 class FilterSettings:
-    width: int = 2               # cone radius (pixels) of each pass; 0: no filtering
-    iterations: int = 3          # a-trous passes, steps 1, 2, 4, ...
-    sigma_normal: float = 32.0   # exponent of the normals' cosine
+    width: int = 1               # cone radius (pixels) of each pass; 0: no filtering; at most MAX_WIDTH
+    iterations: int = 3          # a-trous passes, steps 1, 2, 4, ... (passes past the image's size do nothing)
+    sigma_normal: int = 32       # exponent of the normals' cosine, 1 to 127
     sigma_depth: float = 0.1     # relative depth change per pixel of distance that costs a factor e
     sigma_albedo: float = 0.1
-    sigma_luminance: float = 4.0  # value differences, in standard deviations of the noise
+    sigma_luminance: float = 5.0  # value differences, in standard errors of the pixel's noise
+    guide_floor: float = 0.3     # least guide weight of a tap (edge pixels, whose guides are mixtures)
+    firefly_k: float = 3.0       # clamp pixels above all 8 neighbours by this many standard errors; 0: off
+    keep_caustics: bool = True   # add the photon map's caustics back unfiltered
     interval: int = 0            # filter the preview every N passes (0: only the final image)
 
     def check(self):
         from .scene import SceneError
-        if self.width < 0 or self.iterations < 1:
-            raise SceneError("filter: width must be >= 0 and iterations >= 1")
-        for k in ("sigma_normal", "sigma_depth", "sigma_albedo", "sigma_luminance"):
+        if isinstance(self.width, bool) or not isinstance(self.width, (int, np.integer)) \
+                or not 0 <= self.width <= MAX_WIDTH:
+            raise SceneError(f"filter: width must be an integer from 0 to {MAX_WIDTH} (got {self.width!r})")
+        if isinstance(self.iterations, bool) or not isinstance(self.iterations, (int, np.integer)) \
+                or self.iterations < 1:
+            raise SceneError(f"filter: iterations must be an integer >= 1 (got {self.iterations!r})")
+        if isinstance(self.sigma_normal, bool) or not isinstance(self.sigma_normal, (int, np.integer)) \
+                or not 1 <= self.sigma_normal <= 127:
+            raise SceneError(f"filter: sigma_normal must be an integer from 1 to 127 (got {self.sigma_normal!r})")
+        for k in ("sigma_depth", "sigma_albedo", "sigma_luminance"):
             if not getattr(self, k) > 0:
                 raise SceneError(f"filter: {k} must be > 0")
+        if not self.firefly_k >= 0:
+            raise SceneError("filter: firefly_k must be >= 0")
         return self
+
+    def passes(self, width: int, height: int) -> int:
+        """The passes that do something: steps up to the image's size."""
+        size = max(width, height, 1)
+        return min(int(self.iterations), max(1, int(np.ceil(np.log2(size))) + 1))
+
+
+@dataclass(frozen=True)
+class OidnSettings:
+    """Intel Open Image Denoise, fed colour and (aux) the feature buffers:
+    "clean" prefilters albedo and normal with OIDN first and tells it they
+    are clean; "noisy" passes them as they are; "none" gives colour only."""
+
+    aux: str = "clean"
+    quality: str = "high"        # "high", "balanced" or "fast"
+    interval: int = 0
+
+    def check(self):
+        from .scene import SceneError
+        if self.aux not in OIDN_AUX:
+            raise SceneError(f"oidn: aux must be one of {', '.join(OIDN_AUX)} (got {self.aux!r})")
+        if self.quality not in ("high", "balanced", "fast"):
+            raise SceneError(f"oidn: quality must be high, balanced or fast (got {self.quality!r})")
+        oidn_module()
+        return self
+
+
+def oidn_module():
+    """pyoidn, or a one-line error saying how to get it."""
+    try:
+        import pyoidn
+    except ImportError:
+        from .scene import SceneError
+        raise SceneError("the OIDN denoiser needs pyoidn: pip install 'clpt[oidn]'") from None
+    return pyoidn
 
 
 def demodulate(color, var, albedo):
@@ -47,53 +108,111 @@ def demodulate(color, var, albedo):
     return color / alb, var / lum_alb ** 2, alb
 
 
+class _Planar:
+    """Planar images as filter.cl lays them out: rows of `pitch` (the width
+    rounded up to 8) floats, each plane with `margin` zeros before and after."""
+
+    def __init__(self, width: int, height: int, radius: int, max_step: int):
+        self.width, self.height = width, height
+        self.pitch = -(-width // 8) * 8
+        self.margin = radius * max_step + 16
+        self.plane = self.pitch * height + 2 * self.margin
+
+    def pack(self, planes) -> np.ndarray:
+        out = np.zeros((len(planes), self.plane), np.float32)
+        body = out[:, self.margin:self.margin + self.pitch * self.height].reshape(len(planes), self.height,
+                                                                                   self.pitch)
+        for k, p in enumerate(planes):
+            body[k, :, :self.width] = p
+        return out
+
+    def unpack(self, flat: np.ndarray, planes: int) -> np.ndarray:
+        body = flat.reshape(planes, self.plane)[:, self.margin:self.margin + self.pitch * self.height]
+        return np.moveaxis(body.reshape(planes, self.height, self.pitch)[:, :, :self.width], 0, -1)
+
+
 class ConeFilter:
-    """The filter's kernel and buffers on one device."""
+    """The filter's kernels on one device."""
 
     def __init__(self, dctx, program):
         self.dctx = dctx
-        self.kernel = cl.Kernel(program, "cone_filter")
-        self.kernel_times = {}  # "cone_filter" -> device seconds per launch
+        self.firefly = cl.Kernel(program, "filter_firefly")
+        self.kernel = cl.Kernel(program, "filter_cone")
+        self.kernel_times = {}  # kernel name -> device seconds per launch
 
-    def __call__(self, color, var, normal, albedo, depth, settings: FilterSettings):
-        """Filtered colour (H x W x 3 float32) from the guides (H x W arrays)."""
+    def __call__(self, color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
+        """Filtered colour (H x W x 3 float32) from the guides (H x W arrays);
+        var is each pixel mean's luminance variance, emitter the fraction of
+        its samples that see a light."""
         h, w = color.shape[:2]
         if settings.width == 0:
             return color.astype(np.float32).copy()
         irr, v, alb = demodulate(color.astype(np.float64), var.astype(np.float64), albedo.astype(np.float64))
         ctx, q = self.dctx.context, self.dctx.queue
         mf = cl.mem_flags
-        n = h * w
-
-        def buf4(a3, w4=None):
-            x = np.zeros((n, 4), np.float32)
-            x[:, :3] = a3.reshape(n, 3)
-            if w4 is not None:
-                x[:, 3] = w4.reshape(n)
-            return cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=x)
-
-        c = [buf4(irr), cl.Buffer(ctx, mf.READ_WRITE, n * 16)]
-        vb = [cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=v.astype(np.float32).reshape(n)),
-              cl.Buffer(ctx, mf.READ_WRITE, n * 4)]
-        nb = buf4(normal)
-        ab = buf4(albedo, depth)
+        passes = settings.passes(w, h)
+        radius = min(int(settings.width), max(w, h))
+        lay = _Planar(w, h, radius, 1 << (passes - 1))
+        flag = np.zeros((h, w)) if emitter is None else (emitter > 0.5)
+        c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v])
+        g0 = lay.pack([normal[..., 0], normal[..., 1], normal[..., 2], flag,
+                       albedo[..., 0], albedo[..., 1], albedo[..., 2], depth])
+        c = [cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0),
+             cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0)]
+        gb = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g0)
+        dims = (np.uint32(w), np.uint32(h), np.uint32(lay.pitch), np.uint32(lay.plane), np.uint32(lay.margin))
         src = 0
         events = []
-        for it in range(settings.iterations):
-            events.append(self.kernel(q, (n,), None, c[src], vb[src], nb, ab, np.uint32(w), np.uint32(h),
-                        np.int32(settings.width), np.int32(1 << it), np.float32(settings.sigma_normal),
-                        np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
-                        np.float32(settings.sigma_luminance), c[1 - src], vb[1 - src]))
+        if settings.firefly_k > 0:
+            gsize = -(-(w * h) // LOCAL_SIZE) * LOCAL_SIZE
+            events.append(("filter_firefly", self.firefly(q, (gsize,), (LOCAL_SIZE,), c[0], *dims,
+                                                          np.float32(settings.firefly_k), c[1])))
+            src = 1
+        items = h * lay.pitch // 8
+        gsize = -(-items // LOCAL_SIZE) * LOCAL_SIZE
+        for it in range(passes):
+            events.append(("filter_cone", self.kernel(
+                q, (gsize,), (LOCAL_SIZE,), c[src], gb, *dims, np.int32(radius), np.int32(1 << it),
+                np.int32(settings.sigma_normal), np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
+                np.float32(settings.sigma_luminance), np.float32(settings.guide_floor), c[1 - src])))
             src = 1 - src
-        out = np.empty((n, 4), np.float32)
+        out = np.empty_like(c0)
         cl.enqueue_copy(q, out, c[src])
         q.finish()
-        for ev in events:
-            note_time(self.kernel_times, "cone_filter", ev)
-        return (out[:, :3].reshape(h, w, 3) * alb).astype(np.float32)
+        for name, ev in events:
+            note_time(self.kernel_times, name, ev)
+        return (lay.unpack(out, 4)[..., :3] * alb).astype(np.float32)
 
 
-def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSettings):
+def _lum(a):
+    wr, wg, wb = LUMA_WEIGHTS
+    return wr * a[..., 0] + wg * a[..., 1] + wb * a[..., 2]
+
+
+def reference_firefly(c, v, k):
+    """numpy twin of filter_firefly: (colour, variance) after the clamp."""
+    h, w = v.shape
+    lp = _lum(c)
+    pad_l = np.pad(lp, 1, constant_values=-np.inf)
+    pad_v = np.pad(v, 1, constant_values=np.nan)
+    lmax = np.full((h, w), -np.inf, np.float32)
+    vs = []
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            sl = (slice(1 + dy, 1 + dy + h), slice(1 + dx, 1 + dx + w))
+            vs.append(pad_v[sl])
+            if dx or dy:
+                lmax = np.maximum(lmax, pad_l[sl])
+    vs = np.sort(np.stack(vs), axis=0)  # NaN (outside) last
+    count = np.isfinite(vs).sum(0)
+    vmed = np.take_along_axis(vs, (count // 2)[None], 0)[0]
+    bound = lmax + k * np.sqrt(vmed)
+    clip = (count > 1) & (lp > bound)
+    s = np.where(clip, np.maximum(bound, 0) / np.where(clip, lp, 1), 1.0)
+    return (c * s[..., None]).astype(np.float32), np.where(clip, vmed, v).astype(np.float32)
+
+
+def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
     """numpy twin of ConeFilter (slow; for tests on small images)."""
     h, w = color.shape[:2]
     if settings.width == 0:
@@ -101,16 +220,24 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
     irr, v, alb = demodulate(color.astype(np.float64), var.astype(np.float64), albedo.astype(np.float64))
     c = irr.astype(np.float32)
     v = v.astype(np.float32)
+    if settings.firefly_k > 0:
+        c, v = reference_firefly(c, v, settings.firefly_k)
     has = (normal * normal).sum(-1) > 0
-    wr, wg, wb = LUMA_WEIGHTS
-    lum = lambda a: wr * a[..., 0] + wg * a[..., 1] + wb * a[..., 2]  # noqa: E731  (float32, as the kernel)
-    for it in range(settings.iterations):
+    flag = np.zeros((h, w), bool) if emitter is None else emitter > 0.5
+    ys, xs = np.mgrid[0:h, 0:w]
+    r_ = min(settings.width, max(w, h))
+    for it in range(settings.passes(w, h)):
         step = 1 << it
+        lp = _lum(c)
+        vp = np.pad(v, 1)
+        wp = np.pad(np.ones((h, w), np.float32), 1)
+        kern = np.array([1, 2, 1], np.float32)
+        vs = sum(kern[a] * kern[b] * vp[a:a + h, b:b + w] for a in range(3) for b in range(3))
+        vw = sum(kern[a] * kern[b] * wp[a:a + h, b:b + w] for a in range(3) for b in range(3))
+        sl = settings.sigma_luminance * np.sqrt(vs / vw) + 1e-6
         acc = np.zeros_like(c)
         wsum = np.ones((h, w), np.float32)
         w2v = v.copy()
-        lp = lum(c)
-        r_ = settings.width
         for dy in range(-r_, r_ + 1):
             for dx in range(-r_, r_ + 1):
                 if dx == 0 and dy == 0:
@@ -119,20 +246,17 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
                 ws = 1 - r / (r_ + 1)
                 if ws <= 0:
                     continue
-                ys, xs = np.mgrid[0:h, 0:w]
                 qy, qx = ys + dy * step, xs + dx * step
                 ok = (qy >= 0) & (qy < h) & (qx >= 0) & (qx < w)
                 qy, qx = np.clip(qy, 0, h - 1), np.clip(qx, 0, w - 1)
-                wt = np.full((h, w), ws, np.float32)
-                hq = has[qy, qx]
-                ok &= has == hq
+                ok &= (has == has[qy, qx]) & (flag == flag[qy, qx])
                 cosn = np.maximum((normal * normal[qy, qx]).sum(-1), 0.0)
-                wt = np.where(has, wt * cosn ** int(settings.sigma_normal), wt)
+                g = np.where(has, cosn ** int(settings.sigma_normal), 1.0)
                 da = albedo - albedo[qy, qx]
-                wt = wt * np.exp(-(da * da).sum(-1) / settings.sigma_albedo ** 2)
-                wt = wt * np.exp(-np.abs(depth - depth[qy, qx]) /
-                                 (settings.sigma_depth * np.maximum(depth, 1e-6) * r * step + 1e-12))
-                wt = wt * np.exp(-np.abs(lp - lp[qy, qx]) / (settings.sigma_luminance * np.sqrt(v + v[qy, qx]) + 1e-6))
+                g = g * np.exp(-((da * da).sum(-1) / settings.sigma_albedo ** 2
+                                 + np.abs(depth - depth[qy, qx])
+                                 / (settings.sigma_depth * np.maximum(depth, 1e-6) * step) / r))
+                wt = ws * (g + settings.guide_floor) * np.exp(-np.abs(lp - lp[qy, qx]) / sl)
                 wt = np.where(ok & (wt > 0), wt, 0.0).astype(np.float32)
                 acc += wt[..., None] * (c[qy, qx] - c)
                 wsum += wt
@@ -140,3 +264,68 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
         c = c + acc / wsum[..., None]
         v = w2v / (wsum * wsum)
     return (c * alb).astype(np.float32)
+
+
+def apply_denoiser(cone, image, lum_var, count, aux, settings):
+    """The denoised image (H x W x 3) of a render: image, its per-sample
+    luminance variance and sample counts (H x W), the feature images (aux,
+    with "caustic" and "caustic_var"), settings a FilterSettings (cone, on
+    `cone`, a ConeFilter) or an OidnSettings."""
+    # Emission seen directly is not noise to smooth: both denoisers leave it
+    # out (next to a lamp, OIDN would otherwise spread it into a halo).
+    keep = aux["emission"]
+    if isinstance(settings, OidnSettings):
+        return keep + oidn_denoise(image - keep, aux["albedo"], aux["normal"], settings)
+    # Nor are the photon map's caustics, for the cone filter: a density
+    # estimate already, filtering them again would spread them.
+    rest_var = lum_var
+    if settings.keep_caustics:
+        keep = keep + aux["caustic"]
+        rest_var = np.maximum(lum_var - aux["caustic_var"], 0.0)
+    mean_var = rest_var / np.maximum(count, 1.0)
+    out = keep + cone(image - keep, mean_var, aux["normal"], aux["albedo"], aux["depth"], settings,
+                      emitter=aux["emitter"])
+    return np.maximum(out, 0.0).astype(np.float32)
+
+
+def oidn_denoise(color, albedo, normal, settings: OidnSettings):
+    """OIDN's RT filter on a linear HDR image (H x W x 3) with our feature
+    buffers; "clean" first denoises albedo and normal on their own."""
+    pyoidn = oidn_module()
+    col = np.ascontiguousarray(np.maximum(np.nan_to_num(color), 0), np.float32)
+    if settings.aux == "none":
+        out = pyoidn.denoise(col, hdr=True, quality=settings.quality)
+    else:
+        alb = np.ascontiguousarray(np.clip(albedo, 0, 1), np.float32)
+        nrm = np.ascontiguousarray(np.clip(normal, -1, 1), np.float32)
+        clean = settings.aux == "clean"
+        if clean:
+            # "balanced" prefiltering: a third of "high"'s time, the same error (bench-denoise)
+            pre = "fast" if settings.quality == "fast" else "balanced"
+            alb, nrm = _oidn_prefilter(pyoidn, alb, "albedo", pre), _oidn_prefilter(pyoidn, nrm, "normal", pre)
+        out = pyoidn.denoise(col, alb, nrm, hdr=True, clean_aux=clean, quality=settings.quality)
+    return np.maximum(np.asarray(out, np.float32), 0)
+
+
+_OIDN_DEVICE = []
+
+
+def _oidn_prefilter(pyoidn, img, slot, quality):
+    """One auxiliary image denoised by OIDN (the RT filter with only that image set)."""
+    if not _OIDN_DEVICE:
+        dev = pyoidn.Device()
+        dev.commit()
+        _OIDN_DEVICE.append(dev)
+    dev = _OIDN_DEVICE[0]
+    out = np.empty_like(img)
+    flt = pyoidn.Filter(dev, pyoidn.OIDN_FILTER_TYPE_RT)
+    try:
+        flt.set_image(slot, img, pyoidn.OIDN_FORMAT_FLOAT3)
+        flt.set_image(pyoidn.OIDN_IMAGE_OUTPUT, out, pyoidn.OIDN_FORMAT_FLOAT3)
+        flt.set_quality({"high": pyoidn.OIDN_QUALITY_HIGH, "balanced": pyoidn.OIDN_QUALITY_BALANCED,
+                         "fast": pyoidn.OIDN_QUALITY_FAST}[quality])
+        flt.commit()
+        flt.execute()
+    finally:
+        flt.release()
+    return out

@@ -31,7 +31,7 @@ from .features import Features, scene_features
 from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
 from .adaptive import AdaptiveSettings, allocate_error, allocate_paper
 from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, LUMA, OFFSET_ABS
-from .denoise import ConeFilter, FilterSettings
+from .denoise import ConeFilter, FilterSettings, OidnSettings, apply_denoiser
 from .photons import PM_MERGE, PM_OFF, PM_OFFLINE, PM_OWNED, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
 from .scene import Scene, SceneError, load_scene
 
@@ -74,8 +74,9 @@ class RenderResult:
     stats: RenderStats
     photons: PhotonSettings | None = None
     caustic_image: np.ndarray | None = None  # offline photon mapping: the caustic buffer (part of image)
-    aux: dict | None = None                  # feature images: normal, albedo, depth (Renderer(aux=True))
-    filtered: np.ndarray | None = None       # the edge-aware cone filter's output (render(filter=...))
+    aux: dict | None = None                  # feature images: normal, albedo, depth, emission, emitter,
+                                             # caustic (Renderer(aux=True))
+    filtered: np.ndarray | None = None       # the denoiser's output (render(filter=...)): cone filter or OIDN
     adaptive: AdaptiveSettings | None = None
     interrupted: bool = False
 
@@ -210,7 +211,7 @@ class _DeviceState:
             w = width or n_pix
             groups = -(-w // tw) * -(-(n_pix // w) // (lanes // tw))
         self.global_size = -(-groups // self.local) * self.local
-        need = n_pix * 40 * (2 if caustic_buffer else 1) + self.global_size * 16
+        need = n_pix * 40 * (2 if caustic_buffer else 1) + self.global_size * 16 + n_pix * 64 * self.features.aux
         dev = self.dctx.device
         if n_pix * 32 > dev.max_mem_alloc_size or need > dev.global_mem_size:
             raise DeviceError(f"{n_pix} pixels need {need / 2**20:.0f} MiB of accumulation buffers, more than "
@@ -225,7 +226,7 @@ class _DeviceState:
             self.jobs_buf = cl.Buffer(ctx, rw, 16)
             self.aux = []
             if self.features.aux:
-                self.aux = [cl.Buffer(ctx, rw, n_pix * 16) for _ in range(3)]
+                self.aux = [cl.Buffer(ctx, rw, n_pix * 16) for _ in range(4)]
                 for b in self.aux:
                     cl.enqueue_fill_buffer(q, b, np.float32(0), 0, n_pix * 16)
             q.finish()
@@ -279,7 +280,7 @@ class _DeviceState:
         args = [*self.head, np.uint32(s0), np.uint32(n), *self.depths, np.uint32(seed), sums.pix_sum, sums.pix_sq,
                 self.stats_buf, self.list_buf, self.jobs_buf, np.uint32(n_list)]
         if self.features.aux:
-            args += self.aux
+            args += [*self.aux, np.uint32(self.aux_specular)]
         if self.features.photons:
             mode = PM_PREPASS if prepass else self.pm_mode
             args += self.pmap.kernel_args(self.pm_settings, mode)
@@ -309,9 +310,10 @@ class _DeviceState:
         return out
 
     def read_aux(self):
-        """Per-pixel feature sums: (normal xyz, count), (albedo rgb, distance), (emission rgb, 0)."""
+        """Per-pixel feature sums: (normal xyz, count), (albedo rgb, distance), (emission rgb, emitter
+        count), (caustic rgb, its squared scaled luminance)."""
         q = self.dctx.queue
-        out = [np.empty((self.n_pix, 4), np.float32) for _ in range(3)]
+        out = [np.empty((self.n_pix, 4), np.float32) for _ in range(4)]
         for h, b in zip(out, self.aux):
             cl.enqueue_copy(q, h, b)
         q.finish()
@@ -425,17 +427,23 @@ class Renderer:
     def render(self, spp: int | None = None, *, seed: int | None = None, max_depth: int | None = None,
                rr_depth: int | None = None, width: int | None = None, height: int | None = None,
                photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
-               filter: FilterSettings | None = None, progress=None, preview=None,
-               time_limit: float | None = None, pass_seconds: float | None = None) -> RenderResult:
+               filter: FilterSettings | OidnSettings | None = None, aux_specular: str = "surface",
+               progress=None, preview=None, time_limit: float | None = None,
+               pass_seconds: float | None = None) -> RenderResult:
         """Render; keywords override the scene's settings.
 
         spp is the average number of samples per pixel (with adaptive
         sampling, the budget shared among the pixels). progress(done_spp,
         total_spp, elapsed_seconds, samples_per_second) is called after each
         pass; preview(image) every filter.interval passes with the filtered
-        image so far. Ctrl-C (KeyboardInterrupt) ends the render early with
-        what is done. pass_seconds: how long a pass should take (default: the
-        device's tuned choice)."""
+        image so far. filter: the cone filter (FilterSettings) or OIDN
+        (OidnSettings) on the final image. aux_specular: what the feature
+        buffers show of mirrors and glass, "surface" (the delta surface
+        itself, the default: both denoisers measure better with it) or
+        "through" (the first non-delta vertex seen through them, the
+        throughput folded into its albedo). Ctrl-C (KeyboardInterrupt) ends
+        the render early with what is done. pass_seconds: how long a pass
+        should take (default: the device's tuned choice)."""
         if pass_seconds is None:
             pass_seconds = self.states[0].tuning.pass_seconds
         rs = self.scene.render
@@ -470,6 +478,8 @@ class Renderer:
         fset = filter.check() if filter is not None else None
         if fset is not None and not self.features.aux:
             raise SceneError("render: the filter needs the feature buffers: make the Renderer with aux=True")
+        if aux_specular not in ("through", "surface"):
+            raise SceneError(f"render: aux_specular must be 'through' or 'surface' (got {aux_specular!r})")
         frame = camera_frame(self.scene.camera, width, height)
         n_pix = width * height
         stats = RenderStats(build_seconds=self.build_seconds,
@@ -477,6 +487,7 @@ class Renderer:
         for st in self.states:
             st.allocate(n_pix, caustic_buffer=offline, width=width)
             st.set_frame(frame, width, height, max_depth, rr_depth, seed)
+            st.aux_specular = int(aux_specular == "surface")
             st.launches = {}
             st.kernel_times = {}
 
@@ -563,7 +574,7 @@ class Renderer:
                         if progress is not None:
                             progress(done, spp, elapsed(), done * n_pix / max(elapsed(), 1e-9))
                         if preview is not None and fset is not None and fset.interval and passes % fset.interval == 0:
-                            preview(self._finish(n_pix, width, height, offline, fset)[0])
+                            preview(self._finish(n_pix, width, height, offline, fset)[-1])
             except BaseException as e:  # noqa: BLE001 - handed to the main thread
                 with lock:
                     state["error"] = e
@@ -710,15 +721,16 @@ class Renderer:
 
     def _finish(self, n_pix, width, height, offline, fset):
         """The image so far, its variance and counts, the caustic buffer, the
-        feature images and the filtered image."""
+        feature images and the denoised image."""
         mean, var, count = _combine(self.states, "main", n_pix, self.packed.lum_scale)
-        caustic = None
+        caustic = caustic_var = None
         if offline:
             c_mean, c_var, c_count = _combine(self.states, "caustic", n_pix, self.packed.lum_scale)
             caustic = c_mean.astype(np.float32).reshape(height, width, 3)
             mean = mean + c_mean
             # As the variance of one sample: the caustic mean's variance scaled to count samples.
-            var = var + c_var * np.maximum(count, 1.0) / np.maximum(c_count, 1.0)
+            caustic_var = c_var * np.maximum(count, 1.0) / np.maximum(c_count, 1.0)
+            var = var + caustic_var
         image = mean.astype(np.float32).reshape(height, width, 3)
         bad = ~np.isfinite(image)
         if bad.any():  # the kernels drop non-finite samples; this is the last guard
@@ -726,26 +738,41 @@ class Renderer:
             image[bad] = 0.0
         aux = filtered = None
         if self.features.aux:
-            sums = [np.zeros((n_pix, 4)) for _ in range(3)]
-            for st in self.states:
-                for acc, part in zip(sums, st.read_aux()):
-                    acc += part
-            nsum, asum, esum = sums
-            k = np.maximum(nsum[:, 3:4], 1.0)
-            normal = nsum[:, :3]
-            normal = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
-            aux = {"normal": normal.reshape(height, width, 3).astype(np.float32),
-                   "albedo": (asum[:, :3] / k).reshape(height, width, 3).astype(np.float32),
-                   "depth": (asum[:, 3] / k[:, 0]).reshape(height, width).astype(np.float32),
-                   "emission": (esum[:, :3] / k).reshape(height, width, 3).astype(np.float32)}
+            aux, online_caustic, online_var = self._aux_images(n_pix, width, height, count)
+            if offline:
+                aux["caustic"], aux["caustic_var"] = caustic, caustic_var.reshape(height, width)
+            else:
+                aux["caustic"], aux["caustic_var"] = online_caustic, online_var.reshape(height, width)
             if fset is not None:
-                # Emission seen directly (lights, through mirrors and glass too) is
-                # not noise to smooth: filter what the surfaces reflect.
-                mean_var = (var / np.maximum(count, 1.0)).reshape(height, width)
-                reflected = image - aux["emission"]
-                filtered = aux["emission"] + self.states[0].filter(reflected, mean_var, aux["normal"],
-                                                                   aux["albedo"], aux["depth"], fset)
+                filtered = apply_denoiser(self.states[0].filter, image, var.reshape(height, width),
+                                          count.reshape(height, width), aux, fset)
         return image, var, count, caustic, aux, filtered
+
+    def _aux_images(self, n_pix, width, height, count):
+        """The feature images (per-sample means), the online photon part and
+        its per-sample luminance variance."""
+        sums = [np.zeros((n_pix, 4)) for _ in range(4)]
+        for st in self.states:
+            for acc, part in zip(sums, st.read_aux()):
+                acc += part
+        nsum, asum, esum, csum = sums
+        k = np.maximum(nsum[:, 3:4], 1.0)
+        normal = nsum[:, :3]
+        normal = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+
+        def img(a):
+            return a.reshape(height, width, -1).astype(np.float32)
+
+        aux = {"normal": img(normal), "albedo": img(asum[:, :3] / k),
+               "depth": (asum[:, 3] / k[:, 0]).reshape(height, width).astype(np.float32),
+               "emission": img(esum[:, :3] / k),
+               "emitter": (esum[:, 3] / k[:, 0]).reshape(height, width).astype(np.float32)}
+        n = np.maximum(count, 1.0)
+        c_mean = csum[:, :3] / n[:, None]
+        ls = self.packed.lum_scale
+        c_lum = (c_mean @ LUMA) * ls
+        c_var = np.maximum(csum[:, 3] / n - c_lum ** 2, 0.0) * (n / np.maximum(n - 1.0, 1.0)) / ls ** 2
+        return aux, img(c_mean), c_var
 
 
 def render(scene, *, spp: int | None = None, seed: int | None = None, max_depth: int | None = None,

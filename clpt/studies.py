@@ -28,7 +28,7 @@ import numpy as np
 from . import metrics
 from .constants import LUMA
 from .adaptive import AdaptiveSettings
-from .denoise import FilterSettings
+from .denoise import FilterSettings, OidnSettings
 from .image import load_image, save_image
 from .photons import PhotonSettings
 from .render import Renderer
@@ -140,8 +140,27 @@ def compare(scene, configs: list[Setting], *, ref, seconds: float, width: int, h
     return [_measure(renderers, c, ref, seconds=seconds, seed=seed) for c in configs]
 
 
+def _has_oidn() -> bool:
+    try:
+        import pyoidn  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def denoise_settings(prefix: str = "method") -> list[Setting]:
+    """OIDN alone and with adaptive sampling (when pyoidn is installed)."""
+    if not _has_oidn():
+        return []
+    aux = {"aux": True}
+    return [Setting(prefix, "oidn", renderer=aux, render={"filter": OidnSettings()}, biased=True),
+            Setting(prefix, "adaptive-error+oidn", renderer=aux,
+                    render={"adaptive": AdaptiveSettings(), "filter": OidnSettings()}, biased=True)]
+
+
 def standard_comparison() -> list[Setting]:
-    """Uniform sampling, the two adaptive schemes, the filter, and both together."""
+    """Uniform sampling, the two adaptive schemes, the cone filter and OIDN, and
+    each denoiser with adaptive sampling."""
     aux = {"aux": True}
     return [
         Setting("method", "uniform"),
@@ -150,7 +169,7 @@ def standard_comparison() -> list[Setting]:
         Setting("method", "filter", renderer=aux, render={"filter": FilterSettings()}, biased=True),
         Setting("method", "adaptive-error+filter", renderer=aux,
                 render={"adaptive": AdaptiveSettings(), "filter": FilterSettings()}, biased=True),
-    ]
+    ] + denoise_settings()
 
 
 def knob_settings(has_photons: bool, max_depth: int = 8) -> list[Setting]:
@@ -163,6 +182,9 @@ def knob_settings(has_photons: bool, max_depth: int = 8) -> list[Setting]:
     s += [Setting("adaptive", "paper", render={"adaptive": AdaptiveSettings(scheme="paper")}, biased=True)]
     s += [Setting("filter", w, renderer={"aux": True}, render={"filter": FilterSettings(width=w)}, biased=w > 0)
           for w in (0, 1, 2, 3)]
+    if _has_oidn():
+        s += [Setting("denoise", f"oidn-{m}", renderer={"aux": True}, render={"filter": OidnSettings(aux=m)},
+                      biased=True) for m in ("clean", "noisy", "none")]
     if has_photons:
         def ps(**kw):
             return {"photons": PhotonSettings(**{"pilot": False, **kw})}
@@ -187,6 +209,17 @@ def convergence_settings(has_photons: bool) -> list[Setting]:
          Setting("converge", "filter", renderer={"aux": True, "photons": False},
                  render={"filter": FilterSettings()}, biased=True),
          Setting("converge", "max_depth=2", renderer={"photons": False}, render={"max_depth": 2}, biased=True)]
+    # Denoising with and without adaptive sampling: which combination buys the
+    # most accuracy per second (denoise.png).
+    aux = {"aux": True}
+    c += [Setting("converge", "adaptive", render={"adaptive": AdaptiveSettings()}),
+          Setting("converge", "cone", renderer=aux, render={"filter": FilterSettings()}, biased=True),
+          Setting("converge", "adaptive+cone", renderer=aux,
+                  render={"adaptive": AdaptiveSettings(), "filter": FilterSettings()}, biased=True)]
+    if _has_oidn():
+        c += [Setting("converge", "oidn", renderer=aux, render={"filter": OidnSettings()}, biased=True),
+              Setting("converge", "adaptive+oidn", renderer=aux,
+                      render={"adaptive": AdaptiveSettings(), "filter": OidnSettings()}, biased=True)]
     if has_photons:
         c += [Setting("converge", "merging (progressive)", render={"photons": PhotonSettings(pilot=False)}),
               Setting("converge", "merging, fixed map", biased=True,
@@ -195,6 +228,10 @@ def convergence_settings(has_photons: bool) -> list[Setting]:
     return c
 
 
+# With the scene's default photon mapping (the "merging (progressive)" curve is
+# their baseline where the scene has caustic casters; "path tracing" has photons off).
+DENOISE_CURVES = ("path tracing", "merging (progressive)", "adaptive", "cone", "adaptive+cone", "oidn",
+                  "adaptive+oidn")
 PHOTON_KNOBS = ("photons", "radius", "cone_k", "max_photons", "photon_mode", "progressive", "merge_vertices",
                 "merge_probability")
 
@@ -237,6 +274,7 @@ def tradeoff(scene_name, *, out_dir, width=64, height=64, spp=64, ref_spp=16384,
         # MSE = bias^2 + variance: at the most samples, what the variance does not explain.
         floor = max(0.0, pts[-1]["mse_excess"] - pts[-1]["variance_of_mean"])
         curves[str(s.value)] = {"seconds": secs, "mse": mse, "spp": list(spp_steps), "biased": s.biased,
+                                "relmse": [p["relmse"] for p in pts],
                                 "slope_mse_vs_time": fit_slope(secs, mse),
                                 "slope_mse_vs_spp": fit_slope(spp_steps, mse),
                                 "bias_floor_mse": floor}
@@ -321,17 +359,52 @@ def _plots(out: Path, rows, curves, title, log):
     fig.tight_layout(rect=(0, 0, 1, 0.96))
     fig.savefig(out / "knobs.png", dpi=110)
     plt.close(fig)
+    # MSE less the reference's noise
+    _curve_plot(plt, out / "convergence.png", [(f"{name}: slope {c['slope_mse_vs_time']:.2f}"
+                                                + (" (biased)" if c["biased"] else ""), c["seconds"], c["mse"], None)
+                                               for name, c in curves.items()],
+                "render time (s)", "MSE", f"{title}: convergence")
+    den = {k: c for k, c in curves.items() if k in DENOISE_CURVES and "relmse" in c}
+    if den:
+        _curve_plot(plt, out / "denoise.png", [(k, c["seconds"], c["relmse"], c["spp"]) for k, c in den.items()],
+                    "render + denoise time (s)", "relMSE", f"{title}: denoising and adaptive sampling (labels: spp)")
+
+
+def _curve_plot(plt, path, series, xlabel, ylabel, title):
+    """Log-log curves (label, x, y, point labels or None) in one plot."""
     fig, ax = plt.subplots(figsize=(6, 4.5))
-    for i, (name, c) in enumerate(curves.items()):
-        ax.loglog(c["seconds"], c["mse"], "o-", color=f"C{i}",  # MSE less the reference's noise
-                  label=f"{name}: slope {c['slope_mse_vs_time']:.2f}" + (" (biased)" if c["biased"] else ""))
-    ax.set_xlabel("render time (s)")
-    ax.set_ylabel("MSE")
-    ax.set_title(f"{title}: convergence")
+    for i, (label, xs, ys, tags) in enumerate(series):
+        ax.loglog(xs, ys, "o-", color=f"C{i % 10}", label=label)
+        for x, y, t in zip(xs, ys, tags or ()):
+            ax.annotate(str(t), (x, y), fontsize=6, alpha=0.7)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "convergence.png", dpi=110)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _denoise_lines(name, summary) -> list[str]:
+    """The denoising curves: relMSE and time at each spp, and the combination
+    with the least relMSE x time."""
+    den = {k: c for k, c in summary["curves"].items() if k in DENOISE_CURVES and "relmse" in c}
+    if not den:
+        return []
+    spps = next(iter(den.values()))["spp"]
+    lines = [f"![denoising]({name}/denoise.png)", "",
+             "| relMSE (seconds) | " + " | ".join(f"{n} spp" for n in spps) + " |",
+             "|---|" + "---|" * len(spps)]
+    best = None
+    for k, c in den.items():
+        lines.append(f"| {k} | " + " | ".join(f"{e:.3g} ({t:.2f} s)" for e, t in zip(c["relmse"], c["seconds"]))
+                     + " |")
+        for e, t, n in zip(c["relmse"], c["seconds"], c["spp"]):
+            if best is None or e * t < best[0]:
+                best = (e * t, k, n)
+    lines += ["", f"Most accuracy per second (least relMSE x time): {best[1]} at {best[2]} spp.", ""]
+    return lines
 
 
 def format_table(rows, keys=("knob", "value", "seconds", "spp", "msamples_per_s", "rmse", "relmse", "ssim", "flip")):
@@ -359,6 +432,7 @@ def write_summary(out_dir, summaries: list[dict], compare_rows: dict | None = No
         name = s["scene"]
         lines += [f"## {name} ({s['resolution']}, reference {s['reference_spp']} spp)", "",
                   f"![knobs]({name}/knobs.png) ![convergence]({name}/convergence.png)", "",
+                  *_denoise_lines(name, s),
                   "| convergence of | MSE ~ spp^ | MSE ~ time^ | error floor (MSE) |", "|---|---|---|---|"]
         for cname, c in s["curves"].items():
             floor = f"{c['bias_floor_mse']:.3g}" if c["biased"] else "- (unbiased)"

@@ -1,74 +1,169 @@
-// filter.cl: cone_filter, one pass of the edge-aware cone filter.
+// filter.cl: the edge-aware cone filter, as two kernels.
 //
-// Filters the demodulated image (colour divided by the first-hit albedo, so
-// texture and colour edges are not blurred; the host multiplies the albedo
-// back) with a cone-shaped kernel w_s = 1 - r / (radius + 1) over the taps
-// (dx, dy) * step, |dx|, |dy| <= radius; step > 1 gives the a-trous passes
-// of a wide filter. Each tap's weight is cut where the guides disagree:
+// Both work on the demodulated image (colour divided by the first-hit albedo,
+// so texture and colour edges are not blurred; the host multiplies the albedo
+// back) without the parts the host keeps out of it: emission seen directly and
+// the photon map's caustics, which are added back sharp.
+//
+// filter_firefly: a pixel brighter than every one of its 8 neighbours by more
+// than k standard errors (the noise: the median over the 3x3 of the variances
+// of the pixel means) is scaled down to that bound, and its variance set to
+// that median. For noise of light tails the bound is almost never reached
+// (8 neighbours and k = 4: under 1e-4 of pixels for Gaussian noise); what it
+// cuts is the energy of fireflies, a bias the host measures.
+//
+// filter_cone: one a-trous pass of a cone kernel w_s = 1 - r / (radius + 1)
+// over the taps (dx, dy) * step, |dx|, |dy| <= radius, clipped to the image.
+// Each tap's weight is cut where the guides disagree:
 //   normals   max(0, n_p . n_q)^sigma_normal (both missing: 1; one: 0)
 //   depth     exp(-|z_p - z_q| / (sigma_depth * z_p * r * step))
 //   albedo    exp(-|a_p - a_q|^2 / sigma_albedo^2)
-//   value     exp(-|l_p - l_q| / (sigma_lum * sqrt(v_p + v_q) + 1e-6)), v the
-//             variance of each pixel's mean: differences beyond the noise
-//             (edges of shadows and caustics) are kept.
-// out = c_p + sum w (c_q - c_p) / sum w: a constant region stays exactly
-// constant, and radius 0 is exactly the identity. The variance of the output
-// (sum w^2 v_q / (sum w)^2) feeds the next pass.
+//   emitter   a pixel that sees a light and one that does not: 0
+//   value     exp(-|l_p - l_q| / (sigma_lum * s_p + 1e-6)), s_p the standard error
+//             of p's mean smoothed over its 3x3 (SVGF's choice): differences
+//             beyond p's noise (edges of shadows) are kept, and a firefly
+//             next to a calm pixel is not taken in by it
+// The guides' factor g (normals, depth, albedo) gets a floor: w = w_s (g +
+// guide_floor) exp(-value term), so pixels on an edge, whose guides are a mix
+// of both sides' and match neither, still average with their neighbours where
+// the values agree (the value term and the emitter test have no floor).
+// out = c_p + sum w (c_q - c_p) / sum w: a
+// constant region stays exactly constant, and radius 0 is the identity. The
+// variance of the output, sum w^2 v_q / (sum w)^2, feeds the next pass.
 //
-// Launch: one work-item per pixel, global size width * height (any local size).
-// Buffers: color_in, var_in, normal (xyz, 0 if none), albedo_depth (rgb, depth)
-// in; color_out, var_out out.
+// Layout: planar images of `pitch` (the width rounded up to 8) columns, each
+// plane `plane` floats long with `margin` floats before and after the pixels
+// (zeros, so that lanes outside the image read finite values):
+//   color: r, g, b, variance of the pixel mean
+//   guides: normal x, y, z (0 if none), emitter flag (0/1), albedo r, g, b, depth
+// filter_firefly: one work-item per pixel (global size width * height).
+// filter_cone: one work-item per 8 pixels of a row, in float8 lanes (global
+// size height * pitch / 8); any local size.
 
-__kernel void cone_filter(__global const float4 *color_in, __global const float *var_in,
-                          __global const float4 *normal, __global const float4 *albedo_depth, uint width,
-                          uint height, int radius, int step, float sigma_normal, float sigma_depth,
-                          float sigma_albedo, float sigma_lum, __global float4 *color_out, __global float *var_out)
+inline float luma(float r, float g, float b)
+{
+    return (float)CLPT_LUMA_R * r + (float)CLPT_LUMA_G * g + (float)CLPT_LUMA_B * b;
+}
+
+__kernel void filter_firefly(__global const float *color_in, uint width, uint height, uint pitch, uint plane,
+                             uint margin, float k, __global float *color_out)
 {
     uint i = get_global_id(0);
     if (i >= width * height)
         return;
     int x = (int)(i % width), y = (int)(i / width);
-    float4 cp = color_in[i];
-    float vp = var_in[i];
-    float3 np = normal[i].xyz;
-    float4 ap = albedo_depth[i];
-    int has_n = dot(np, np) > 0.0f;
-    float lp = (float)CLPT_LUMA_R * cp.x + (float)CLPT_LUMA_G * cp.y + (float)CLPT_LUMA_B * cp.z;
-    float3 acc = (float3)(0.0f);
-    float wsum = 1.0f, w2v = vp;  // the centre tap
+    int xm = (int)width - 1, ym = (int)height - 1;
+    uint o = margin + (uint)y * pitch + (uint)x;
+    float v[9];
+    int n = 0;
+    float lmax = -INFINITY;
+    for (int dy = -1; dy <= 1; dy++) {
+        for (int dx = -1; dx <= 1; dx++) {
+            int qx = x + dx, qy = y + dy;
+            if (qx < 0 || qy < 0 || qx > xm || qy > ym)
+                continue;
+            uint q = margin + (uint)qy * pitch + (uint)qx;
+            float t = color_in[3 * plane + q];
+            int j = n++;  // insertion into the sorted variances
+            while (j > 0 && v[j - 1] > t) {
+                v[j] = v[j - 1];
+                j--;
+            }
+            v[j] = t;
+            if (dx != 0 || dy != 0)
+                lmax = fmax(lmax, luma(color_in[q], color_in[plane + q], color_in[2 * plane + q]));
+        }
+    }
+    float r = color_in[o], g = color_in[plane + o], b = color_in[2 * plane + o], var = color_in[3 * plane + o];
+    float vmed = v[n / 2];
+    float bound = lmax + k * sqrt(vmed);
+    float lp = luma(r, g, b);
+    if (n > 1 && lp > bound) {
+        float s = fmax(bound, 0.0f) / lp;
+        r *= s; g *= s; b *= s; var = vmed;
+    }
+    color_out[o] = r; color_out[plane + o] = g; color_out[2 * plane + o] = b; color_out[3 * plane + o] = var;
+}
+
+#define LD8(buf, k, off) vload8(0, (buf) + (k) * plane + (off))
+
+__kernel void filter_cone(__global const float *color_in, __global const float *guides, uint width, uint height,
+                          uint pitch, uint plane, uint margin, int radius, int step, int n_pow, float sigma_depth,
+                          float sigma_albedo, float sigma_lum, float guide_floor, __global float *color_out)
+{
+    uint gid = get_global_id(0);
+    uint per_row = pitch / 8u;
+    if (gid >= per_row * height)
+        return;
+    int y = (int)(gid / per_row), x0 = (int)(gid % per_row) * 8;
+    int ym = (int)height - 1;
+    int row0 = (int)margin + y * (int)pitch + x0;
+    int8 xs = (int8)(x0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    float8 cr = LD8(color_in, 0, row0), cg = LD8(color_in, 1, row0), cb = LD8(color_in, 2, row0);
+    float8 cv = LD8(color_in, 3, row0);
+    float8 nx = LD8(guides, 0, row0), ny = LD8(guides, 1, row0), nz = LD8(guides, 2, row0);
+    float8 fl = LD8(guides, 3, row0);
+    float8 ar = LD8(guides, 4, row0), ag = LD8(guides, 5, row0), ab = LD8(guides, 6, row0);
+    float8 dz = LD8(guides, 7, row0);
+    int8 has_n = (nx * nx + ny * ny + nz * nz) > 0.0f;
+    float8 lp = (float)CLPT_LUMA_R * cr + (float)CLPT_LUMA_G * cg + (float)CLPT_LUMA_B * cb;
+    // p's noise: its variance smoothed over the 3x3 (1 2 1 weights)
+    float8 vs = 0.0f, vw = 0.0f;
+    for (int dy = -1; dy <= 1; dy++) {
+        int qy = y + dy;
+        if (qy < 0 || qy > ym)
+            continue;
+        for (int dx = -1; dx <= 1; dx++) {
+            int8 qx = xs + dx;
+            int8 in = qx >= 0 && qx < (int)width;
+            float8 wv = select((float8)(0.0f), (float8)((float)((2 - abs(dx)) * (2 - abs(dy)))), in);
+            vs += wv * LD8(color_in, 3, (int)margin + qy * (int)pitch + x0 + dx);
+            vw += wv;
+        }
+    }
+    float8 inv_sl = 1.0f / (sigma_lum * sqrt(vs / fmax(vw, 1.0f)) + 1e-6f);
+    float inv_sa = 1.0f / (sigma_albedo * sigma_albedo);
+    float8 inv_sd = 1.0f / (sigma_depth * fmax(dz, 1e-6f) * (float)step);
+    float8 accr = 0.0f, accg = 0.0f, accb = 0.0f;
+    float8 wsum = 1.0f, w2v = cv;  // the centre tap
     for (int dy = -radius; dy <= radius; dy++) {
+        int qy = y + dy * step;
+        if (qy < 0 || qy > ym)
+            continue;
         for (int dx = -radius; dx <= radius; dx++) {
             if (dx == 0 && dy == 0)
                 continue;
-            int qx = x + dx * step, qy = y + dy * step;
-            if (qx < 0 || qy < 0 || qx >= (int)width || qy >= (int)height)
-                continue;
             float r = sqrt((float)(dx * dx + dy * dy));
-            float w = 1.0f - r / (float)(radius + 1);
-            if (w <= 0.0f)
+            float ws = 1.0f - r / (float)(radius + 1);
+            if (ws <= 0.0f)
                 continue;
-            uint j = (uint)qy * width + (uint)qx;
-            float3 nq = normal[j].xyz;
-            int has_q = dot(nq, nq) > 0.0f;
-            if (has_n != has_q)
-                continue;
-            if (has_n)
-                w *= pown(fmax(dot(np, nq), 0.0f), (int)sigma_normal);
-            float4 aq = albedo_depth[j];
-            float3 da = ap.xyz - aq.xyz;
-            w *= exp(-dot(da, da) / (sigma_albedo * sigma_albedo));
-            w *= exp(-fabs(ap.w - aq.w) / (sigma_depth * fmax(ap.w, 1e-6f) * r * (float)step + 1e-12f));
-            float4 cq = color_in[j];
-            float lq = (float)CLPT_LUMA_R * cq.x + (float)CLPT_LUMA_G * cq.y + (float)CLPT_LUMA_B * cq.z;
-            float vq = var_in[j];
-            w *= exp(-fabs(lp - lq) / (sigma_lum * sqrt(vp + vq) + 1e-6f));
-            if (!(w > 0.0f))
-                continue;
-            acc += w * (cq.xyz - cp.xyz);
+            int off = (int)margin + qy * (int)pitch + x0 + dx * step;
+            int8 qx = xs + dx * step;
+            float8 mx = LD8(guides, 0, off), my = LD8(guides, 1, off), mz = LD8(guides, 2, off);
+            float8 fq = LD8(guides, 3, off);
+            int8 use = qx >= 0 && qx < (int)width && has_n == ((mx * mx + my * my + mz * mz) > 0.0f) && fl == fq;
+            float8 cn = fmax(nx * mx + ny * my + nz * mz, 0.0f), g = 1.0f;
+            for (int k = 0; k < 7; k++) {  // cn^n_pow by squaring (n_pow < 128)
+                if ((n_pow >> k) & 1)
+                    g *= cn;
+                cn *= cn;
+            }
+            g = select((float8)(1.0f), g, has_n);
+            float8 dar = ar - LD8(guides, 4, off), dag = ag - LD8(guides, 5, off), dab = ab - LD8(guides, 6, off);
+            float8 dd = fabs(dz - LD8(guides, 7, off));
+            g *= exp(-((dar * dar + dag * dag + dab * dab) * inv_sa + dd * inv_sd / r));
+            float8 qr = LD8(color_in, 0, off), qg = LD8(color_in, 1, off), qb = LD8(color_in, 2, off);
+            float8 qv = LD8(color_in, 3, off);
+            float8 lq = (float)CLPT_LUMA_R * qr + (float)CLPT_LUMA_G * qg + (float)CLPT_LUMA_B * qb;
+            float8 w = ws * (g + guide_floor) * exp(-fabs(lp - lq) * inv_sl);
+            w = select((float8)(0.0f), w, use && w > 0.0f);
+            accr += w * (qr - cr); accg += w * (qg - cg); accb += w * (qb - cb);
             wsum += w;
-            w2v += w * w * vq;
+            w2v += w * w * qv;
         }
     }
-    color_out[i] = (float4)(cp.xyz + acc / wsum, 0.0f);
-    var_out[i] = w2v / (wsum * wsum);
+    vstore8(cr + accr / wsum, 0, color_out + row0);
+    vstore8(cg + accg / wsum, 0, color_out + plane + row0);
+    vstore8(cb + accb / wsum, 0, color_out + 2 * plane + row0);
+    vstore8(w2v / (wsum * wsum), 0, color_out + 3 * plane + row0);
 }

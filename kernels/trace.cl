@@ -23,13 +23,20 @@
 //   stats     out  per work-item: non-finite samples dropped, camera rays,
 //                  bounce rays, shadow rays (this launch)
 //   pix_list, pix_jobs  in  adaptive passes: pixels, their (samples, depth, first sample)
-//   aux_normal, aux_albedo, aux_emit  in/out (CLPT_AUX): per pixel, sums over
-//                  samples of the first non-delta vertex's shading normal
-//                  (w: count), of its albedo seen through the specular chain
-//                  (rgb) and distance from the camera (w), and of the emission
-//                  reached up to and at that vertex (rgb), which the filter
-//                  leaves out; 1, 1, 1 and no normal for paths that meet no
-//                  such vertex
+//   aux_normal, aux_albedo, aux_emit, aux_caustic  in/out (CLPT_AUX): per
+//                  pixel, sums over samples of the feature vertex's shading
+//                  normal (w: count), of its albedo seen through the specular
+//                  chain (rgb) and distance from the camera (w), of the
+//                  emission reached up to and at that vertex (rgb; w: samples
+//                  whose feature vertex is an emitter it sees), and of the
+//                  photon map's contribution at the first vertex with a
+//                  non-delta part (the gather there, or its merge; rgb; w: its
+//                  squared luminance times lum_scale^2). The feature vertex is
+//                  the first vertex with a non-delta part (aux_specular 0:
+//                  mirrors and glass are seen through) or the first vertex (1:
+//                  they are surfaces with albedo kr + kt). An emitter's albedo is its emission over its
+//                  largest component, times the throughput; paths that meet no
+//                  feature vertex get albedo 1 and no normal.
 //
 // Estimator: path tracing with next event estimation at every vertex with a
 // non-delta lobe (CLPT_NEE), weighted against BSDF sampling by multiple
@@ -181,6 +188,18 @@ inline void accumulate(vmask done, V3 L, real lum_scale, PixelAcc *acc, uint *no
     acc_add(&acc->n, (vreal)R(1), done);
 }
 
+#if CLPT_AUX
+// Adds the photon map's part c of this sample (lanes in m, if finite) to the
+// caustic feature sums: rgb and the squared luminance times lum_scale^2.
+inline void aux_caustic_add(V3 c, vmask m, real lum_scale, vreal *r, vreal *g, vreal *b, vreal *sq)
+{
+    vreal l = v3_luminance(c) * lum_scale;
+    vmask add = m && isfinite(c.x + c.y + c.z);
+    *r = VSEL(*r, *r + c.x, add); *g = VSEL(*g, *g + c.y, add); *b = VSEL(*b, *b + c.z, add);
+    *sq = VSEL(*sq, *sq + l * l, add);
+}
+#endif
+
 __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_abs, real lum_scale,
                           real4 cam_o, real4 corner, real4 dx, real4 dy,
                           uint width, uint height, uint group_offset,
@@ -188,7 +207,8 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
                           __global pix_sum_t *pix_sum, __global pix_sq_t *pix_sq, __global uint4 *stats,
                           __global const uint *pix_list, __global const uint4 *pix_jobs, uint n_list
 #if CLPT_AUX
-                          , __global float4 *aux_normal, __global float4 *aux_albedo, __global float4 *aux_emit
+                          , __global float4 *aux_normal, __global float4 *aux_albedo, __global float4 *aux_emit,
+                          __global float4 *aux_caustic, uint aux_specular
 #endif
 #if CLPT_PHOTONS
                           , __global const float4 *ph_pos, __global const float4 *ph_dir,
@@ -274,14 +294,16 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 #if CLPT_AUX
     // Feature sums: normal xyz + count, albedo rgb + distance.
     vreal fnx = zero, fny = zero, fnz = zero, fcount = zero, far = zero, fag = zero, fab = zero, fdist = zero;
-    vreal fer = zero, feg = zero, feb = zero;
+    vreal fer = zero, feg = zero, feb = zero, flight = zero;
+    vreal fcr = zero, fcg = zero, fcb = zero, fcsq = zero;  // the photon map's part, its squared luminance
     for (int l = 0; l < CLPT_LANES; l++) {
         uint p = VLANE_U(pixel, l);
         if (p < n_pix) {
-            float4 a = aux_normal[p], b = aux_albedo[p], c = aux_emit[p];
+            float4 a = aux_normal[p], b = aux_albedo[p], c = aux_emit[p], e = aux_caustic[p];
             VLANE_R(fnx, l) = a.x; VLANE_R(fny, l) = a.y; VLANE_R(fnz, l) = a.z; VLANE_R(fcount, l) = a.w;
             VLANE_R(far, l) = b.x; VLANE_R(fag, l) = b.y; VLANE_R(fab, l) = b.z; VLANE_R(fdist, l) = b.w;
-            VLANE_R(fer, l) = c.x; VLANE_R(feg, l) = c.y; VLANE_R(feb, l) = c.z;
+            VLANE_R(fer, l) = c.x; VLANE_R(feg, l) = c.y; VLANE_R(feb, l) = c.z; VLANE_R(flight, l) = c.w;
+            VLANE_R(fcr, l) = e.x; VLANE_R(fcg, l) = e.y; VLANE_R(fcb, l) = e.z; VLANE_R(fcsq, l) = e.w;
         }
     }
     vmask feat_done = zero != zero;  // this sample's features are recorded
@@ -335,12 +357,23 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         V3 n = v3_sel(v3_neg(h.ng), h.ng, front);  // faces the incoming ray
 
 #if CLPT_AUX
-        // --- features for the filter, at the first vertex with a non-delta part ------
+        // --- features for the denoisers, at the feature vertex -------------------------
         path_len = VSEL(path_len, path_len + h.t, hit);
         vmask before_x = !feat_done;  // this vertex is x or comes before it
-        vmask rec = hit && !feat_done && m.nondelta != R(0);
+        vmask rec = hit && !feat_done && (m.nondelta != R(0) || aux_specular != 0u);
         if (VANY(rec)) {
-            V3 alb = v3_mul(ps.beta, v3_add(m.kd, m.ks));
+            V3 surf = v3_add(m.kd, m.ks);
+            if (aux_specular != 0u) {  // a mirror or glass vertex is a surface of albedo kr + kt (at most 1)
+                V3 spec = v3_add(m.kr, m.kt);
+                surf = v3_sel(surf, v3(fmin(spec.x, R(1)), fmin(spec.y, R(1)), fmin(spec.z, R(1))),
+                              m.nondelta == R(0));
+            }
+            // An emitter it sees is described by its own colour, and flagged.
+            vreal le_max = fmax(m.Le.x, fmax(m.Le.y, m.Le.z));
+            vmask light = rec && le_max > R(0) && (front || m.two_sided != R(0));
+            surf = v3_sel(surf, v3_scale(m.Le, R(1) / fmax(le_max, R(1e-30))), light);
+            flight = VSEL(flight, flight + R(1), light);
+            V3 alb = v3_mul(ps.beta, surf);
             fnx = VSEL(fnx, fnx + n.x, rec); fny = VSEL(fny, fny + n.y, rec); fnz = VSEL(fnz, fnz + n.z, rec);
             far = VSEL(far, far + alb.x, rec); fag = VSEL(fag, fag + alb.y, rec); fab = VSEL(fab, fab + alb.z, rec);
             fdist = VSEL(fdist, fdist + path_len, rec);
@@ -375,7 +408,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 #if CLPT_AUX
         vmask direct = sees && before_x;
         if (VANY(direct)) {
-            V3 e = v3_mul(ps.beta, m.Le);
+            V3 e = v3_scale(v3_mul(ps.beta, m.Le), w_le);
             fer = VSEL(fer, fer + e.x, direct); feg = VSEL(feg, feg + e.y, direct); feb = VSEL(feb, feb + e.z, direct);
         }
 #endif
@@ -392,6 +425,9 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
             Rand4 rg = rng_uniform4(seed, pixel, sample, group);  // .d: unused by light sampling
             V3 Lc = photon_gather(&pm, &m, pr, x, n, ps.d, rg.d, at_x, 0, lane_depth - ps.depth - R(1));
             ps.L = v3_sel(ps.L, v3_add(ps.L, v3_mul(ps.beta, Lc)), at_x);
+#if CLPT_AUX
+            aux_caustic_add(v3_mul(ps.beta, Lc), at_x, lum_scale, &fcr, &fcg, &fcb, &fcsq);
+#endif
         }
         if (prepass)
             go = go && !at_x;  // the pre-pass ends at x
@@ -409,6 +445,11 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
                 V3 Lm = photon_gather(&pm, &m, pr, x, n, ps.d, rg.d / pm_merge_p, do_merge, 1,
                                       lane_depth - ps.depth - R(1));
                 ps.L = v3_sel(ps.L, v3_fma(v3_mul(ps.beta, Lm), R(1) / pm_merge_p, ps.L), do_merge);
+#if CLPT_AUX
+                // The merge at the first non-delta vertex: the caustic as seen.
+                aux_caustic_add(v3_scale(v3_mul(ps.beta, Lm), R(1) / pm_merge_p), do_merge && nd_count == R(0),
+                                lum_scale, &fcr, &fcg, &fcb, &fcsq);
+#endif
             }
         }
         nd_count = VSEL(nd_count, nd_count + R(1), nondelta);
@@ -496,9 +537,16 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         if (p < n_pix) {
             pixel_acc_store(&acc, l, pix_sum, pix_sq, p);
 #if CLPT_AUX
-            aux_normal[p] = (float4)(VLANE_R(fnx, l), VLANE_R(fny, l), VLANE_R(fnz, l), VLANE_R(fcount, l));
-            aux_albedo[p] = (float4)(VLANE_R(far, l), VLANE_R(fag, l), VLANE_R(fab, l), VLANE_R(fdist, l));
-            aux_emit[p] = (float4)(VLANE_R(fer, l), VLANE_R(feg, l), VLANE_R(feb, l), 0.0f);
+            int aux_store = 1;
+#if CLPT_PHOTONS
+            aux_store = !prepass;  // the offline pre-pass's samples are not the image's
+#endif
+            if (aux_store) {
+                aux_normal[p] = (float4)(VLANE_R(fnx, l), VLANE_R(fny, l), VLANE_R(fnz, l), VLANE_R(fcount, l));
+                aux_albedo[p] = (float4)(VLANE_R(far, l), VLANE_R(fag, l), VLANE_R(fab, l), VLANE_R(fdist, l));
+                aux_emit[p] = (float4)(VLANE_R(fer, l), VLANE_R(feg, l), VLANE_R(feb, l), VLANE_R(flight, l));
+                aux_caustic[p] = (float4)(VLANE_R(fcr, l), VLANE_R(fcg, l), VLANE_R(fcb, l), VLANE_R(fcsq, l));
+            }
 #endif
         }
     }

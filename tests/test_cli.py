@@ -111,3 +111,23 @@ def test_bench_table_csv_json_and_compare(tmp_path, device_spec, capsys):
     assert main(args + ["--csv"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("scene,device,platform,variant") and len(lines) == 3
+
+
+def test_denoise_options(tmp_path, device_spec, capsys):
+    dev = ["--device", device_spec] if device_spec else []
+    out = tmp_path / "d.png"
+    base = ["render", "--spp", "2", "--width", "16", "--height", "16", "-q", *dev]
+    assert main([*base, "--denoise", "cone", "-o", str(out)]) == 0
+    assert out.exists() and (tmp_path / "d.unfiltered.png").exists()
+    # Unbounded work is refused in one line, not run.
+    assert main([*base, "--filter", "--filter-width", "1000000", "-o", str(out)]) == 2
+    assert "width must be an integer from 0 to 16" in capsys.readouterr().err
+    assert main([*base, "--filter", "--filter-iterations", "1000", "-o", str(out)]) == 0
+    assert main([*base, "--denoise", "cone", "--oidn-aux", "none", "-o", str(out)]) == 2
+    try:
+        import pyoidn  # noqa: F401
+    except ImportError:
+        assert main([*base, "--denoise", "oidn", "-o", str(out)]) == 2
+        assert "pip install 'clpt[oidn]'" in capsys.readouterr().err
+    else:
+        assert main([*base, "--denoise", "oidn", "--oidn-aux", "noisy", "-o", str(out)]) == 0
