@@ -40,8 +40,9 @@ def test_a_material_change_rebuilds_and_a_repeat_hits_the_cache(device_spec, tmp
     g = clpt.Renderer(glassy, device=device_spec)
     assert g.features.glass and not first.features.glass
     assert not g.states[0].build.cache_hit
-    assert len(list((tmp_path / "kernels").glob("*.bin"))) == 2
-    assert clpt.clear_cache() == 2 and not list(tmp_path.glob("kernels/*.bin"))
+    # The glass box is a caustic caster: its photon kernels are a program of their own.
+    assert len(list((tmp_path / "kernels").glob("*.bin"))) == 3
+    assert clpt.clear_cache() == 3 and not list(tmp_path.glob("kernels/*.bin"))
 
 
 @pytest.mark.parametrize("name", shipped_scenes())
