@@ -16,14 +16,16 @@ from . import __version__
 
 
 def _progress_printer(stream, enabled: bool):
-    """A one-line progress bar with samples/s and ETA, redrawn in place."""
-    state = {"last": 0.0}
+    """A one-line progress bar with samples/s and ETA, redrawn in place; and
+    note(message), a warning line that does not run into the bar."""
+    state = {"last": 0.0, "drawn": False}
 
     def show(done, total, elapsed, rate):
         now = time.perf_counter()
         if not enabled or (now - state["last"] < 0.1 and done < total):
             return
         state["last"] = now
+        state["drawn"] = True
         frac = done / total if total else 1.0
         bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
         eta = elapsed / frac - elapsed if frac > 0 else 0.0
@@ -36,7 +38,23 @@ def _progress_printer(stream, enabled: bool):
             stream.write("\n")
             stream.flush()
 
+    def note(message):
+        stream.write(("\n" if state["drawn"] else "") + f"clpt: warning: {message}\n")
+        stream.flush()
+        state["drawn"] = False
+
+    show.note = note
     return show, end
+
+
+def _tev_address(text):
+    from .tev import parse_address
+
+    try:
+        parse_address(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return text
 
 
 def _add_render_options(p):
@@ -208,7 +226,20 @@ def cmd_render(a) -> int:
     photons = _photon_settings(a) if a.photons != 0 else None
     adaptive = _adaptive_settings(a)
     filt = _filter_settings(a)
+    show, end = _progress_printer(sys.stderr, not a.quiet and (a.progress or sys.stderr.isatty()))
+    viewer, UPDATE_INTERVAL = None, 0.25
+    if a.tev is not None:
+        from .tev import UPDATE_INTERVAL, TevViewer
+
+        seed = scene.render.seed if a.seed is None else a.seed
+        try:
+            viewer = TevViewer(f"{Path(scene.source).stem} seed {seed}", a.tev, warn=show.note)
+        except ImportError as e:
+            print(f"clpt: error: {e}", file=sys.stderr)
+            return 2
     r = Renderer(scene, aux=filt is not None or a.write_aux, **_renderer_kwargs(a))
+    if viewer is not None:
+        viewer.cpu_device = any(st.dctx.is_cpu for st in r.states)
     if a.verbose:
         for st in r.states:
             b = st.build
@@ -217,17 +248,23 @@ def cmd_render(a) -> int:
             print(f"tuning: {st.tuning.describe()}", file=sys.stderr)
             print(f"build: {b.seconds:.3f}s ({'cache hit' if b.cache_hit else 'compiled'}, key {b.key})",
                   file=sys.stderr)
-    show, end = _progress_printer(sys.stderr, not a.quiet and (a.progress or sys.stderr.isatty()))
     from .image import save_image
 
     preview = None
     if filt is not None and filt.interval:
         def preview(img):
             save_image(out, img, exposure=a.exposure)
-    res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,
-                   height=a.height, photons=photons, adaptive=adaptive, filter=filt, progress=show,
-                   preview=preview, time_limit=a.time_limit, aux_specular=a.aux_specular or "surface")
+    try:
+        res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,
+                       height=a.height, photons=photons, adaptive=adaptive, filter=filt, progress=show,
+                       preview=preview, time_limit=a.time_limit, aux_specular=a.aux_specular or "surface",
+                       on_update=viewer, update_interval=UPDATE_INTERVAL)
+    finally:
+        if viewer is not None:
+            viewer.close()
     end()
+    if viewer is not None and a.verbose and viewer.updates:
+        print(viewer.summary(), file=sys.stderr)
     if res.filtered is not None:
         save_image(out, res.filtered, metadata={**res.metadata(), "clpt:filtered": 1}, exposure=a.exposure)
         res.save(_sibling(out, "unfiltered"), exposure=a.exposure)
@@ -410,6 +447,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-v", "--verbose", action="store_true", help="report device, kernel features, build and rays")
     p.add_argument("-q", "--quiet", action="store_true")
     p.add_argument("--progress", action="store_true", help="show progress even when not on a terminal")
+    p.add_argument("--tev", nargs="?", const="127.0.0.1:14158", default=None, type=_tev_address,
+                   metavar="HOST:PORT", help="stream the image as it renders to the tev viewer listening there "
+                                             "(default 127.0.0.1:14158; needs pip install 'clpt[tev]')")
     _add_render_options(p)
     _add_photon_options(p)
     _add_quality_options(p)

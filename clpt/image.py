@@ -7,6 +7,8 @@ sRGB transfer curve, clamping and dithering-free rounding.
 
 from __future__ import annotations
 
+import struct
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +29,25 @@ def to_display(img: np.ndarray, exposure: float = 0.0) -> np.ndarray:
     """Linear RGB -> 8-bit sRGB."""
     v = linear_to_srgb(np.nan_to_num(img, nan=0.0, posinf=1.0, neginf=0.0) * (2.0 ** exposure))
     return np.round(v * 255.0).astype(np.uint8)
+
+
+def png_bytes(img: np.ndarray, exposure: float = 0.0) -> bytes:
+    """Linear RGB (H x W x 3) -> a PNG file's bytes, tone-mapped as save_image
+    writes PNGs (for notebooks: no file, no OpenImageIO)."""
+    rgb = to_display(np.asarray(img, dtype=np.float32), exposure)
+    if rgb.ndim == 2:
+        rgb = rgb[:, :, None]
+    h, w, c = rgb.shape
+    if c not in (1, 3):
+        raise ValueError(f"png_bytes: need 1 or 3 channels (got {c})")
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    rows = np.concatenate([np.zeros((h, 1), np.uint8), rgb.reshape(h, w * c)], axis=1)  # filter type 0 per row
+    header = struct.pack(">IIBBBBB", w, h, 8, 2 if c == 3 else 0, 0, 0, 0)
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(rows.tobytes(), 6))
+            + chunk(b"IEND", b""))
 
 
 def save_image(path, img: np.ndarray, metadata: dict | None = None, exposure: float = 0.0):

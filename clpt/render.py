@@ -14,6 +14,7 @@ a per-pixel caustic buffer that is added to the path-traced image.
 
 from __future__ import annotations
 
+import copy
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -33,6 +34,7 @@ from .adaptive import AdaptiveSettings, allocate_error, allocate_paper
 from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, LUMA, OFFSET_ABS
 from .denoise import ConeFilter, FilterSettings, OidnSettings, apply_denoiser
 from .photons import PM_MERGE, PM_OFF, PM_OFFLINE, PM_OWNED, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
+from .preview import RenderUpdate
 from .scene import Scene, SceneError, load_scene
 
 PREPASS_SEED_SALT = 0x2545F491
@@ -84,6 +86,12 @@ class RenderResult:
     def samples(self) -> int:
         return int(self.sample_count.sum())
 
+    def __repr__(self):
+        h, w = self.image.shape[:2]
+        spp = f"{self.sample_count.mean():.4g} spp on average" if self.stats.adaptive_rounds else f"{self.spp} spp"
+        return (f"<RenderResult {w}x{h}, {spp}, seed {self.seed}, {self.stats.render_seconds:.2f} s"
+                f"{', filtered' if self.filtered is not None else ''}{', interrupted' if self.interrupted else ''}>")
+
     def metadata(self) -> dict:
         meta = {"clpt:spp": self.spp, "clpt:seed": self.seed, "clpt:max_depth": self.max_depth,
                 "clpt:rr_depth": self.rr_depth, "clpt:device": "; ".join(self.devices),
@@ -101,6 +109,11 @@ class RenderResult:
         from .image import save_image
         save_image(path, self.image, metadata=self.metadata(), exposure=exposure)
 
+    def _repr_png_(self) -> bytes:
+        """Notebooks show a result as its image, tone-mapped as save() writes a PNG."""
+        from .image import png_bytes
+        return png_bytes(self.image)
+
 
 class _Sums:
     """Per-pixel sums on a device (accum.h's layout)."""
@@ -115,20 +128,26 @@ class _Sums:
 
     def read(self):
         """(r, g, b, count) sums and sums of squared luminance, float64."""
+        raw, _ = self.read_async()
+        self.dctx.queue.finish()
+        return self.decode(raw)
+
+    def read_async(self):
+        """Queue copies of the sums into fresh host arrays; (arrays, events).
+        Queued between two passes, they see the sums of the passes before."""
         q = self.dctx.queue
+        dt, k = (np.float64, 1) if self.accum_double else (np.float32, 2)  # Kahan: (sum, compensation) pairs
+        s = np.empty((self.n_pix, 4 * k), dtype=dt)
+        sq = np.empty((self.n_pix, k), dtype=dt)
+        events = [cl.enqueue_copy(q, s, self.pix_sum, is_blocking=False),
+                  cl.enqueue_copy(q, sq, self.pix_sq, is_blocking=False)]
+        return (s, sq), events
+
+    def decode(self, raw):
+        s, sq = raw
         if self.accum_double:
-            s = np.empty((self.n_pix, 4), dtype=np.float64)
-            sq = np.empty(self.n_pix, dtype=np.float64)
-            cl.enqueue_copy(q, s, self.pix_sum)
-            cl.enqueue_copy(q, sq, self.pix_sq)
-            q.finish()
-            return s, sq
+            return s, sq[:, 0]
         # Kahan pairs: the compensation is what the float sum holds in excess.
-        s = np.empty((self.n_pix, 8), dtype=np.float32)
-        sq = np.empty((self.n_pix, 2), dtype=np.float32)
-        cl.enqueue_copy(q, s, self.pix_sum)
-        cl.enqueue_copy(q, sq, self.pix_sq)
-        q.finish()
         s64, sq64 = s.astype(np.float64), sq.astype(np.float64)
         return s64[:, :4] - s64[:, 4:], sq64[:, 0] - sq64[:, 1]
 
@@ -312,12 +331,26 @@ class _DeviceState:
     def read_aux(self):
         """Per-pixel feature sums: (normal xyz, count), (albedo rgb, distance), (emission rgb, emitter
         count), (caustic rgb, its squared scaled luminance)."""
-        q = self.dctx.queue
-        out = [np.empty((self.n_pix, 4), np.float32) for _ in range(4)]
-        for h, b in zip(out, self.aux):
-            cl.enqueue_copy(q, h, b)
-        q.finish()
+        out, _ = self.read_aux_async()
+        self.dctx.queue.finish()
         return [h.astype(np.float64) for h in out]
+
+    def read_aux_async(self):
+        out = [np.empty((self.n_pix, 4), np.float32) for _ in self.aux]
+        return out, [cl.enqueue_copy(self.dctx.queue, h, b, is_blocking=False) for h, b in zip(out, self.aux)]
+
+    def snapshot(self, caustic: bool):
+        """Queue copies of everything an image so far is made of; (raw, events)."""
+        main, events = self.main.read_async()
+        raw = {"main": main}
+        if caustic and self.caustic is not None:
+            raw["caustic"], ev = self.caustic.read_async()
+            events += ev
+        if self.features.aux:
+            raw["aux"], ev = self.read_aux_async()
+            events += ev
+        self.dctx.queue.flush()
+        return raw, events
 
 
 def _baked_source(records: np.ndarray, double: bool) -> str:
@@ -335,12 +368,19 @@ def _lane_group_max(n: np.ndarray, lanes: int) -> np.ndarray:
 
 
 def _combine(states, which: str, n_pix: int, lum_scale: float = 1.0):
-    total = np.zeros((n_pix, 4), dtype=np.float64)
-    total_sq = np.zeros(n_pix, dtype=np.float64)
-    for st in states:
-        sums = getattr(st, which)
-        if sums is not None:
-            s, sq = sums.read()
+    return _mean_var([getattr(st, which).read() for st in states if getattr(st, which) is not None], n_pix,
+                     lum_scale)
+
+
+def _mean_var(parts, n_pix: int, lum_scale: float = 1.0):
+    """Mean, variance of one sample's luminance, and count per pixel, from
+    every device's (sums, sums of squares)."""
+    if len(parts) == 1:  # one device: its sums as they are
+        total, total_sq = parts[0]
+    else:
+        total = np.zeros((n_pix, 4), dtype=np.float64)
+        total_sq = np.zeros(n_pix, dtype=np.float64)
+        for s, sq in parts:
             total += s
             total_sq += sq
     count = total[:, 3]
@@ -429,7 +469,7 @@ class Renderer:
                photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
                filter: FilterSettings | OidnSettings | None = None, aux_specular: str = "surface",
                progress=None, preview=None, time_limit: float | None = None,
-               pass_seconds: float | None = None) -> RenderResult:
+               pass_seconds: float | None = None, on_update=None, update_interval: float = 0.25) -> RenderResult:
         """Render; keywords override the scene's settings.
 
         spp is the average number of samples per pixel (with adaptive
@@ -441,9 +481,13 @@ class Renderer:
         buffers show of mirrors and glass, "surface" (the delta surface
         itself, the default: both denoisers measure better with it) or
         "through" (the first non-delta vertex seen through them, the
-        throughput folded into its albedo). Ctrl-C (KeyboardInterrupt) ends
-        the render early with what is done. pass_seconds: how long a pass
-        should take (default: the device's tuned choice)."""
+        throughput folded into its albedo). on_update(update) is called
+        between passes, at most every update_interval seconds, with a
+        clpt.preview.RenderUpdate (the image so far, counts, variances,
+        feature images, statistics), and once at the end with update.final
+        True. Ctrl-C (KeyboardInterrupt) ends the render early with what is
+        done. pass_seconds: how long a pass should take (default: the
+        device's tuned choice)."""
         if pass_seconds is None:
             pass_seconds = self.states[0].tuning.pass_seconds
         rs = self.scene.render
@@ -459,6 +503,11 @@ class Renderer:
                 raise SceneError(f"render: {name} must be an integer >= {lo} (got {v!r})")
         if spp >= 2**32 or seed >= 2**32:
             raise SceneError("render: spp and seed must be below 2^32")
+        if on_update is not None and not callable(on_update):
+            raise TypeError(f"render: on_update must be callable (got {type(on_update).__name__})")
+        if isinstance(update_interval, bool) or not isinstance(update_interval, (int, float)) \
+                or not update_interval >= 0 or update_interval == float("inf"):
+            raise ValueError(f"render: update_interval must be a number of seconds >= 0 (got {update_interval!r})")
         pset = (photons or PhotonSettings()).check().resolved(width * height) if self.features.photons else None
         pilot_info = None
         t_pilot = time.perf_counter()
@@ -501,6 +550,20 @@ class Renderer:
 
         def elapsed():
             return time.perf_counter() - t_start
+
+        last_update = [-float("inf")]
+
+        def update():
+            """Hand on_update the image so far, if update_interval has passed."""
+            if on_update is None or elapsed() - last_update[0] < update_interval:
+                return
+            with lock:
+                done = state["done"]
+                snap = copy.copy(stats)
+            load, load_aux = self._snapshot(n_pix, width, height, offline)
+            last_update[0] = now = elapsed()
+            on_update(RenderUpdate(spp_done=done, spp_total=spp, elapsed=now, stats=snap, load=load,
+                                   load_aux=load_aux))
 
         def note_pass(st, s0, n, seconds, row):
             with lock:
@@ -571,6 +634,7 @@ class Renderer:
                         stats.first_launch_seconds += seconds
                     done, passes = note_pass(st, s0, n, seconds, row)
                     if len(self.states) == 1:
+                        update()
                         if progress is not None:
                             progress(done, spp, elapsed(), done * n_pix / max(elapsed(), 1e-9))
                         if preview is not None and fset is not None and fset.interval and passes % fset.interval == 0:
@@ -580,13 +644,14 @@ class Renderer:
                     state["error"] = e
                     state["stop"] = True
 
-        interrupted = self._run_threads(work, state, lock, progress, spp, n_pix, elapsed)
+        interrupted = self._run_threads(work, state, lock, progress, spp, n_pix, elapsed, update)
         if aset is not None and not interrupted and not state["stop"]:
             # Progressive photons: each adaptive round gets the next iteration's map.
             first_round_map = -(-uniform_spp // pset.spp_per_map) if progressive else 0
             round_map = (lambda st, k: photon_map(st, first_round_map + k)) if progressive else None
             interrupted = self._adaptive_rounds(aset, max_depth, budget, n_pix, width, height, state, lock,
-                                                note_pass, stats, progress, spp, elapsed, time_limit, round_map)
+                                                note_pass, stats, progress, spp, elapsed, time_limit, round_map,
+                                                update=update)
         if state["error"] is not None:
             raise state["error"]
         if time_limit is not None and state["done"] < spp and aset is None:
@@ -603,14 +668,20 @@ class Renderer:
                 st.filter.kernel_times = {}
             for k, v in st.kernel_times.items():
                 stats.kernel_seconds.setdefault(k, []).extend(v)
-        return RenderResult(image=image, sample_count=count.reshape(height, width).astype(np.uint32),
+        sample_count = count.reshape(height, width).astype(np.uint32)
+        if on_update is not None:
+            on_update(RenderUpdate(spp_done=float(count.mean()) if n_pix else 0.0, spp_total=spp,
+                                   elapsed=stats.render_seconds, stats=stats, final=True, filtered=filtered,
+                                   image=image, sample_count=sample_count,
+                                   lum_var=var.reshape(height, width).astype(np.float32), aux=aux))
+        return RenderResult(image=image, sample_count=sample_count,
                             lum_var=var.reshape(height, width),
                             spp=int(count.max()) if n_pix else 0, seed=seed, max_depth=max_depth,
                             rr_depth=rr_depth, devices=[s.dctx.label for s in self.states],
                             features=self.features, stats=stats, photons=pset, caustic_image=caustic,
                             aux=aux, filtered=filtered, adaptive=aset, interrupted=interrupted)
 
-    def _run_threads(self, work, state, lock, progress, spp, n_pix, elapsed) -> bool:
+    def _run_threads(self, work, state, lock, progress, spp, n_pix, elapsed, update) -> bool:
         """Run work(state) on every device (in threads when several); True if interrupted."""
         interrupted = False
         if len(self.states) == 1:
@@ -632,6 +703,8 @@ class Renderer:
                     t.join(timeout=0.1)
                 with lock:
                     done = state["done"]
+                if done > 0:  # the merged image so far
+                    update()
                 if progress is not None and done != last:
                     last = done
                     progress(done, spp, elapsed(), done * n_pix / max(elapsed(), 1e-9))
@@ -644,7 +717,7 @@ class Renderer:
         return interrupted
 
     def _adaptive_rounds(self, aset, max_depth, budget, n_pix, width, height, state, lock, note_pass, stats,
-                         progress, spp, elapsed, time_limit, round_map=None) -> bool:
+                         progress, spp, elapsed, time_limit, round_map=None, update=None) -> bool:
         """Adaptive passes until the pixels are below the threshold (error
         scheme) or the sample budget or time runs out; round_map(state, k),
         if given, builds the photon map of round k first. True if interrupted."""
@@ -712,6 +785,8 @@ class Renderer:
                 if errors:
                     raise errors[0]
                 stats.adaptive_rounds += 1
+                if update is not None:
+                    update()
                 if progress is not None:
                     done = (used + int(jobs[:, 0].sum())) / n_pix
                     progress(min(done, spp), spp, elapsed(), done * n_pix / max(elapsed(), 1e-9))
@@ -722,20 +797,9 @@ class Renderer:
     def _finish(self, n_pix, width, height, offline, fset):
         """The image so far, its variance and counts, the caustic buffer, the
         feature images and the denoised image."""
-        mean, var, count = _combine(self.states, "main", n_pix, self.packed.lum_scale)
-        caustic = caustic_var = None
-        if offline:
-            c_mean, c_var, c_count = _combine(self.states, "caustic", n_pix, self.packed.lum_scale)
-            caustic = c_mean.astype(np.float32).reshape(height, width, 3)
-            mean = mean + c_mean
-            # As the variance of one sample: the caustic mean's variance scaled to count samples.
-            caustic_var = c_var * np.maximum(count, 1.0) / np.maximum(c_count, 1.0)
-            var = var + caustic_var
-        image = mean.astype(np.float32).reshape(height, width, 3)
-        bad = ~np.isfinite(image)
-        if bad.any():  # the kernels drop non-finite samples; this is the last guard
-            warnings.warn(f"{int(bad.sum())} non-finite pixel values set to 0")
-            image[bad] = 0.0
+        main = [st.main.read() for st in self.states]
+        caustic_parts = [st.caustic.read() for st in self.states] if offline else None
+        image, var, count, caustic, caustic_var = self._compose(main, caustic_parts, n_pix, width, height)
         aux = filtered = None
         if self.features.aux:
             aux, online_caustic, online_var = self._aux_images(n_pix, width, height, count)
@@ -748,13 +812,64 @@ class Renderer:
                                           count.reshape(height, width), aux, fset)
         return image, var, count, caustic, aux, filtered
 
-    def _aux_images(self, n_pix, width, height, count):
+    def _compose(self, main, caustic_parts, n_pix, width, height):
+        """Image, variance and counts from every device's sums (and caustic
+        buffer sums, offline); also the caustic image and its variance."""
+        mean, var, count = _mean_var(main, n_pix, self.packed.lum_scale)
+        caustic = caustic_var = None
+        if caustic_parts is not None:
+            c_mean, c_var, c_count = _mean_var(caustic_parts, n_pix, self.packed.lum_scale)
+            caustic = c_mean.astype(np.float32).reshape(height, width, 3)
+            mean = mean + c_mean
+            # As the variance of one sample: the caustic mean's variance scaled to count samples.
+            caustic_var = c_var * np.maximum(count, 1.0) / np.maximum(c_count, 1.0)
+            var = var + caustic_var
+        image = mean.astype(np.float32).reshape(height, width, 3)
+        bad = ~np.isfinite(image)
+        if bad.any():  # the kernels drop non-finite samples; this is the last guard
+            warnings.warn(f"{int(bad.sum())} non-finite pixel values set to 0")
+            image[bad] = 0.0
+        return image, var, count, caustic, caustic_var
+
+    def _snapshot(self, n_pix, width, height, offline):
+        """Queue copies of the sums on every device (between passes, without
+        waiting for them); return load() -> (image, sample_count, lum_var) and
+        load_aux() -> the feature images or None, made from them when called,
+        for a RenderUpdate."""
+        taken = [st.snapshot(offline) for st in self.states]
+
+        def wait():
+            for _, events in taken:
+                cl.wait_for_events(events)
+
+        def main_parts():
+            return [st.main.decode(raw["main"]) for st, (raw, _) in zip(self.states, taken)]
+
+        def load():
+            wait()
+            caustic = ([st.caustic.decode(raw["caustic"]) for st, (raw, _) in zip(self.states, taken)]
+                       if offline else None)
+            image, var, count, _, _ = self._compose(main_parts(), caustic, n_pix, width, height)
+            return image, count.reshape(height, width).astype(np.uint32), var.reshape(height, width).astype(np.float32)
+
+        def load_aux():
+            if not self.features.aux:
+                return None
+            wait()
+            count = sum(s[:, 3] for s, _ in main_parts())
+            return self._aux_images(n_pix, width, height, count, [raw["aux"] for raw, _ in taken])[0]
+
+        return load, load_aux
+
+    def _aux_images(self, n_pix, width, height, count, parts=None):
         """The feature images (per-sample means), the online photon part and
-        its per-sample luminance variance."""
+        its per-sample luminance variance, from every device's feature sums
+        (read now, unless given)."""
+        parts = [st.read_aux() for st in self.states] if parts is None else parts
         sums = [np.zeros((n_pix, 4)) for _ in range(4)]
-        for st in self.states:
-            for acc, part in zip(sums, st.read_aux()):
-                acc += part
+        for part in parts:
+            for acc, p in zip(sums, part):
+                acc += p
         nsum, asum, esum, csum = sums
         k = np.maximum(nsum[:, 3:4], 1.0)
         normal = nsum[:, :3]
