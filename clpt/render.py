@@ -14,11 +14,12 @@ a per-pixel caustic buffer that is added to the path-traced image.
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,12 @@ from .denoise import ConeFilter, FilterSettings
 from .photons import PM_MERGE, PM_OFF, PM_OFFLINE, PM_OWNED, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
 from .scene import Scene, SceneError, load_scene
 
+<<<<<<< HEAD
+=======
+LANE_CHOICES = (1, 2, 4, 8, 16)  # paths per work-item: OpenCL vector widths
+LOCAL_SIZE_CPU = 16
+LOCAL_SIZE_GPU = 64
+>>>>>>> 531addf (Robust input and extremes: ray offsets that follow the hit's own magnitudes (not the scene's extent); scenes of extreme extent packed at a power-of-two scale; float-range and precision checks in the scene checker naming the key; scene files read only from regular files with a size limit, deep nesting in one line; clear API errors (Material, Quad.from_vertices, Renderer lanes/kernel, PhotonSettings, AdaptiveSettings, time limits); render preflight (output path and format, option ranges, image size per format, memory against what is available), unused-option warnings, fallback EXR when saving fails; honest metadata (mean/min/max spp, interrupted vs time-limited, version, scene and hash, exposure, photon and adaptive settings) in EXR and as text in PNG/JPEG; hypothesis fuzzing of scene files and render options in the suite and a long counted run)
 PREPASS_SEED_SALT = 0x2545F491
 
 
@@ -77,28 +84,51 @@ class RenderResult:
     aux: dict | None = None                  # feature images: normal, albedo, depth (Renderer(aux=True))
     filtered: np.ndarray | None = None       # the edge-aware cone filter's output (render(filter=...))
     adaptive: AdaptiveSettings | None = None
-    interrupted: bool = False
+    interrupted: bool = False    # stopped by Ctrl-C (KeyboardInterrupt)
+    time_limited: bool = False   # stopped by time_limit before the samples asked for
+    scene_source: str | None = None
+    scene_sha256: str | None = None
 
     @property
     def samples(self) -> int:
         return int(self.sample_count.sum())
 
-    def metadata(self) -> dict:
-        meta = {"clpt:spp": self.spp, "clpt:seed": self.seed, "clpt:max_depth": self.max_depth,
+    def metadata(self, exposure: float | None = None) -> dict:
+        """What the image files record of the render (clpt:* keys)."""
+        from . import __version__
+
+        count = self.sample_count
+        meta = {"clpt:version": __version__,
+                "clpt:spp": round(float(count.mean()), 4) if count.size else 0.0,
+                "clpt:spp_min": int(count.min()) if count.size else 0,
+                "clpt:spp_max": int(count.max()) if count.size else 0,
+                "clpt:seed": self.seed, "clpt:max_depth": self.max_depth,
                 "clpt:rr_depth": self.rr_depth, "clpt:device": "; ".join(self.devices),
                 "clpt:render_seconds": round(self.stats.render_seconds, 4),
-                "clpt:kernel": self.features.describe(), "clpt:interrupted": int(self.interrupted)}
+                "clpt:kernel": self.features.describe(), "clpt:interrupted": int(self.interrupted),
+                "clpt:time_limited": int(self.time_limited)}
+        if self.scene_source is not None:
+            meta["clpt:scene"] = self.scene_source
+        if self.scene_sha256 is not None:
+            meta["clpt:scene_sha256"] = self.scene_sha256
+        if exposure is not None:
+            meta["clpt:exposure"] = float(exposure)
         if self.stats.photon_pilot is not None:
             meta["clpt:photon_choice"] = self.stats.photon_pilot["choice"]
         if self.photons is not None:
             p = self.photons
             meta["clpt:photons"] = (f"{p.count} photons, radius {p.radius}{'' if p.radius_absolute else ' x size'}, "
-                                    f"k {p.cone_k}, {p.mode}{', progressive alpha %g' % p.alpha if p.progressive else ''}")
+                                    f"k {p.cone_k}, {p.mode}{', progressive alpha %g' % p.alpha if p.progressive else ''}"
+                                    f", budget {p.budget}, max {p.max_photons or 'all'}, aim {p.aim}")
+        if self.adaptive is not None:
+            a = self.adaptive
+            meta["clpt:adaptive"] = (f"{a.scheme}, min spp {a.min_spp}, threshold {a.threshold:g}, "
+                                     f"pass spp {a.pass_spp}, {self.stats.adaptive_rounds} rounds")
         return meta
 
     def save(self, path, exposure: float = 0.0):
         from .image import save_image
-        save_image(path, self.image, metadata=self.metadata(), exposure=exposure)
+        save_image(path, self.image, metadata=self.metadata(exposure), exposure=exposure)
 
 
 class _Sums:
@@ -164,7 +194,12 @@ class _DeviceState:
             recs = np.zeros((1, 4), dtype=real)
         self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
         self.counts = counts_arg(packed.counts)
+<<<<<<< HEAD
         self.eps_abs = packed.extent * OFFSET_ABS['double' if features.double else 'float']
+=======
+        # An absolute floor under the ray offsets (kernels/scene.h), for hit points at the origin.
+        self.eps_abs = float(np.finfo(real).tiny) * 2.0 ** 20
+>>>>>>> 531addf (Robust input and extremes: ray offsets that follow the hit's own magnitudes (not the scene's extent); scenes of extreme extent packed at a power-of-two scale; float-range and precision checks in the scene checker naming the key; scene files read only from regular files with a size limit, deep nesting in one line; clear API errors (Material, Quad.from_vertices, Renderer lanes/kernel, PhotonSettings, AdaptiveSettings, time limits); render preflight (output path and format, option ranges, image size per format, memory against what is available), unused-option warnings, fallback EXR when saving fails; honest metadata (mean/min/max spp, interrupted vs time-limited, version, scene and hash, exposure, photon and adaptive settings) in EXR and as text in PNG/JPEG; hypothesis fuzzing of scene files and render options in the suite and a long counted run)
         self.lum_scale = packed.lum_scale
         self.real = real
         sources = kernel_sources(packed, features)
@@ -370,11 +405,18 @@ class Renderer:
             raise ValueError(f"precision must be 'float' or 'double' (got {precision!r})")
         if accumulate not in ("auto", "double", "kahan"):
             raise ValueError(f"accumulate must be 'auto', 'double' or 'kahan' (got {accumulate!r})")
+<<<<<<< HEAD
         if lanes is not None and lanes not in tune.LANE_WIDTHS:
             raise ValueError(f"lanes must be one of {', '.join(map(str, tune.LANE_WIDTHS))} (got {lanes!r})")
         if local_size is not None and (isinstance(local_size, bool) or not isinstance(local_size, int)
                                        or local_size < 1):
             raise ValueError(f"local_size must be a positive integer (got {local_size!r})")
+=======
+        if lanes is not None and (isinstance(lanes, bool) or lanes not in LANE_CHOICES):
+            raise ValueError(f"lanes must be one of {', '.join(map(str, LANE_CHOICES))} (got {lanes!r})")
+        if kernel not in ("specialized", "generic", "baked"):
+            raise ValueError(f"kernel must be 'specialized', 'generic' or 'baked' (got {kernel!r})")
+>>>>>>> 531addf (Robust input and extremes: ray offsets that follow the hit's own magnitudes (not the scene's extent); scenes of extreme extent packed at a power-of-two scale; float-range and precision checks in the scene checker naming the key; scene files read only from regular files with a size limit, deep nesting in one line; clear API errors (Material, Quad.from_vertices, Renderer lanes/kernel, PhotonSettings, AdaptiveSettings, time limits); render preflight (output path and format, option ranges, image size per format, memory against what is available), unused-option warnings, fallback EXR when saving fails; honest metadata (mean/min/max spp, interrupted vs time-limited, version, scene and hash, exposure, photon and adaptive settings) in EXR and as text in PNG/JPEG; hypothesis fuzzing of scene files and render options in the suite and a long counted run)
         self.scene = scene
         self.packed = pack_scene(scene)
         use_photons = self.packed.has_caustics and photons is not False
@@ -405,6 +447,7 @@ class Renderer:
             self.states.append(st)
         self.features = self.states[0].features
 
+<<<<<<< HEAD
     def _trial(self, st, spp: int, seed: int):
         """Render spp samples per pixel of a tune.TRIAL_SIZE square image the
         default way on state st alone; (samples/s of the passes after the
@@ -417,6 +460,13 @@ class Renderer:
         secs = max(sum(p[3] for p in passes), 1e-9)
         done = sum(p[2] for p in passes)
         return done * n * n / secs, secs / max(done, 1)
+=======
+    def _kernel_photons(self, pset):
+        """The photon settings in the packed scene's lengths (an absolute radius scaled with them)."""
+        if pset is not None and pset.radius_absolute and self.packed.length_scale != 1.0:
+            return replace(pset, radius=pset.radius * self.packed.length_scale)
+        return pset
+>>>>>>> 531addf (Robust input and extremes: ray offsets that follow the hit's own magnitudes (not the scene's extent); scenes of extreme extent packed at a power-of-two scale; float-range and precision checks in the scene checker naming the key; scene files read only from regular files with a size limit, deep nesting in one line; clear API errors (Material, Quad.from_vertices, Renderer lanes/kernel, PhotonSettings, AdaptiveSettings, time limits); render preflight (output path and format, option ranges, image size per format, memory against what is available), unused-option warnings, fallback EXR when saving fails; honest metadata (mean/min/max spp, interrupted vs time-limited, version, scene and hash, exposure, photon and adaptive settings) in EXR and as text in PNG/JPEG; hypothesis fuzzing of scene files and render options in the suite and a long counted run)
 
     @property
     def build_seconds(self) -> float:
@@ -451,17 +501,22 @@ class Renderer:
                 raise SceneError(f"render: {name} must be an integer >= {lo} (got {v!r})")
         if spp >= 2**32 or seed >= 2**32:
             raise SceneError("render: spp and seed must be below 2^32")
+        for name, v in (("time_limit", time_limit), ("pass_seconds", pass_seconds)):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
+                                  or not (math.isfinite(v) and v > 0)):
+                raise SceneError(f"render: {name} must be a finite number of seconds > 0 (got {v!r})")
         pset = (photons or PhotonSettings()).check().resolved(width * height) if self.features.photons else None
         pilot_info = None
         t_pilot = time.perf_counter()
         if pset is not None:
-            pset.check_radius(self.packed.size, self.features.double)
+            self._kernel_photons(pset).check_radius(self.packed.size, self.features.double)
             if pset.pilot and pset.mode == "merge" and pset.count > 0 and adaptive is None:
                 from .photons import pilot
                 pset, pilot_info = pilot(self, pset, seed=seed)
         pilot_seconds = time.perf_counter() - t_pilot
         if pilot_info is not None and time_limit is not None:
             time_limit = max(time_limit - pilot_seconds, 0.0)  # the pilot is part of the render's time
+        kset = self._kernel_photons(pset)  # in the packed scene's lengths
         # No photons: the path tracer keeps every path (pm_mode PM_OFF), as with photons=False.
         no_photons = pset is not None and pset.count == 0
         progressive = pset is not None and pset.progressive and not no_photons
@@ -470,7 +525,13 @@ class Renderer:
         fset = filter.check() if filter is not None else None
         if fset is not None and not self.features.aux:
             raise SceneError("render: the filter needs the feature buffers: make the Renderer with aux=True")
+<<<<<<< HEAD
         frame = camera_frame(self.scene.camera, width, height)
+=======
+        if aset is not None and progressive:
+            raise SceneError("render: adaptive sampling and progressive photon mapping cannot be combined")
+        frame = camera_frame(self.scene.camera, width, height, self.packed.length_scale)
+>>>>>>> 531addf (Robust input and extremes: ray offsets that follow the hit's own magnitudes (not the scene's extent); scenes of extreme extent packed at a power-of-two scale; float-range and precision checks in the scene checker naming the key; scene files read only from regular files with a size limit, deep nesting in one line; clear API errors (Material, Quad.from_vertices, Renderer lanes/kernel, PhotonSettings, AdaptiveSettings, time limits); render preflight (output path and format, option ranges, image size per format, memory against what is available), unused-option warnings, fallback EXR when saving fails; honest metadata (mean/min/max spp, interrupted vs time-limited, version, scene and hash, exposure, photon and adaptive settings) in EXR and as text in PNG/JPEG; hypothesis fuzzing of scene files and render options in the suite and a long counted run)
         n_pix = width * height
         stats = RenderStats(build_seconds=self.build_seconds,
                             cache_hits=sum(s.build.cache_hit for s in self.states))
@@ -503,7 +564,7 @@ class Renderer:
                 return state["done"], state["passes"]
 
         def photon_map(st, iteration):
-            info = st.build_photons(photon_seed(seed, iteration), pset, pset.radius_for(self.packed.size, iteration),
+            info = st.build_photons(photon_seed(seed, iteration), kset, kset.radius_for(self.packed.size, iteration),
                                     mode)
             with lock:
                 stats.photon_maps.append({"device": st.dctx.label, "iteration": iteration, **info})
@@ -578,10 +639,10 @@ class Renderer:
                                                 note_pass, stats, progress, spp, elapsed, time_limit, round_map)
         if state["error"] is not None:
             raise state["error"]
-        if time_limit is not None and state["done"] < spp and aset is None:
-            interrupted = True
-
         image, var, count, caustic, aux, filtered = self._finish(n_pix, width, height, offline, fset)
+        # Stopped by the time limit, not by Ctrl-C (adaptive: not by convergence either).
+        time_limited = time_limit is not None and not interrupted and (
+            state["done"] < spp if aset is None else count.sum() < budget and elapsed() >= time_limit)
         stats.render_seconds = elapsed() + (pilot_seconds if pilot_info is not None else 0.0)
         stats.photon_pilot = pilot_info
         for st in self.states:
@@ -597,7 +658,9 @@ class Renderer:
                             spp=int(count.max()) if n_pix else 0, seed=seed, max_depth=max_depth,
                             rr_depth=rr_depth, devices=[s.dctx.label for s in self.states],
                             features=self.features, stats=stats, photons=pset, caustic_image=caustic,
-                            aux=aux, filtered=filtered, adaptive=aset, interrupted=interrupted)
+                            aux=aux, filtered=filtered, adaptive=aset, interrupted=interrupted,
+                            time_limited=bool(time_limited), scene_source=self.scene.source,
+                            scene_sha256=self.scene.sha256)
 
     def _run_threads(self, work, state, lock, progress, spp, n_pix, elapsed) -> bool:
         """Run work(state) on every device (in threads when several); True if interrupted."""
@@ -736,7 +799,7 @@ class Renderer:
             normal = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
             aux = {"normal": normal.reshape(height, width, 3).astype(np.float32),
                    "albedo": (asum[:, :3] / k).reshape(height, width, 3).astype(np.float32),
-                   "depth": (asum[:, 3] / k[:, 0]).reshape(height, width).astype(np.float32),
+                   "depth": (asum[:, 3] / k[:, 0] / self.packed.length_scale).reshape(height, width).astype(np.float32),
                    "emission": (esum[:, :3] / k).reshape(height, width, 3).astype(np.float32)}
             if fset is not None:
                 # Emission seen directly (lights, through mirrors and glass too) is
