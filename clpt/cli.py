@@ -192,7 +192,7 @@ def cmd_render(a) -> int:
     r = Renderer(scene, aux=filt is not None or a.write_aux, **_renderer_kwargs(a))
     preflight.warn_unused_options(a, r.packed.has_caustics, _warn)
     preflight.check_memory(width, height, aux=r.features.aux, adaptive=adaptive is not None,
-                           photons=(photons.count if photons is not None else 0) if r.features.photons else 0,
+                           photons=photons.resolved(width * height).count if photons and r.features.photons else 0,
                            cpu_device=all(st.dctx.is_cpu for st in r.states))
     if a.verbose:
         for st in r.states:

@@ -109,9 +109,10 @@ class PhotonSettings:
                 bad(f"{key} must be an integer from 1 to 2^32 - 1 (got {v!r})")
         if not (is_num(self.alpha) and 0 < self.alpha <= 1):
             bad(f"alpha must be in (0, 1] (got {self.alpha!r})")
-        for key in ("radius_absolute", "progressive"):
-            if not isinstance(getattr(self, key), (bool, np.bool_)):
-                bad(f"{key} must be True or False (got {getattr(self, key)!r})")
+        if not isinstance(self.radius_absolute, (bool, np.bool_)):
+            bad(f"radius_absolute must be True or False (got {self.radius_absolute!r})")
+        if self.progressive is not None and not isinstance(self.progressive, (bool, np.bool_)):
+            bad(f"progressive must be True, False or None (got {self.progressive!r})")
         return self
 
     def resolved(self, n_pixels: int) -> "PhotonSettings":

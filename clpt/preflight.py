@@ -113,16 +113,18 @@ def check_render_options(a):
     _int_option("--min-spp", getattr(a, "min_spp", None), 1, 2 ** 32 - 1)
     _int_option("--adaptive-pass-spp", getattr(a, "adaptive_pass_spp", None), 1, 2 ** 32 - 1)
     _finite_option("--noise-threshold", getattr(a, "noise_threshold", None), 0.0, lo_open=True)
-    for name in ("radius", "cone_k", "alpha"):
+    for name in ("radius", "cone_k", "alpha", "merge_probability"):
         _finite_option(f"--{name.replace('_', '-')}", getattr(a, name, None))
 
 
 def warn_unused_options(a, scene_has_casters: bool, warn):
     """One line for each given option that will have no effect."""
     photon_opts = [f"--{k.replace('_', '-')}" for k in ("photons", "radius", "cone_k", "max_photons", "photon_budget",
-                                                        "photon_mode", "offline_spp", "aim", "alpha", "spp_per_map")
+                                                        "photon_mode", "offline_spp", "aim", "alpha", "spp_per_map",
+                                                        "merge_vertices", "merge_probability")
                    if getattr(a, k, None) is not None]
-    photon_opts += [f"--{k.replace('_', '-')}" for k in ("radius_absolute", "progressive") if getattr(a, k, False)]
+    photon_opts += [f"--{k.replace('_', '-')}" for k in ("radius_absolute", "progressive", "no_photon_pilot")
+                    if getattr(a, k, False)]
     if photon_opts and not scene_has_casters:
         warn(f"{', '.join(photon_opts)} ignored: the scene has no mirror or glass objects, so no photon map")
     filt_opts = [f"--{k.replace('_', '-')}" for k in ("filter_width", "filter_iterations", "filter_interval")

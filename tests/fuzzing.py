@@ -250,9 +250,12 @@ CLI_OPTIONS = {
     "--filter-iterations": st.integers(1, 3).map(str),
     "--filter-interval": _num(st.integers(0, 3)),
     "--adaptive": st.sampled_from(["error", "paper", "bogus"]),
-    "--photon-mode": st.sampled_from(["online", "offline"]),
+    "--photon-mode": st.sampled_from(["merge", "online", "offline"]),
+    "--merge-vertices": _num(st.integers(0, 3)),
+    "--merge-probability": _num(st.floats(0.0, 1.5)),
 }
-CLI_FLAGS = ["--filter", "--progressive", "--radius-absolute", "--no-nee", "--write-aux", "--no-depth-reduction"]
+CLI_FLAGS = ["--filter", "--progressive", "--radius-absolute", "--no-nee", "--write-aux", "--no-depth-reduction",
+             "--no-photon-pilot"]
 
 
 @st.composite

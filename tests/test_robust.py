@@ -159,7 +159,7 @@ def test_scene_files_only_regular_and_bounded(tmp_path):
     (lambda: PhotonSettings(radius="a").check(), clpt.SceneError, "radius must be a number"),
     (lambda: PhotonSettings(budget=1.5).check(), clpt.SceneError, "budget must be an integer"),
     (lambda: PhotonSettings(count=True).check(), clpt.SceneError, "count must be an integer"),
-    (lambda: PhotonSettings(progressive="yes").check(), clpt.SceneError, "progressive must be True or False"),
+    (lambda: PhotonSettings(progressive="yes").check(), clpt.SceneError, "progressive must be True, False or None"),
     (lambda: clpt.AdaptiveSettings(min_spp="a").check(), clpt.SceneError, "min_spp must be an integer"),
     (lambda: clpt.AdaptiveSettings(threshold=float("nan")).check(), clpt.SceneError, "threshold must be a number"),
 ])
