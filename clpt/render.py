@@ -31,17 +31,11 @@ from .device import DeviceContext, DeviceError, select_devices
 from .features import Features, scene_features
 from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
 from .adaptive import AdaptiveSettings, allocate_error, allocate_paper
-from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, LUMA, OFFSET_ABS
+from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, LUMA, OFFSET_FLOOR
 from .denoise import ConeFilter, FilterSettings
 from .photons import PM_MERGE, PM_OFF, PM_OFFLINE, PM_OWNED, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
 from .scene import Scene, SceneError, load_scene
 
-<<<<<<< HEAD
-=======
-LANE_CHOICES = (1, 2, 4, 8, 16)  # paths per work-item: OpenCL vector widths
-LOCAL_SIZE_CPU = 16
-LOCAL_SIZE_GPU = 64
->>>>>>> 531addf (Robust input and extremes: ray offsets that follow the hit's own magnitudes (not the scene's extent); scenes of extreme extent packed at a power-of-two scale; float-range and precision checks in the scene checker naming the key; scene files read only from regular files with a size limit, deep nesting in one line; clear API errors (Material, Quad.from_vertices, Renderer lanes/kernel, PhotonSettings, AdaptiveSettings, time limits); render preflight (output path and format, option ranges, image size per format, memory against what is available), unused-option warnings, fallback EXR when saving fails; honest metadata (mean/min/max spp, interrupted vs time-limited, version, scene and hash, exposure, photon and adaptive settings) in EXR and as text in PNG/JPEG; hypothesis fuzzing of scene files and render options in the suite and a long counted run)
 PREPASS_SEED_SALT = 0x2545F491
 
 
@@ -194,12 +188,7 @@ class _DeviceState:
             recs = np.zeros((1, 4), dtype=real)
         self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
         self.counts = counts_arg(packed.counts)
-<<<<<<< HEAD
-        self.eps_abs = packed.extent * OFFSET_ABS['double' if features.double else 'float']
-=======
-        # An absolute floor under the ray offsets (kernels/scene.h), for hit points at the origin.
-        self.eps_abs = float(np.finfo(real).tiny) * 2.0 ** 20
->>>>>>> 531addf (Robust input and extremes: ray offsets that follow the hit's own magnitudes (not the scene's extent); scenes of extreme extent packed at a power-of-two scale; float-range and precision checks in the scene checker naming the key; scene files read only from regular files with a size limit, deep nesting in one line; clear API errors (Material, Quad.from_vertices, Renderer lanes/kernel, PhotonSettings, AdaptiveSettings, time limits); render preflight (output path and format, option ranges, image size per format, memory against what is available), unused-option warnings, fallback EXR when saving fails; honest metadata (mean/min/max spp, interrupted vs time-limited, version, scene and hash, exposure, photon and adaptive settings) in EXR and as text in PNG/JPEG; hypothesis fuzzing of scene files and render options in the suite and a long counted run)
+        self.eps_abs = OFFSET_FLOOR['double' if features.double else 'float']  # kernels/scene.h
         self.lum_scale = packed.lum_scale
         self.real = real
         sources = kernel_sources(packed, features)
@@ -405,18 +394,13 @@ class Renderer:
             raise ValueError(f"precision must be 'float' or 'double' (got {precision!r})")
         if accumulate not in ("auto", "double", "kahan"):
             raise ValueError(f"accumulate must be 'auto', 'double' or 'kahan' (got {accumulate!r})")
-<<<<<<< HEAD
-        if lanes is not None and lanes not in tune.LANE_WIDTHS:
+        if lanes is not None and (isinstance(lanes, bool) or lanes not in tune.LANE_WIDTHS):
             raise ValueError(f"lanes must be one of {', '.join(map(str, tune.LANE_WIDTHS))} (got {lanes!r})")
         if local_size is not None and (isinstance(local_size, bool) or not isinstance(local_size, int)
                                        or local_size < 1):
             raise ValueError(f"local_size must be a positive integer (got {local_size!r})")
-=======
-        if lanes is not None and (isinstance(lanes, bool) or lanes not in LANE_CHOICES):
-            raise ValueError(f"lanes must be one of {', '.join(map(str, LANE_CHOICES))} (got {lanes!r})")
         if kernel not in ("specialized", "generic", "baked"):
             raise ValueError(f"kernel must be 'specialized', 'generic' or 'baked' (got {kernel!r})")
->>>>>>> 531addf (Robust input and extremes: ray offsets that follow the hit's own magnitudes (not the scene's extent); scenes of extreme extent packed at a power-of-two scale; float-range and precision checks in the scene checker naming the key; scene files read only from regular files with a size limit, deep nesting in one line; clear API errors (Material, Quad.from_vertices, Renderer lanes/kernel, PhotonSettings, AdaptiveSettings, time limits); render preflight (output path and format, option ranges, image size per format, memory against what is available), unused-option warnings, fallback EXR when saving fails; honest metadata (mean/min/max spp, interrupted vs time-limited, version, scene and hash, exposure, photon and adaptive settings) in EXR and as text in PNG/JPEG; hypothesis fuzzing of scene files and render options in the suite and a long counted run)
         self.scene = scene
         self.packed = pack_scene(scene)
         use_photons = self.packed.has_caustics and photons is not False
@@ -447,7 +431,6 @@ class Renderer:
             self.states.append(st)
         self.features = self.states[0].features
 
-<<<<<<< HEAD
     def _trial(self, st, spp: int, seed: int):
         """Render spp samples per pixel of a tune.TRIAL_SIZE square image the
         default way on state st alone; (samples/s of the passes after the
@@ -460,13 +443,12 @@ class Renderer:
         secs = max(sum(p[3] for p in passes), 1e-9)
         done = sum(p[2] for p in passes)
         return done * n * n / secs, secs / max(done, 1)
-=======
+
     def _kernel_photons(self, pset):
         """The photon settings in the packed scene's lengths (an absolute radius scaled with them)."""
         if pset is not None and pset.radius_absolute and self.packed.length_scale != 1.0:
             return replace(pset, radius=pset.radius * self.packed.length_scale)
         return pset
->>>>>>> 531addf (Robust input and extremes: ray offsets that follow the hit's own magnitudes (not the scene's extent); scenes of extreme extent packed at a power-of-two scale; float-range and precision checks in the scene checker naming the key; scene files read only from regular files with a size limit, deep nesting in one line; clear API errors (Material, Quad.from_vertices, Renderer lanes/kernel, PhotonSettings, AdaptiveSettings, time limits); render preflight (output path and format, option ranges, image size per format, memory against what is available), unused-option warnings, fallback EXR when saving fails; honest metadata (mean/min/max spp, interrupted vs time-limited, version, scene and hash, exposure, photon and adaptive settings) in EXR and as text in PNG/JPEG; hypothesis fuzzing of scene files and render options in the suite and a long counted run)
 
     @property
     def build_seconds(self) -> float:
@@ -525,13 +507,7 @@ class Renderer:
         fset = filter.check() if filter is not None else None
         if fset is not None and not self.features.aux:
             raise SceneError("render: the filter needs the feature buffers: make the Renderer with aux=True")
-<<<<<<< HEAD
-        frame = camera_frame(self.scene.camera, width, height)
-=======
-        if aset is not None and progressive:
-            raise SceneError("render: adaptive sampling and progressive photon mapping cannot be combined")
         frame = camera_frame(self.scene.camera, width, height, self.packed.length_scale)
->>>>>>> 531addf (Robust input and extremes: ray offsets that follow the hit's own magnitudes (not the scene's extent); scenes of extreme extent packed at a power-of-two scale; float-range and precision checks in the scene checker naming the key; scene files read only from regular files with a size limit, deep nesting in one line; clear API errors (Material, Quad.from_vertices, Renderer lanes/kernel, PhotonSettings, AdaptiveSettings, time limits); render preflight (output path and format, option ranges, image size per format, memory against what is available), unused-option warnings, fallback EXR when saving fails; honest metadata (mean/min/max spp, interrupted vs time-limited, version, scene and hash, exposure, photon and adaptive settings) in EXR and as text in PNG/JPEG; hypothesis fuzzing of scene files and render options in the suite and a long counted run)
         n_pix = width * height
         stats = RenderStats(build_seconds=self.build_seconds,
                             cache_hits=sum(s.build.cache_hit for s in self.states))
