@@ -48,10 +48,15 @@ class AdaptiveSettings:
         from .scene import SceneError
         if self.scheme not in ("error", "paper"):
             raise SceneError(f"adaptive: scheme must be 'error' or 'paper' (got {self.scheme!r})")
-        if self.min_spp < 1 or self.pass_spp < 1:
-            raise SceneError("adaptive: min_spp and pass_spp must be >= 1")
-        if not (math.isfinite(self.threshold) and self.threshold > 0):
-            raise SceneError(f"adaptive: threshold must be > 0 (got {self.threshold!r})")
+        for key in ("min_spp", "pass_spp"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v < 2 ** 32:
+                raise SceneError(f"adaptive: {key} must be an integer from 1 to 2^32 - 1 (got {v!r})")
+        for key in ("threshold", "disagreement"):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or \
+                    not (math.isfinite(v) and v > 0):
+                raise SceneError(f"adaptive: {key} must be a number > 0 (got {v!r})")
         if self.paper_mode not in ("reduce", "stop"):
             raise SceneError(f"adaptive: paper_mode must be 'reduce' or 'stop' (got {self.paper_mode!r})")
         return self

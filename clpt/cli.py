@@ -217,12 +217,26 @@ def _renderer_kwargs(a):
     return kw
 
 
+def _warn(msg):
+    print(f"clpt: warning: {msg}", file=sys.stderr)
+
+
 def cmd_render(a) -> int:
+    from . import preflight
     from .render import Renderer
     from .scene import load_scene
 
+    # Everything that can be checked is checked before the first sample.
+    preflight.check_render_options(a)
     scene = load_scene(a.scene)
-    out = Path(a.output) if a.output else Path(Path(a.scene).stem + ".png")
+    out = preflight.check_output(a.output if a.output is not None else Path(a.scene).stem + ".png")
+    if a.save_sample_map is not None:
+        preflight.check_output(a.save_sample_map, "--save-sample-map")
+    width = a.width or scene.camera.width
+    height = a.height or scene.camera.height
+    preflight.check_image_size(out, width, height)
+    if a.save_sample_map is not None:
+        preflight.check_image_size(a.save_sample_map, width, height, "--save-sample-map")
     photons = _photon_settings(a) if a.photons != 0 else None
     adaptive = _adaptive_settings(a)
     filt = _filter_settings(a)
@@ -240,6 +254,10 @@ def cmd_render(a) -> int:
     r = Renderer(scene, aux=filt is not None or a.write_aux, **_renderer_kwargs(a))
     if viewer is not None:
         viewer.cpu_device = any(st.dctx.is_cpu for st in r.states)
+    preflight.warn_unused_options(a, r.packed.has_caustics, _warn)
+    preflight.check_memory(width, height, aux=r.features.aux, adaptive=adaptive is not None,
+                           photons=photons.resolved(width * height).count if photons and r.features.photons else 0,
+                           cpu_device=all(st.dctx.is_cpu for st in r.states))
     if a.verbose:
         for st in r.states:
             b = st.build
@@ -253,7 +271,11 @@ def cmd_render(a) -> int:
     preview = None
     if filt is not None and filt.interval:
         def preview(img):
-            save_image(out, img, exposure=a.exposure)
+            from .image import ImageError
+            try:
+                save_image(out, img, exposure=a.exposure)
+            except (ImageError, OSError) as e:  # a preview is not worth the render
+                _warn(f"cannot write the preview: {e}")
     try:
         res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,
                        height=a.height, photons=photons, adaptive=adaptive, filter=filt, progress=show,
@@ -265,11 +287,16 @@ def cmd_render(a) -> int:
     end()
     if viewer is not None and a.verbose and viewer.updates:
         print(viewer.summary(), file=sys.stderr)
+    meta = res.metadata(a.exposure)
     if res.filtered is not None:
-        save_image(out, res.filtered, metadata={**res.metadata(), "clpt:filtered": 1}, exposure=a.exposure)
-        res.save(_sibling(out, "unfiltered"), exposure=a.exposure)
+        meta = {**meta, "clpt:filtered": 1}
+        fallback = preflight.save_with_fallback(
+            lambda p: save_image(p, res.filtered, metadata=meta, exposure=a.exposure), out, res.filtered, meta, _warn)
+        preflight.save_with_fallback(lambda p: res.save(p, exposure=a.exposure), _sibling(out, "unfiltered"),
+                                     res.image, res.metadata(a.exposure), _warn)
     else:
-        res.save(out, exposure=a.exposure)
+        fallback = preflight.save_with_fallback(lambda p: res.save(p, exposure=a.exposure), out, res.image, meta,
+                                                _warn)
     if a.write_aux and res.aux is not None:
         save_image(_sibling(out, "normal", ".exr"), res.aux["normal"])
         save_image(_sibling(out, "albedo", ".exr"), res.aux["albedo"])
@@ -282,7 +309,7 @@ def cmd_render(a) -> int:
     st = res.stats
     secs = max(st.render_seconds, 1e-9)
     spp_text = (f"{res.sample_count.mean():.1f} spp on average" if res.stats.adaptive_rounds else f"{res.spp} spp")
-    msg = (f"wrote {out}: {res.image.shape[1]}x{res.image.shape[0]}, {spp_text}, "
+    msg = (f"wrote {fallback or out}: {res.image.shape[1]}x{res.image.shape[0]}, {spp_text}, "
            f"{st.render_seconds:.2f}s, {res.samples / secs / 1e6:.2f} Msamples/s")
     if st.nonfinite:
         msg += f", {st.nonfinite} non-finite samples dropped"
@@ -303,10 +330,10 @@ def cmd_render(a) -> int:
     if res.stats.adaptive_rounds and not a.quiet:
         print(f"adaptive: {res.stats.adaptive_rounds} rounds, {res.sample_count.min()} to {res.sample_count.max()} "
               f"samples per pixel", file=sys.stderr)
-    if res.interrupted and a.time_limit is None:
+    if res.interrupted:
         print(f"interrupted after {res.spp} spp; the image so far was written", file=sys.stderr)
         return 130
-    return 0
+    return 1 if fallback is not None else 0
 
 
 def cmd_devices(a) -> int:

@@ -18,11 +18,14 @@ LUMA = np.array(LUMA_WEIGHTS)
 LOCAL_SIZE_CPU = 16
 LOCAL_SIZE_GPU = 64
 
-# Ray-origin offsets (kernels/scene.h offset_distance): relative to the
-# point's largest coordinate, plus an absolute floor of the scene's extent
-# times OFFSET_ABS; per precision.
+# Ray-origin offsets (kernels/scene.h offset_distance): OFFSET_REL times the
+# magnitudes the hit point's rounding error follows (the point's, the ray
+# origin's, the primitive's position and size), never the scene's extent,
+# plus an absolute floor OFFSET_FLOOR (2^20 of the smallest normal numbers)
+# for points at the origin; per precision.
 OFFSET_REL = {"float": 2e-6, "double": 1e-12}
-OFFSET_ABS = {"float": 2e-6, "double": 1e-13}
+OFFSET_FLOOR = {"float": float(np.finfo(np.float32).tiny) * 2.0 ** 20,
+                "double": float(np.finfo(np.float64).tiny) * 2.0 ** 20}
 
 
 def luminance(rgb) -> np.ndarray:

@@ -48,6 +48,17 @@ def png_bytes(img: np.ndarray, exposure: float = 0.0) -> bytes:
     header = struct.pack(">IIBBBBB", w, h, 8, 2 if c == 3 else 0, 0, 0, 0)
     return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(rows.tobytes(), 6))
             + chunk(b"IEND", b""))
+def _attribute_value(v, typed: bool):
+    """A metadata value OpenImageIO can store: numbers as int32 or float
+    where the format keeps them (larger integers, which OpenImageIO cannot
+    take, as text), everything else as text."""
+    if isinstance(v, (bool, np.bool_)):
+        v = int(v)
+    if typed and isinstance(v, (int, np.integer)) and -2 ** 31 <= int(v) < 2 ** 31:
+        return int(v)
+    if typed and isinstance(v, (float, np.floating)):
+        return float(v)
+    return str(v)
 
 
 def save_image(path, img: np.ndarray, metadata: dict | None = None, exposure: float = 0.0):
@@ -66,8 +77,12 @@ def save_image(path, img: np.ndarray, metadata: dict | None = None, exposure: fl
         data = np.ascontiguousarray(to_display(img, exposure))
         spec = oiio.ImageSpec(w, h, c, oiio.UINT8)
         spec.attribute("oiio:ColorSpace", "sRGB")
+    float_file = path.suffix.lower() in FLOAT_FORMATS
     for k, v in (metadata or {}).items():
-        spec.attribute(k, v if isinstance(v, (int, float)) else str(v))
+        spec.attribute(k, _attribute_value(v, float_file))
+    if metadata and "ImageDescription" not in metadata:
+        # The one text field every format keeps (JPEG drops the others, PNG keeps only text).
+        spec.attribute("ImageDescription", "; ".join(f"{k.removeprefix('clpt:')}={v}" for k, v in metadata.items()))
     if path.parent and not path.parent.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
     out = oiio.ImageOutput.create(str(path))

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene import Camera, Material, Plane, Quad, Scene, Sphere, Triangle
+from .scene import Camera, Material, Plane, Quad, Scene, Sphere, Triangle, length_scale
 
 MAT_STRIDE = 6
 SPHERE_STRIDE = 2
@@ -34,6 +34,7 @@ class PackedScene:
     size: float                  # diagonal of the geometry's bounds: the unit of relative photon radii
     max_flux: float              # total emitted power (pi * area * max Le * sides), for photon sum scales
     max_radiance: float = 1.0    # the brightest emission's largest channel
+    length_scale: float = 1.0    # the records' lengths are the scene's times this (see length_scale)
 
     @property
     def lum_scale(self) -> float:
@@ -138,6 +139,9 @@ def _caustic_objects(scene: Scene):
 
 def pack_scene(scene: Scene) -> PackedScene:
     scene.check()
+    k = length_scale(scene.extent())
+    if k != 1.0:
+        scene = scene.scaled(k)
     surfaces: dict[Material, int] = {}
 
     def mat_id(shape) -> float:
@@ -198,7 +202,8 @@ def pack_scene(scene: Scene) -> PackedScene:
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
                        light_kinds=frozenset(kinds[int(r[0][3])] for _, _, _, r, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,
-                       max_radiance=max((max(m.emission) for _, _, m, _, _ in lights), default=1.0))
+                       max_radiance=max((max(m.emission) for _, _, m, _, _ in lights), default=1.0),
+                       length_scale=k)
 
 
 @dataclass(frozen=True)
@@ -209,7 +214,8 @@ class CameraFrame:
     dy: np.ndarray      # one pixel down
 
 
-def camera_frame(cam: Camera, width: int, height: int) -> CameraFrame:
+def camera_frame(cam: Camera, width: int, height: int, scale: float = 1.0) -> CameraFrame:
+    """The camera's rays; its origin in lengths times scale (PackedScene.length_scale)."""
     o = np.array(cam.origin, dtype=np.float64)
     f = np.array(cam.target, dtype=np.float64) - o
     f /= np.linalg.norm(f)
@@ -223,5 +229,5 @@ def camera_frame(cam: Camera, width: int, height: int) -> CameraFrame:
     elif axis == "larger":
         axis = "x" if width >= height else "y"
     tx, ty = (t, t * height / width) if axis == "x" else (t * width / height, t)
-    return CameraFrame(origin=o, corner=f - tx * right + ty * up, dx=right * (2 * tx / width),
+    return CameraFrame(origin=o * scale, corner=f - tx * right + ty * up, dx=right * (2 * tx / width),
                        dy=-up * (2 * ty / height))

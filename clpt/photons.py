@@ -75,33 +75,44 @@ class PhotonSettings:
         def bad(what):
             raise SceneError(f"photons: {what}")
 
-        if self.count is not None and (not isinstance(self.count, (int, np.integer)) or isinstance(self.count, bool)
-                                       or not 0 <= self.count < 2 ** 31):
+        def is_int(v):
+            return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+        def is_num(v):
+            return (is_int(v) or isinstance(v, (float, np.floating))) and math.isfinite(v)
+
+        if self.count is not None and (not is_int(self.count) or not 0 <= self.count < 2 ** 31):
             bad(f"count must be an integer from 0 to 2^31 - 1 (got {self.count!r})")
-        if not (math.isfinite(self.radius) and self.radius > 0):
-            bad(f"radius must be > 0 (got {self.radius!r})")
-        if not (math.isfinite(self.cone_k) and self.cone_k >= 1):
-            bad(f"cone_k must be >= 1 (got {self.cone_k!r})")
-        if not 0 <= self.max_photons < 2 ** 32:
-            bad(f"max_photons must be >= 0 (got {self.max_photons!r})")
-        if not 1 <= self.budget < 2 ** 32:
-            bad(f"budget must be >= 1 (got {self.budget!r})")
+        if not (is_num(self.radius) and 0 < self.radius < 3e38):
+            bad(f"radius must be a number > 0 (got {self.radius!r})")
+        if not (is_num(self.cone_k) and 1 <= self.cone_k < 3e38):
+            bad(f"cone_k must be a number >= 1 (got {self.cone_k!r})")
+        if not is_int(self.max_photons) or not 0 <= self.max_photons < 2 ** 32:
+            bad(f"max_photons must be an integer from 0 to 2^32 - 1 (got {self.max_photons!r})")
+        if not is_int(self.budget) or not 1 <= self.budget < 2 ** 32:
+            bad(f"budget must be an integer from 1 to 2^32 - 1 (got {self.budget!r})")
         if self.mode not in MODES:
             bad(f"mode must be one of {', '.join(MODES)} (got {self.mode!r})")
-        if not (isinstance(self.merge_probability, (int, float)) and 0 < self.merge_probability <= 1):
+        if not (is_num(self.merge_probability) and 0 < self.merge_probability <= 1):
             bad(f"merge_probability must be in (0, 1] (got {self.merge_probability!r})")
-        if not isinstance(self.merge_vertices, (int, np.integer)) or not 1 <= self.merge_vertices < 2 ** 31:
+        if not is_int(self.merge_vertices) or not 1 <= self.merge_vertices < 2 ** 31:
             bad(f"merge_vertices must be an integer >= 1 (got {self.merge_vertices!r})")
         if self.aim not in ("solid_angle", "equal"):
             bad(f"aim must be 'solid_angle' or 'equal' (got {self.aim!r})")
-        if not (isinstance(self.photons_per_sample, (int, float)) and 0 < self.photons_per_sample < 1e6):
+        if not (is_num(self.photons_per_sample) and 0 < self.photons_per_sample < 1e6):
             bad(f"photons_per_sample must be > 0 (got {self.photons_per_sample!r})")
-        if not isinstance(self.pilot, bool):
+        if not isinstance(self.pilot, (bool, np.bool_)):
             bad(f"pilot must be True or False (got {self.pilot!r})")
-        if not self.offline_spp >= 1 or not self.spp_per_map >= 1:
-            bad("offline_spp and spp_per_map must be >= 1")
-        if not 0 < self.alpha <= 1:
+        for key in ("offline_spp", "spp_per_map"):
+            v = getattr(self, key)
+            if not is_int(v) or not 1 <= v < 2 ** 32:
+                bad(f"{key} must be an integer from 1 to 2^32 - 1 (got {v!r})")
+        if not (is_num(self.alpha) and 0 < self.alpha <= 1):
             bad(f"alpha must be in (0, 1] (got {self.alpha!r})")
+        if not isinstance(self.radius_absolute, (bool, np.bool_)):
+            bad(f"radius_absolute must be True or False (got {self.radius_absolute!r})")
+        if self.progressive is not None and not isinstance(self.progressive, (bool, np.bool_)):
+            bad(f"progressive must be True, False or None (got {self.progressive!r})")
         return self
 
     def resolved(self, n_pixels: int) -> "PhotonSettings":

@@ -15,11 +15,12 @@ a per-pixel caustic buffer that is added to the path-traced image.
 from __future__ import annotations
 
 import copy
+import math
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +32,7 @@ from .device import DeviceContext, DeviceError, select_devices
 from .features import Features, scene_features
 from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
 from .adaptive import AdaptiveSettings, allocate_error, allocate_paper
-from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, LUMA, OFFSET_ABS
+from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, LUMA, OFFSET_FLOOR
 from .denoise import ConeFilter, FilterSettings, OidnSettings, apply_denoiser
 from .photons import PM_MERGE, PM_OFF, PM_OFFLINE, PM_OWNED, PM_PREPASS, PhotonMap, PhotonSettings, counts_arg, photon_seed
 from .preview import RenderUpdate
@@ -80,7 +81,10 @@ class RenderResult:
                                              # caustic (Renderer(aux=True))
     filtered: np.ndarray | None = None       # the denoiser's output (render(filter=...)): cone filter or OIDN
     adaptive: AdaptiveSettings | None = None
-    interrupted: bool = False
+    interrupted: bool = False    # stopped by Ctrl-C (KeyboardInterrupt)
+    time_limited: bool = False   # stopped by time_limit before the samples asked for
+    scene_source: str | None = None
+    scene_sha256: str | None = None
 
     @property
     def samples(self) -> int:
@@ -92,22 +96,42 @@ class RenderResult:
         return (f"<RenderResult {w}x{h}, {spp}, seed {self.seed}, {self.stats.render_seconds:.2f} s"
                 f"{', filtered' if self.filtered is not None else ''}{', interrupted' if self.interrupted else ''}>")
 
-    def metadata(self) -> dict:
-        meta = {"clpt:spp": self.spp, "clpt:seed": self.seed, "clpt:max_depth": self.max_depth,
+    def metadata(self, exposure: float | None = None) -> dict:
+        """What the image files record of the render (clpt:* keys)."""
+        from . import __version__
+
+        count = self.sample_count
+        meta = {"clpt:version": __version__,
+                "clpt:spp": round(float(count.mean()), 4) if count.size else 0.0,
+                "clpt:spp_min": int(count.min()) if count.size else 0,
+                "clpt:spp_max": int(count.max()) if count.size else 0,
+                "clpt:seed": self.seed, "clpt:max_depth": self.max_depth,
                 "clpt:rr_depth": self.rr_depth, "clpt:device": "; ".join(self.devices),
                 "clpt:render_seconds": round(self.stats.render_seconds, 4),
-                "clpt:kernel": self.features.describe(), "clpt:interrupted": int(self.interrupted)}
+                "clpt:kernel": self.features.describe(), "clpt:interrupted": int(self.interrupted),
+                "clpt:time_limited": int(self.time_limited)}
+        if self.scene_source is not None:
+            meta["clpt:scene"] = self.scene_source
+        if self.scene_sha256 is not None:
+            meta["clpt:scene_sha256"] = self.scene_sha256
+        if exposure is not None:
+            meta["clpt:exposure"] = float(exposure)
         if self.stats.photon_pilot is not None:
             meta["clpt:photon_choice"] = self.stats.photon_pilot["choice"]
         if self.photons is not None:
             p = self.photons
             meta["clpt:photons"] = (f"{p.count} photons, radius {p.radius}{'' if p.radius_absolute else ' x size'}, "
-                                    f"k {p.cone_k}, {p.mode}{', progressive alpha %g' % p.alpha if p.progressive else ''}")
+                                    f"k {p.cone_k}, {p.mode}{', progressive alpha %g' % p.alpha if p.progressive else ''}"
+                                    f", budget {p.budget}, max {p.max_photons or 'all'}, aim {p.aim}")
+        if self.adaptive is not None:
+            a = self.adaptive
+            meta["clpt:adaptive"] = (f"{a.scheme}, min spp {a.min_spp}, threshold {a.threshold:g}, "
+                                     f"pass spp {a.pass_spp}, {self.stats.adaptive_rounds} rounds")
         return meta
 
     def save(self, path, exposure: float = 0.0):
         from .image import save_image
-        save_image(path, self.image, metadata=self.metadata(), exposure=exposure)
+        save_image(path, self.image, metadata=self.metadata(exposure), exposure=exposure)
 
     def _repr_png_(self) -> bytes:
         """Notebooks show a result as its image, tone-mapped as save() writes a PNG."""
@@ -184,7 +208,7 @@ class _DeviceState:
             recs = np.zeros((1, 4), dtype=real)
         self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
         self.counts = counts_arg(packed.counts)
-        self.eps_abs = packed.extent * OFFSET_ABS['double' if features.double else 'float']
+        self.eps_abs = OFFSET_FLOOR['double' if features.double else 'float']  # kernels/scene.h
         self.lum_scale = packed.lum_scale
         self.real = real
         sources = kernel_sources(packed, features)
@@ -412,11 +436,13 @@ class Renderer:
             raise ValueError(f"precision must be 'float' or 'double' (got {precision!r})")
         if accumulate not in ("auto", "double", "kahan"):
             raise ValueError(f"accumulate must be 'auto', 'double' or 'kahan' (got {accumulate!r})")
-        if lanes is not None and lanes not in tune.LANE_WIDTHS:
+        if lanes is not None and (isinstance(lanes, bool) or lanes not in tune.LANE_WIDTHS):
             raise ValueError(f"lanes must be one of {', '.join(map(str, tune.LANE_WIDTHS))} (got {lanes!r})")
         if local_size is not None and (isinstance(local_size, bool) or not isinstance(local_size, int)
                                        or local_size < 1):
             raise ValueError(f"local_size must be a positive integer (got {local_size!r})")
+        if kernel not in ("specialized", "generic", "baked"):
+            raise ValueError(f"kernel must be 'specialized', 'generic' or 'baked' (got {kernel!r})")
         self.scene = scene
         self.packed = pack_scene(scene)
         use_photons = self.packed.has_caustics and photons is not False
@@ -459,6 +485,12 @@ class Renderer:
         secs = max(sum(p[3] for p in passes), 1e-9)
         done = sum(p[2] for p in passes)
         return done * n * n / secs, secs / max(done, 1)
+
+    def _kernel_photons(self, pset):
+        """The photon settings in the packed scene's lengths (an absolute radius scaled with them)."""
+        if pset is not None and pset.radius_absolute and self.packed.length_scale != 1.0:
+            return replace(pset, radius=pset.radius * self.packed.length_scale)
+        return pset
 
     @property
     def build_seconds(self) -> float:
@@ -508,17 +540,22 @@ class Renderer:
         if isinstance(update_interval, bool) or not isinstance(update_interval, (int, float)) \
                 or not update_interval >= 0 or update_interval == float("inf"):
             raise ValueError(f"render: update_interval must be a number of seconds >= 0 (got {update_interval!r})")
+        for name, v in (("time_limit", time_limit), ("pass_seconds", pass_seconds)):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
+                                  or not (math.isfinite(v) and v > 0)):
+                raise SceneError(f"render: {name} must be a finite number of seconds > 0 (got {v!r})")
         pset = (photons or PhotonSettings()).check().resolved(width * height) if self.features.photons else None
         pilot_info = None
         t_pilot = time.perf_counter()
         if pset is not None:
-            pset.check_radius(self.packed.size, self.features.double)
+            self._kernel_photons(pset).check_radius(self.packed.size, self.features.double)
             if pset.pilot and pset.mode == "merge" and pset.count > 0 and adaptive is None:
                 from .photons import pilot
                 pset, pilot_info = pilot(self, pset, seed=seed)
         pilot_seconds = time.perf_counter() - t_pilot
         if pilot_info is not None and time_limit is not None:
             time_limit = max(time_limit - pilot_seconds, 0.0)  # the pilot is part of the render's time
+        kset = self._kernel_photons(pset)  # in the packed scene's lengths
         # No photons: the path tracer keeps every path (pm_mode PM_OFF), as with photons=False.
         no_photons = pset is not None and pset.count == 0
         progressive = pset is not None and pset.progressive and not no_photons
@@ -529,7 +566,7 @@ class Renderer:
             raise SceneError("render: the filter needs the feature buffers: make the Renderer with aux=True")
         if aux_specular not in ("through", "surface"):
             raise SceneError(f"render: aux_specular must be 'through' or 'surface' (got {aux_specular!r})")
-        frame = camera_frame(self.scene.camera, width, height)
+        frame = camera_frame(self.scene.camera, width, height, self.packed.length_scale)
         n_pix = width * height
         stats = RenderStats(build_seconds=self.build_seconds,
                             cache_hits=sum(s.build.cache_hit for s in self.states))
@@ -577,7 +614,7 @@ class Renderer:
                 return state["done"], state["passes"]
 
         def photon_map(st, iteration):
-            info = st.build_photons(photon_seed(seed, iteration), pset, pset.radius_for(self.packed.size, iteration),
+            info = st.build_photons(photon_seed(seed, iteration), kset, kset.radius_for(self.packed.size, iteration),
                                     mode)
             with lock:
                 stats.photon_maps.append({"device": st.dctx.label, "iteration": iteration, **info})
@@ -654,10 +691,10 @@ class Renderer:
                                                 update=update)
         if state["error"] is not None:
             raise state["error"]
-        if time_limit is not None and state["done"] < spp and aset is None:
-            interrupted = True
-
         image, var, count, caustic, aux, filtered = self._finish(n_pix, width, height, offline, fset)
+        # Stopped by the time limit, not by Ctrl-C (adaptive: not by convergence either).
+        time_limited = time_limit is not None and not interrupted and (
+            state["done"] < spp if aset is None else count.sum() < budget and elapsed() >= time_limit)
         stats.render_seconds = elapsed() + (pilot_seconds if pilot_info is not None else 0.0)
         stats.photon_pilot = pilot_info
         for st in self.states:
@@ -679,7 +716,9 @@ class Renderer:
                             spp=int(count.max()) if n_pix else 0, seed=seed, max_depth=max_depth,
                             rr_depth=rr_depth, devices=[s.dctx.label for s in self.states],
                             features=self.features, stats=stats, photons=pset, caustic_image=caustic,
-                            aux=aux, filtered=filtered, adaptive=aset, interrupted=interrupted)
+                            aux=aux, filtered=filtered, adaptive=aset, interrupted=interrupted,
+                            time_limited=bool(time_limited), scene_source=self.scene.source,
+                            scene_sha256=self.scene.sha256)
 
     def _run_threads(self, work, state, lock, progress, spp, n_pix, elapsed, update) -> bool:
         """Run work(state) on every device (in threads when several); True if interrupted."""
@@ -879,7 +918,7 @@ class Renderer:
             return a.reshape(height, width, -1).astype(np.float32)
 
         aux = {"normal": img(normal), "albedo": img(asum[:, :3] / k),
-               "depth": (asum[:, 3] / k[:, 0]).reshape(height, width).astype(np.float32),
+               "depth": (asum[:, 3] / k[:, 0] / self.packed.length_scale).reshape(height, width).astype(np.float32),
                "emission": img(esum[:, :3] / k),
                "emitter": (esum[:, 3] / k[:, 0]).reshape(height, width).astype(np.float32)}
         n = np.maximum(count, 1.0)

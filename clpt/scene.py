@@ -14,6 +14,7 @@ names the file, the key path and the reason, e.g.::
 from __future__ import annotations
 
 import difflib
+import hashlib
 import math
 import tomllib
 from dataclasses import dataclass, field, replace
@@ -57,6 +58,19 @@ class Material:
     emission: Vec3 = (0.0, 0.0, 0.0)
     two_sided: bool = False
 
+    def __post_init__(self):
+        # Types now (a clear TypeError at the mistake); ranges in check_material.
+        for key in ("kd", "ks", "kr", "kt", "emission"):
+            v = getattr(self, key)
+            if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 3 or \
+                    not all(_is_number(c) for c in v):
+                raise TypeError(f"Material.{key} must be 3 numbers, e.g. (0.5, 0.5, 0.5) (got {v!r})")
+        for key in ("shininess", "ior"):
+            if not _is_number(getattr(self, key)):
+                raise TypeError(f"Material.{key} must be a number (got {getattr(self, key)!r})")
+        if not isinstance(self.two_sided, (bool, np.bool_)):
+            raise TypeError(f"Material.two_sided must be True or False (got {self.two_sided!r})")
+
     @classmethod
     def preset(cls, name: str, **overrides) -> "Material":
         """A named preset (see clpt.presets.PRESETS), with fields overridden."""
@@ -75,6 +89,10 @@ class Material:
 
 
 MaterialRef = Union[str, Material]
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
 
 
 @dataclass(frozen=True)
@@ -144,10 +162,17 @@ class Quad(_ShapeBase):
     @classmethod
     def from_vertices(cls, vertices, **kw) -> "Quad":
         """From four corners in order around the quad (a parallelogram)."""
-        v = [tuple(float(c) for c in p) for p in vertices]
-        if len(v) != 4:
-            raise SceneError(f"a quad needs 4 vertices, got {len(v)}")
-        p0, p1, _, p3 = (np.array(p) for p in v)
+        try:
+            v = [tuple(float(c) for c in p) for p in vertices]
+        except (TypeError, ValueError):
+            raise SceneError(f"a quad's vertices must be 4 points of 3 numbers (got {vertices!r})") from None
+        if len(v) != 4 or any(len(p) != 3 for p in v):
+            raise SceneError(f"a quad needs 4 vertices of 3 numbers, got {vertices!r}")
+        p0, p1, p2, p3 = (np.array(p) for p in v)
+        ext = max(np.linalg.norm(a - b) for a in (p0, p1, p2, p3) for b in (p0, p1, p2, p3))
+        if not np.linalg.norm(p0 + p2 - p1 - p3) <= 1e-6 * ext:
+            raise SceneError("the 4 corners are not a parallelogram (v0 + v2 must equal v1 + v3); "
+                             "split it into triangles")
         return cls(corner=v[0], edge_u=tuple(p1 - p0), edge_v=tuple(p3 - p0), **kw)
 
     def vertices(self):
@@ -217,6 +242,7 @@ class Scene:
     materials: dict = field(default_factory=dict)
     render: RenderSettings = field(default_factory=RenderSettings)
     source: str = "<scene>"
+    sha256: str | None = None  # of the scene file's text, when read from one
 
     def resolve_material(self, ref: MaterialRef) -> Material:
         if isinstance(ref, Material):
@@ -272,6 +298,31 @@ class Scene:
         check_scene(self)
         return self
 
+    def scaled(self, k: float) -> "Scene":
+        """The scene with every length (positions, edges, radii, the camera's
+        position) times k; directions, angles and radiance unchanged, so the
+        image is the same. A power of two k scales exactly."""
+        def pts(v):
+            return tuple(float(x) * k for x in v)
+
+        shapes = []
+        for sh in self.shapes:
+            if isinstance(sh, Sphere):
+                sh = replace(sh, center=pts(sh.center), radius=float(sh.radius) * k)
+            elif isinstance(sh, Triangle):
+                sh = replace(sh, vertices=tuple(pts(v) for v in sh.vertices))
+            elif isinstance(sh, Quad):
+                sh = replace(sh, corner=pts(sh.corner), edge_u=pts(sh.edge_u), edge_v=pts(sh.edge_v))
+            elif isinstance(sh, Plane):
+                sh = replace(sh, point=pts(sh.point))
+            elif isinstance(sh, Box):
+                sh = replace(sh, center=pts(sh.center), size=pts(sh.size))
+            else:
+                raise SceneError(f"{self.source}: cannot rescale a {type(sh).__name__} shape")
+            shapes.append(sh)
+        cam = replace(self.camera, origin=pts(self.camera.origin), target=pts(self.camera.target))
+        return replace(self, camera=cam, shapes=shapes)
+
 
 # --- validation of the model ---------------------------------------------------
 
@@ -299,12 +350,28 @@ def _emission(source, path, v):
     return a
 
 
+# What reaches the kernels' float32 buffers: every number must be finite in
+# float (FLOAT_MAX), lengths are packed rescaled so the scene's extent is
+# near 1 (pack.length_scale) and must then keep their squares in float's range
+# (LENGTH_RANGE of the extent, either way), and Phong exponents and indices of
+# refraction are bounded where the kernels' formulas stay finite.
+FLOAT_MAX = float(np.finfo(np.float32).max)
+LENGTH_RANGE = 2.0 ** 60
+MAX_SHININESS = 1e30
+IOR_RANGE = (1e-6, 1e6)
+
+
 def _finite_vec(source, path, v, nonneg=False):
-    a = np.asarray(v, dtype=np.float64)
-    if a.shape != (3,):
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        _fail(source, path, f"must be 3 numbers (got {v!r})")
+    if a.shape != (3,) or isinstance(v, str) or any(isinstance(x, (bool, str)) for x in np.ravel(v)):
         _fail(source, path, f"must be 3 numbers (got {v!r})")
     if not np.isfinite(a).all():
         _fail(source, path, f"must be finite (got {list(v)})")
+    if (np.abs(a) > FLOAT_MAX).any():
+        _fail(source, path, f"must be within float's range, |x| <= {FLOAT_MAX:.4g} (got {list(v)})")
     if nonneg and (a < 0).any():
         _fail(source, path, f"must not be negative (got {list(v)})")
     return a
@@ -313,13 +380,52 @@ def _finite_vec(source, path, v, nonneg=False):
 def _finite(source, path, x, lo=None, lo_open=True, hi=None, hi_open=True):
     if isinstance(x, bool) or not isinstance(x, (int, float, np.floating, np.integer)):
         _fail(source, path, f"must be a number (got {x!r})")
+    try:
+        x = float(x)
+    except OverflowError:
+        _fail(source, path, f"must be within float's range, |x| <= {FLOAT_MAX:.4g} (got {x})")
     if not math.isfinite(x):
         _fail(source, path, f"must be finite (got {x})")
+    if abs(x) > FLOAT_MAX:
+        _fail(source, path, f"must be within float's range, |x| <= {FLOAT_MAX:.4g} (got {x:g})")
     if lo is not None and (x <= lo if lo_open else x < lo):
         _fail(source, path, f"must be {'>' if lo_open else '>='} {lo} (got {x})")
     if hi is not None and (x >= hi if hi_open else x > hi):
         _fail(source, path, f"must be {'<' if hi_open else '<='} {hi} (got {x})")
-    return float(x)
+    return x
+
+
+# A flat shape must span at least this fraction of its distance from the
+# origin: float resolves positions to 6e-8 of their magnitude, and ray offsets
+# are 2e-6 of it, so a smaller shape would be a few quantized points.
+MIN_FLAT_SIZE = 2.0 ** -16
+
+
+def _precise(source, path, size, position):
+    if size < MIN_FLAT_SIZE * position:
+        _fail(source, path, f"is too small for its distance from the origin ({size:.3g} at {position:.3g}): float "
+                            f"needs shapes of at least {MIN_FLAT_SIZE:.2g} of that; move the scene near the origin")
+
+
+# Scenes whose extent lies outside [2^-16, 2^16] are packed rescaled by a power
+# of two (exact) that brings the extent near 1: the kernels square lengths
+# (distances, areas, radii), and squares of 1e20 or 1e-20 leave float's range.
+LENGTH_SCALE_RANGE = 16
+
+
+def length_scale(extent: float) -> float:
+    """The power of two a scene of this extent is packed at (1 for most scenes)."""
+    e = math.frexp(extent)[1]
+    return 1.0 if abs(e) <= LENGTH_SCALE_RANGE else math.ldexp(1.0, -e)
+
+
+def _length_in_range(source, path, size, extent):
+    """A shape's size (radius, edge) against the scene's extent: both must fit
+    float together once the scene is packed at an extent near 1."""
+    if size * LENGTH_RANGE < extent:
+        _fail(source, path, f"is too small beside the scene's extent ({size:.3g} against {extent:.3g}): float "
+                            f"keeps sizes down to {1 / LENGTH_RANGE:.2g} of the extent; remove the shape or "
+                            f"split the scene")
 
 
 def check_material(source, path, m: Material):
@@ -327,8 +433,10 @@ def check_material(source, path, m: Material):
     for key in ("kd", "ks", "kr", "kt"):
         total += _finite_vec(source, f"{path}.{key}", getattr(m, key), nonneg=True)
     _emission(source, f"{path}.emission", m.emission)
-    _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False)
-    _finite(source, f"{path}.ior", m.ior, lo=0.0)
+    _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False, hi=MAX_SHININESS, hi_open=False)
+    _finite(source, f"{path}.ior", m.ior, lo=IOR_RANGE[0], lo_open=False, hi=IOR_RANGE[1], hi_open=False)
+    if not isinstance(m.two_sided, (bool, np.bool_)):
+        _fail(source, f"{path}.two_sided", f"must be True or False (got {m.two_sided!r})")
     if (total > 1.0 + 1e-6).any():
         c = "rgb"[int(np.argmax(total))]
         _fail(source, path, f"not energy conserving: kd + ks + kr + kt = {total.max():.6g} > 1 "
@@ -365,9 +473,10 @@ def check_scene(scene: Scene):
             _fail(src, f"materials.{name}", f"must be a Material (got {type(m).__name__})")
         check_material(src, f"materials.{name}", m)
 
-    if not scene.shapes:
+    if not isinstance(scene.shapes, (list, tuple)) or not scene.shapes:
         _fail(src, "shapes", "the scene has no shapes")
     power = 0.0
+    sizes = []  # (key path, length) of every shape's smallest size
     for i, s in enumerate(scene.shapes):
         path = _shape_path(i, s)
         if not isinstance(s, tuple(SHAPE_TYPES.values())):
@@ -381,20 +490,31 @@ def check_scene(scene: Scene):
         if isinstance(s.material, Material):
             check_material(src, f"{path}.material", m)
         emissive = m.is_emissive
+        if s.two_sided is not None and not isinstance(s.two_sided, (bool, np.bool_)):
+            _fail(src, f"{path}.two_sided", f"must be True, False or None (got {s.two_sided!r})")
         if isinstance(s, Sphere):
             _finite_vec(src, f"{path}.center", s.center)
-            _finite(src, f"{path}.radius", s.radius, lo=0.0)
-            area = 4 * math.pi * s.radius ** 2
+            r = _finite(src, f"{path}.radius", s.radius, lo=0.0)
+            sizes.append((f"{path}.radius", r))
+            area = 4 * math.pi * r ** 2
         elif isinstance(s, Triangle):
             if len(s.vertices) != 3:
                 _fail(src, f"{path}.vertices", f"must be 3 points (got {len(s.vertices)})")
             v = [_finite_vec(src, f"{path}.vertices[{k}]", p) for k, p in enumerate(s.vertices)]
             area = _planar_area(src, path, v[1] - v[0], v[2] - v[0], "triangle") / 2
+            size = min(np.linalg.norm(v[1] - v[0]), np.linalg.norm(v[2] - v[0]))
+            sizes.append((f"{path}.vertices", size))
+            _precise(src, f"{path}.vertices", size, float(np.abs(v).max()))
         elif isinstance(s, Quad):
             c = _finite_vec(src, f"{path}.corner", s.corner)
             u = _finite_vec(src, f"{path}.edge_u", s.edge_u)
             v = _finite_vec(src, f"{path}.edge_v", s.edge_v)
             area = _planar_area(src, path, u, v, "quad")
+            sizes.append((f"{path}.edge_u", float(np.linalg.norm(u))))
+            sizes.append((f"{path}.edge_v", float(np.linalg.norm(v))))
+            far = float(np.abs(c).max() + np.abs(u).max() + np.abs(v).max())
+            _precise(src, f"{path}.edge_u", float(np.linalg.norm(u)), far)
+            _precise(src, f"{path}.edge_v", float(np.linalg.norm(v)), far)
         elif isinstance(s, Plane):
             _finite_vec(src, f"{path}.point", s.point)
             if np.linalg.norm(_finite_vec(src, f"{path}.normal", s.normal)) == 0.0:
@@ -403,14 +523,28 @@ def check_scene(scene: Scene):
                 _fail(src, f"{path}.emission", "an infinite plane cannot be a light; use a quad")
             area = 0.0
         else:  # Box
-            _finite_vec(src, f"{path}.center", s.center)
+            center = _finite_vec(src, f"{path}.center", s.center)
             _finite_vec(src, f"{path}.rotation", s.rotation)
             size = _finite_vec(src, f"{path}.size", s.size)
             if (size <= 0).any():
                 _fail(src, f"{path}.size", f"must be > 0 in every axis (got {list(s.size)})")
             area = 2 * (size[0] * size[1] + size[1] * size[2] + size[0] * size[2])
+            sizes.append((f"{path}.size", float(size.min())))
+            _precise(src, f"{path}.size", float(size.min()), float(np.abs(center).max() + size.max()))
         if emissive:
             power += area * float(np.mean(m.emission))
+    extent = scene.extent()
+    lo, hi = scene.bounds()
+    far = float(max(np.abs(lo).max(), np.abs(hi).max()))
+    if not (extent <= FLOAT_MAX and far <= FLOAT_MAX):
+        _fail(src, "shapes", f"the scene reaches {max(far, extent):.3g}, beyond float's range ({FLOAT_MAX:.4g})")
+    if far * length_scale(extent) > LENGTH_RANGE:
+        _fail(src, "shapes", f"the scene lies {far:.3g} from the origin, more than {LENGTH_RANGE:.2g} times its "
+                             f"extent ({extent:.3g}): float cannot place it; move it near the origin")
+    for path, size in sizes:
+        _length_in_range(src, path, size, extent)
+    if not math.isfinite(power):
+        _fail(src, "shapes", "the lights' total power overflows; lower their emission or size")
     if power <= 0.0:
         _fail(src, "shapes", "the scene has no light: give at least one shape (quad, triangle, sphere "
                              "or box) a positive emission")
@@ -452,26 +586,30 @@ class _Reader:
 
     def number(self, v, path):
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            self.fail(path, f"must be a number (got {_tname(v)} {v!r})")
+            self.fail(path, f"must be a number (got {_tname(v)} {_short(v)})")
+        if isinstance(v, int) and abs(v) > FLOAT_MAX:
+            self.fail(path, f"must be within float's range, |x| <= {FLOAT_MAX:.4g} (got {_short(v)})")
         if not math.isfinite(v):
             self.fail(path, f"must be finite (got {v})")
         return float(v)
 
-    def integer(self, v, path, lo=None):
+    def integer(self, v, path, lo=None, hi=2 ** 31 - 1):
         if isinstance(v, bool) or not isinstance(v, int):
-            self.fail(path, f"must be an integer (got {_tname(v)} {v!r})")
+            self.fail(path, f"must be an integer (got {_tname(v)} {_short(v)})")
         if lo is not None and v < lo:
-            self.fail(path, f"must be >= {lo} (got {v})")
+            self.fail(path, f"must be >= {lo} (got {_short(v)})")
+        if hi is not None and v > hi:
+            self.fail(path, f"must be <= {hi} (got {_short(v)})")
         return v
 
     def boolean(self, v, path):
         if not isinstance(v, bool):
-            self.fail(path, f"must be true or false (got {_tname(v)} {v!r})")
+            self.fail(path, f"must be true or false (got {_tname(v)} {_short(v)})")
         return v
 
     def string(self, v, path):
         if not isinstance(v, str):
-            self.fail(path, f"must be a string (got {_tname(v)} {v!r})")
+            self.fail(path, f"must be a string (got {_tname(v)} {_short(v)})")
         return v
 
     def vec3(self, v, path):
@@ -479,8 +617,17 @@ class _Reader:
             x = self.number(v, path)  # a grey value
             return (x, x, x)
         if not isinstance(v, list) or len(v) != 3:
-            self.fail(path, f"must be a list of 3 numbers (got {_tname(v)} {v!r})")
+            self.fail(path, f"must be a list of 3 numbers (got {_tname(v)} {_short(v)})")
         return tuple(self.number(x, f"{path}[{i}]") for i, x in enumerate(v))
+
+
+def _short(v, n=60):
+    """repr(v), cut to n characters (a 5000-deep array prints in one line)."""
+    try:
+        t = repr(v)
+    except (RecursionError, ValueError):
+        t = f"<{_tname(v)}>"
+    return t if len(t) <= n else t[:n - 3] + "..."
 
 
 def _tname(v):
@@ -559,7 +706,7 @@ def _read_shape(r: _Reader, d, path, materials):
     def points(key, n):
         v = r.require(d, path, key)
         if not isinstance(v, list) or len(v) != n:
-            r.fail(f"{path}.{key}", f"must be a list of {n} points (got {_tname(v)} {v!r})")
+            r.fail(f"{path}.{key}", f"must be a list of {n} points (got {_tname(v)} {_short(v)})")
         return tuple(r.vec3(p, f"{path}.{key}[{k}]") for k, p in enumerate(v))
 
     if kind == "sphere":
@@ -571,11 +718,10 @@ def _read_shape(r: _Reader, d, path, materials):
             if {"corner", "edge_u", "edge_v"} & set(d):
                 r.fail(path, "give either vertices or corner/edge_u/edge_v, not both")
             v = [np.array(p) for p in points("vertices", 4)]
-            ext = max(np.linalg.norm(a - b) for a in v for b in v)
-            if np.linalg.norm(v[0] + v[2] - v[1] - v[3]) > 1e-6 * ext:
-                r.fail(f"{path}.vertices", "the 4 corners are not a parallelogram "
-                                           "(v0 + v2 must equal v1 + v3); split it into triangles")
-            return Quad.from_vertices(v, **kw)
+            try:
+                return Quad.from_vertices(v, **kw)
+            except SceneError as e:
+                r.fail(f"{path}.vertices", str(e))
         return Quad(corner=vec("corner"), edge_u=vec("edge_u"), edge_v=vec("edge_v"), **kw)
     if kind == "plane":
         return Plane(point=vec("point"), normal=vec("normal"), **kw)
@@ -589,6 +735,8 @@ def parse_scene(text: str, source: str = "<string>") -> Scene:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"{source}: TOML syntax error: {e}") from None
+    except RecursionError:
+        raise SceneError(f"{source}: arrays or tables nested too deeply") from None
     r = _Reader(source)
     r.table(doc, "", {"camera", "materials", "shapes", "render"})
     cd = r.table(r.require(doc, "", "camera"), "camera",
@@ -599,15 +747,15 @@ def parse_scene(text: str, source: str = "<string>") -> Scene:
         up=r.vec3(cd.get("up", [0.0, 1.0, 0.0]), "camera.up"),
         fov=r.number(r.require(cd, "camera", "fov"), "camera.fov"),
         fov_axis=r.string(cd.get("fov_axis", "smaller"), "camera.fov_axis"),
-        width=r.integer(cd.get("width", 256), "camera.width", lo=1),
-        height=r.integer(cd.get("height", 256), "camera.height", lo=1),
+        width=r.integer(cd.get("width", 256), "camera.width", lo=1, hi=1 << 16),
+        height=r.integer(cd.get("height", 256), "camera.height", lo=1, hi=1 << 16),
     )
     rd = r.table(doc.get("render", {}), "render", {"spp", "max_depth", "seed", "rr_depth"})
     defaults = RenderSettings()
     settings = RenderSettings(
-        spp=r.integer(rd.get("spp", defaults.spp), "render.spp", lo=1),
+        spp=r.integer(rd.get("spp", defaults.spp), "render.spp", lo=1, hi=2 ** 32 - 1),
         max_depth=r.integer(rd.get("max_depth", defaults.max_depth), "render.max_depth", lo=0),
-        seed=r.integer(rd.get("seed", defaults.seed), "render.seed", lo=0),
+        seed=r.integer(rd.get("seed", defaults.seed), "render.seed", lo=0, hi=2 ** 32 - 1),
         rr_depth=r.integer(rd.get("rr_depth", defaults.rr_depth), "render.rr_depth", lo=0),
     )
     mats = {}
@@ -620,9 +768,48 @@ def parse_scene(text: str, source: str = "<string>") -> Scene:
     if not isinstance(sd, list):
         r.fail("shapes", f"must be an array of tables ([[shapes]]), got {_tname(sd)}")
     shapes = [_read_shape(r, s, f"shapes[{i}]", mats) for i, s in enumerate(sd)]
-    scene = Scene(camera=cam, shapes=shapes, materials=mats, render=settings, source=source)
+    scene = Scene(camera=cam, shapes=shapes, materials=mats, render=settings, source=source,
+                  sha256=hashlib.sha256(text.encode("utf-8")).hexdigest())
     check_scene(scene)
     return scene
+
+
+MAX_SCENE_BYTES = 16 << 20
+
+
+def _read_scene_text(p: Path, name) -> str:
+    """The file's text: a regular file (a FIFO or a device would block or never
+    end) of at most MAX_SCENE_BYTES."""
+    import os
+    import stat
+
+    try:
+        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise SceneError(f"{name}: no such scene file") from None
+    except OSError as e:
+        raise SceneError(f"{name}: cannot read the scene file: {e.strerror or e}") from None
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise SceneError(f"{name}: is a folder, not a scene file")
+        if not stat.S_ISREG(st.st_mode):
+            raise SceneError(f"{name}: not a regular file (a pipe or device); save the scene to a file")
+        if st.st_size > MAX_SCENE_BYTES:
+            raise SceneError(f"{name}: {st.st_size} bytes is too large for a scene file "
+                             f"(at most {MAX_SCENE_BYTES >> 20} MiB)")
+        with os.fdopen(fd, "rb", closefd=False) as f:
+            data = f.read(MAX_SCENE_BYTES + 1)
+    except OSError as e:
+        raise SceneError(f"{name}: cannot read the scene file: {e.strerror or e}") from None
+    finally:
+        os.close(fd)
+    if len(data) > MAX_SCENE_BYTES:
+        raise SceneError(f"{name}: too large for a scene file (at most {MAX_SCENE_BYTES >> 20} MiB)")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{name}: not UTF-8 text ({e.reason} at byte {e.start})") from None
 
 
 def load_scene(path) -> Scene:
@@ -633,11 +820,6 @@ def load_scene(path) -> Scene:
         shipped = scene_path(str(path))
         if shipped is not None:
             p = shipped
-    try:
-        text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SceneError(f"{path}: no such scene file") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise SceneError(f"{path}: cannot read the scene file: {e}") from None
+    text = _read_scene_text(p, path)
     return parse_scene(text, source=str(path))
 

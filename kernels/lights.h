@@ -115,13 +115,14 @@ typedef struct {
     V3 Le;
     vmask two_sided;
     vreal pdf_area;
+    vreal err;        // magnitude of the light's position and size (the point's rounding error follows it)
 } LightPoint;
 
 inline LightPoint light_sample_point(const Scene *sc, vreal u_pick, vreal u1, vreal u2)
 {
     LightPoint lp;
     lp.p = lp.n = lp.Le = v3_zero();
-    lp.pdf_area = (vreal)R(0);
+    lp.pdf_area = lp.err = (vreal)R(0);
     lp.two_sided = lp.pdf_area != lp.pdf_area;
     vmask taken = lp.two_sided;
     for (uint i = 0; i < NUM_LIGHTS; i++) {
@@ -132,14 +133,17 @@ inline LightPoint light_sample_point(const Scene *sc, vreal u_pick, vreal u1, vr
         real4 p = scene_rec(sc, r);
         int kind = (int)p.w;
         V3 y, n;
+        real err;
 #if CLPT_HAS_SPHERE_LIGHTS
         if (kind == LIGHT_KIND_SPHERE) {
             n = sample_uniform_sphere(u1, u2);
             y = v3_fma(n, (vreal)scene_rec(sc, r + 1).x, v3_splat(p));
+            err = max_abs4(p) + scene_rec(sc, r + 1).x;
         } else
 #endif
         {
             real4 u = scene_rec(sc, r + 1), v = scene_rec(sc, r + 2);
+            err = max_abs4(p) + max_abs4(u) + max_abs4(v);
             vreal a = u1, b = u2;
 #if CLPT_HAS_TRIANGLE_LIGHTS
             if (kind == LIGHT_KIND_TRIANGLE)
@@ -154,6 +158,7 @@ inline LightPoint light_sample_point(const Scene *sc, vreal u_pick, vreal u1, vr
         lp.Le = v3_sel(lp.Le, v3_splat(m), pick);
         lp.two_sided = lp.two_sided || (pick && (vreal)m.w != R(0));
         lp.pdf_area = VSEL(lp.pdf_area, (vreal)(info.y / info.x), pick);
+        lp.err = VSEL(lp.err, (vreal)err, pick);
     }
     return lp;
 }

@@ -49,7 +49,7 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
     vreal pf = lp.pdf_area * aim.pdf / fabs(cos_y);
     vreal k = R(1) / (pf * (real)n_emit);
     V3 flux = v3_scale(lp.Le, VSEL((vreal)R(0), k, live));
-    V3 o = offset_origin(sc, lp.p, v3_sel(v3_neg(lp.n), lp.n, cos_y > R(0)));
+    V3 o = offset_origin(sc, lp.p, v3_sel(v3_neg(lp.n), lp.n, cos_y > R(0)), lp.err);
     V3 d = aim.w;
 
     // --- through specular surfaces to the first diffuse one ----------------------
@@ -92,7 +92,7 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
         live = live && (is_r || is_t);
         flux = v3_sel(flux, v3_mul(flux, w), live);
         V3 wn = v3_normalize(wi);
-        o = v3_sel(o, offset_scattered(sc, x, v3_sel(v3_neg(n), n, up), wn), live);
+        o = v3_sel(o, offset_scattered(sc, x, v3_sel(v3_neg(n), n, up), wn, h.err), live);
         d = v3_sel(d, wn, live);
         bounces = bounces + R(1);
     }

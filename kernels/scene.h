@@ -84,22 +84,30 @@ inline Scene scene_make(__global const real4 *records, uint8 counts, real eps_ab
 
 // --- offsetting ray origins ----------------------------------------------
 // A new ray starts a little off the surface, along the side it leaves by.
-// The offset is relative to the point's magnitude (positions carry rounding
-// error proportional to it) plus a scene-relative floor, so that the same
-// scene scaled by 1e-4 or 1e4, or moved far from the origin, renders alike.
+// How far follows the rounding error of the hit point itself, never the
+// scene's extent (a ground sphere of radius 1e6 must not move every ray of a
+// unit box by whole units): a hit at x found along a ray from o carries an
+// error of a few ulps of the magnitudes its test worked with, |x|, |o| and the
+// primitive's own position and size (Ray Tracing Gems ch. 6: offsets that
+// follow the operands' magnitudes). scene_intersect gives that magnitude of
+// the ray and the primitive as Hit.err; sc->eps_abs is only an absolute floor
+// (the smallest normal numbers) for points at the origin.
 #if CLPT_DOUBLE
 #define OFFSET_REL R(CLPT_OFFSET_REL_DOUBLE)
 #else
 #define OFFSET_REL R(CLPT_OFFSET_REL_FLOAT)
 #endif
-inline vreal offset_distance(const Scene *sc, V3 p)
+inline vreal max_abs3(V3 p) { return fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z))); }
+inline real max_abs4(real4 p) { return fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z))); }
+
+inline vreal offset_distance(const Scene *sc, V3 p, vreal err)
 {
-    return fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z))) * OFFSET_REL + sc->eps_abs;
+    return (max_abs3(p) + err) * OFFSET_REL + sc->eps_abs;
 }
 
-inline V3 offset_origin(const Scene *sc, V3 p, V3 n_side)
+inline V3 offset_origin(const Scene *sc, V3 p, V3 n_side, vreal err)
 {
-    return v3_fma(n_side, offset_distance(sc, p), p);
+    return v3_fma(n_side, offset_distance(sc, p, err), p);
 }
 
 // The origin of a scattered ray of unit direction d: moved along d itself by
@@ -109,9 +117,9 @@ inline V3 offset_origin(const Scene *sc, V3 p, V3 n_side)
 // ray closer to the centre, lowering its angle of incidence until it leaked
 // out below the critical angle. Near grazing (cos < 1/8) the step along d
 // would grow long, and the normal offset is kept.
-inline V3 offset_scattered(const Scene *sc, V3 p, V3 n_side, V3 d)
+inline V3 offset_scattered(const Scene *sc, V3 p, V3 n_side, V3 d, vreal err)
 {
-    vreal delta = offset_distance(sc, p);
+    vreal delta = offset_distance(sc, p, err);
     vreal c = v3_dot(d, n_side);
     vmask along = c >= R(0.125);
     V3 dir = v3_sel(n_side, d, along);
@@ -168,6 +176,7 @@ typedef struct {
     V3 ng;      // unit geometric normal (sphere: outward; planar: winding)
     vreal mat;  // material id
     vreal light;  // light record index + 1 of an emissive primitive, 0 otherwise
+    vreal err;  // magnitude the hit's rounding error follows: |o| + the primitive's position and size
 } Hit;
 
 // Closest hit among the quads (tri = 0) or triangles (tri = 1) at records
@@ -183,6 +192,7 @@ inline void closest_planar(const Scene *sc, uint off, uint count, int tri, V3 o,
         h->ng = v3_sel4(h->ng, n, closer);
         h->mat = VSEL(h->mat, (vreal)scene_rec(sc, r).w, closer);
         h->light = VSEL(h->light, (vreal)n.w, closer);
+        h->err = VSEL(h->err, (vreal)max_abs4(scene_rec(sc, r)), closer);  // |corner|: the test is relative to it
     }
 }
 
@@ -193,6 +203,7 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
     h.ng = v3_zero();
     h.mat = (vreal)R(0);
     h.light = (vreal)R(0);
+    h.err = (vreal)R(0);
 #if CLPT_HAS_SPHERES
     for (uint i = 0; i < NUM_SPHERES; i++) {
         uint r = OFF_SPHERES + SPHERE_STRIDE * i;
@@ -206,6 +217,7 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
         real4 sm = scene_rec(sc, r + 1);
         h.mat = VSEL(h.mat, (vreal)sm.x, closer);
         h.light = VSEL(h.light, (vreal)sm.y, closer);
+        h.err = VSEL(h.err, (vreal)(max_abs4(cr) + cr.w), closer);
     }
 #endif
 #if CLPT_HAS_QUADS
@@ -223,8 +235,10 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
         h.ng = v3_sel4(h.ng, scene_rec(sc, r + 1), closer);
         h.mat = VSEL(h.mat, (vreal)scene_rec(sc, r).w, closer);
         h.light = VSEL(h.light, (vreal)R(0), closer);
+        h.err = VSEL(h.err, (vreal)max_abs4(scene_rec(sc, r)), closer);
     }
 #endif
+    h.err = h.err + max_abs3(o);
     return h;
 }
 

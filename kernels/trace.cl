@@ -107,7 +107,7 @@ typedef struct {
 // Returns the mask of lanes whose path goes on; writes the new ray, flags and
 // the pdf of a non-delta direction (ps->pdf_prev, 0 for delta lobes).
 inline vmask scatter(const Scene *sc, const Material *m, LobeProbs pr, PathState *ps, V3 x, V3 n, vmask front,
-                     vmask go, Rand4 r)
+                     vmask go, Rand4 r, vreal x_err)
 {
     // --- Russian roulette over the lobes --------------------------------------
     vreal c = r.a;
@@ -163,7 +163,7 @@ inline vmask scatter(const Scene *sc, const Material *m, LobeProbs pr, PathState
     // sampling's weight is measured against), not only the chosen lobe's.
     vreal pdf = VSEL((vreal)R(0), bsdf_pdf(m, pr, d, n, wn), nondelta);
     ps->beta = v3_sel(ps->beta, v3_mul(ps->beta, w), cont);
-    ps->o = v3_sel(ps->o, offset_scattered(sc, x, v3_sel(v3_neg(n), n, up), wn), cont);
+    ps->o = v3_sel(ps->o, offset_scattered(sc, x, v3_sel(v3_neg(n), n, up), wn, x_err), cont);
     ps->d = v3_sel(ps->d, wn, cont);
     ps->specular = VSEL(ps->specular, is_r || is_t, cont);
     ps->pdf_prev = VSEL(ps->pdf_prev, pdf, cont);
@@ -473,7 +473,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
                 // The shadow ray runs from the offset origin to the light point
                 // itself: aimed along wi from there instead, it would cut into a
                 // sphere light near its silhouette and see the light block itself.
-                V3 so = offset_origin(sc, x, n);
+                V3 so = offset_origin(sc, x, n, h.err);
                 V3 to = v3_sub(ls.p, so);
                 vreal len = sqrt(v3_dot(to, to));
                 vmask blocked = scene_occluded(sc, so, v3_scale(to, R(1) / len), len * R(0.9999), nee);
@@ -487,7 +487,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         vmask cont = go;
         if (VANY(go)) {
             Rand4 rs = rng_uniform4(seed, pixel, sample, group + 1u);
-            cont = scatter(sc, &m, pr, &ps, x, n, front, go, rs);
+            cont = scatter(sc, &m, pr, &ps, x, n, front, go, rs, h.err);
             ps.depth = VSEL(ps.depth, ps.depth + R(1), cont);
 #if CLPT_PHOTONS
             // x's lobe decides whether the path can be the photon map's; after

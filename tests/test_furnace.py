@@ -44,7 +44,9 @@ def check_uniform(res, expected, k=5.0, per_pixel=True):
     sigma_img = np.sqrt(var_pix.sum()) / var_pix.size
     for c in range(3):
         assert_mean_within(res.image[..., c].mean(), expected, sigma_img, k, what=f"image mean, channel {c}")
-    z = np.abs(res.image[..., 0] - expected) / np.sqrt(np.maximum(var_pix, 1e-30))
+    # Plus float rounding (2e-5 relative): with light sampling, direct light in a
+    # sphere is the same in every sample, and a pixel's variance can be exactly 0.
+    z = np.abs(res.image[..., 0] - expected) / np.sqrt(var_pix + (2e-5 * expected) ** 2)
     assert not per_pixel or z.max() < 6.0, f"pixel {np.unravel_index(z.argmax(), z.shape)} is {z.max():.1f} sigma off"
     assert res.stats.nonfinite == 0 and np.isfinite(res.image).all()
 

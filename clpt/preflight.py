@@ -1,0 +1,231 @@
+"""Checks made before a render starts, so that a finished render is never lost
+to a mistake found at the end: the output path (writable, a format that can be
+written), the options (finite, in range), and the memory the render will need
+against what the machine offers. And, should saving fail anyway, a fallback
+EXR that keeps the render.
+
+Every check raises SceneError (a one-line mistake in the command, exit
+status 2) with what to change.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import resource
+import tempfile
+from pathlib import Path
+
+from .scene import SceneError
+
+# Measured peak resident memory of `clpt render` (cornell_box, PoCL, 1 spp;
+# 1024^2 and 2048^2 against 256^2): bytes per pixel of the plain render, and
+# what the feature buffers and the filter add.
+HOST_BASE_BYTES = 128 << 20
+BYTES_PER_PIXEL = 190
+AUX_BYTES_PER_PIXEL = 420
+ADAPTIVE_BYTES_PER_PIXEL = 30
+PHOTON_BYTES = 130  # traced, sorted and keyed copies of each photon
+
+MAX_EXPOSURE = 64.0  # stops; 2^64 already saturates every float image
+
+
+def check_output(path, what: str = "-o") -> Path:
+    """An output path that can be written, in a format OpenImageIO writes."""
+    import OpenImageIO as oiio
+
+    if path is None or str(path).strip() == "":
+        raise SceneError(f"{what}: the output path is empty; give a file name such as out.png or out.exr")
+    p = Path(path)
+    if p.suffix == "":
+        raise SceneError(f"{what} {path}: no file extension; use .png, .jpg or .exr (or another image format)")
+    out = oiio.ImageOutput.create(str(p))
+    if out is None:
+        oiio.geterror()
+        raise SceneError(f"{what} {path}: {p.suffix} is not an image format clpt can write; "
+                         f"use .png, .jpg or .exr")
+    if p.is_dir():
+        raise SceneError(f"{what} {path}: is a folder; give a file name")
+    parent = p.parent if str(p.parent) else Path(".")
+    ancestor = parent
+    while not ancestor.exists():  # save_image creates missing folders
+        if ancestor.parent == ancestor:
+            break
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise SceneError(f"{what} {path}: {ancestor} is not a folder")
+    if p.exists() and not os.access(p, os.W_OK):
+        raise SceneError(f"{what} {path}: the file exists and is not writable")
+    if not os.access(ancestor, os.W_OK | os.X_OK):
+        raise SceneError(f"{what} {path}: cannot write in {ancestor} (permission denied)")
+    if ancestor == parent:
+        # Permissions can pass where writes fail (read-only or virtual file systems):
+        # try a file beside the output.
+        try:
+            fd, probe = tempfile.mkstemp(prefix=".clpt-probe-", dir=parent)
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as e:
+            raise SceneError(f"{what} {path}: cannot write in {parent} ({e.strerror or e})") from None
+    return p
+
+
+# Largest image side each format can store (OpenImageIO's writers and readers).
+MAX_SIDE = {".jpg": 65500, ".jpeg": 65500, ".jpe": 65500, ".jif": 65500, ".jfif": 65500, ".jfi": 65500,
+            ".hdr": 65535, ".rgbe": 65535, ".webp": 16383, ".gif": 65535, ".bmp": 65535, ".tga": 65535}
+
+
+def check_image_size(out, width: int, height: int, what: str = "-o"):
+    """The image's size must fit its file format."""
+    side = MAX_SIDE.get(Path(out).suffix.lower())
+    if side is not None and max(width, height) > side:
+        raise SceneError(f"{what} {out}: {Path(out).suffix} images are at most {side} pixels a side "
+                         f"(asked {width}x{height}); use .exr or .png")
+
+
+def _finite_option(name, v, lo=None, hi=None, lo_open=False):
+    if v is None:
+        return
+    if not math.isfinite(v):
+        raise SceneError(f"{name}: must be a finite number (got {v})")
+    if lo is not None and (v <= lo if lo_open else v < lo):
+        raise SceneError(f"{name}: must be {'>' if lo_open else '>='} {lo:g} (got {v:g})")
+    if hi is not None and v > hi:
+        raise SceneError(f"{name}: must be <= {hi:g} (got {v:g})")
+
+
+def _int_option(name, v, lo, hi):
+    if v is not None and not lo <= v <= hi:
+        raise SceneError(f"{name}: must be an integer from {lo} to {hi} (got {v})")
+
+
+def check_render_options(a):
+    """Range checks of `clpt render`'s options (argparse has checked types)."""
+    _finite_option("--exposure", a.exposure, -MAX_EXPOSURE, MAX_EXPOSURE)
+    _finite_option("--time-limit", a.time_limit, 0.0, lo_open=True)
+    _int_option("--spp", a.spp, 1, 2 ** 32 - 1)
+    _int_option("--seed", a.seed, 0, 2 ** 32 - 1)
+    _int_option("--width", a.width, 1, 1 << 16)
+    _int_option("--height", a.height, 1, 1 << 16)
+    _int_option("--max-depth", a.max_depth, 0, 2 ** 31 - 1)
+    _int_option("--rr-depth", a.rr_depth, 0, 2 ** 31 - 1)
+    _int_option("--filter-interval", getattr(a, "filter_interval", None), 0, 2 ** 31 - 1)
+    _int_option("--min-spp", getattr(a, "min_spp", None), 1, 2 ** 32 - 1)
+    _int_option("--adaptive-pass-spp", getattr(a, "adaptive_pass_spp", None), 1, 2 ** 32 - 1)
+    _finite_option("--noise-threshold", getattr(a, "noise_threshold", None), 0.0, lo_open=True)
+    for name in ("radius", "cone_k", "alpha", "merge_probability"):
+        _finite_option(f"--{name.replace('_', '-')}", getattr(a, name, None))
+
+
+def warn_unused_options(a, scene_has_casters: bool, warn):
+    """One line for each given option that will have no effect."""
+    photon_opts = [f"--{k.replace('_', '-')}" for k in ("photons", "radius", "cone_k", "max_photons", "photon_budget",
+                                                        "photon_mode", "offline_spp", "aim", "alpha", "spp_per_map",
+                                                        "merge_vertices", "merge_probability")
+                   if getattr(a, k, None) is not None]
+    photon_opts += [f"--{k.replace('_', '-')}" for k in ("radius_absolute", "progressive", "no_photon_pilot")
+                    if getattr(a, k, False)]
+    if photon_opts and not scene_has_casters:
+        warn(f"{', '.join(photon_opts)} ignored: the scene has no mirror or glass objects, so no photon map")
+    filt_opts = [f"--{k.replace('_', '-')}" for k in ("filter_width", "filter_iterations", "filter_interval")
+                 if getattr(a, k, None) is not None]
+    if filt_opts and not a.filter:
+        warn(f"{', '.join(filt_opts)} ignored without --filter")
+    ad_opts = [f"--{k.replace('_', '-')}" for k in ("min_spp", "noise_threshold", "adaptive_pass_spp")
+               if getattr(a, k, None) is not None]
+    ad_opts += [f"--{k.replace('_', '-')}" for k in ("no_depth_reduction", "paper_stop") if getattr(a, k, False)]
+    if ad_opts and a.adaptive is None:
+        warn(f"{', '.join(ad_opts)} ignored without --adaptive")
+
+
+def host_bytes_needed(width: int, height: int, aux: bool = False, adaptive: bool = False, photons: int = 0,
+                      cpu_device: bool = True) -> int:
+    """Peak host memory of a render, from the measured costs above (a CPU
+    device's buffers are host memory too)."""
+    per_px = BYTES_PER_PIXEL + (AUX_BYTES_PER_PIXEL if aux else 0) + (ADAPTIVE_BYTES_PER_PIXEL if adaptive else 0)
+    return HOST_BASE_BYTES + width * height * per_px + (photons * PHOTON_BYTES if cpu_device else 0)
+
+
+def available_host_bytes() -> int | None:
+    """What this process may still allocate: the least of the memory the
+    system has available, the cgroup's limit and the address-space limit."""
+    limits = []
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    limits.append(int(line.split()[1]) * 1024)
+    except (OSError, ValueError):
+        pass
+    try:
+        mx = Path("/sys/fs/cgroup/memory.max").read_text().strip()
+        if mx != "max":
+            cur = int(Path("/sys/fs/cgroup/memory.current").read_text())
+            limits.append(int(mx) - cur)
+    except (OSError, ValueError):
+        pass
+    try:
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+        if soft != resource.RLIM_INFINITY:
+            vm = 0
+            with open("/proc/self/status") as f:
+                for line in f:
+                    if line.startswith("VmSize:"):
+                        vm = int(line.split()[1]) * 1024
+            limits.append(soft - vm)
+    except (OSError, ValueError):
+        pass
+    return max(0, min(limits)) if limits else None
+
+
+def check_memory(width: int, height: int, aux: bool, adaptive: bool, photons: int, cpu_device: bool = True,
+                 available: int | None = None):
+    """Refuse a render that will not fit in memory, saying what size would."""
+    need = host_bytes_needed(width, height, aux, adaptive, photons, cpu_device)
+    avail = available_host_bytes() if available is None else available
+    if avail is None or need <= avail:
+        return
+    per_px = (need - HOST_BASE_BYTES - (photons * PHOTON_BYTES if cpu_device else 0)) / (width * height)
+    room = avail - (need - width * height * per_px)
+    fit = ""
+    if room > 0:
+        k = math.sqrt(room / per_px / (width * height))
+        fit = f"; at most about {max(1, int(width * k))}x{max(1, int(height * k))} fits"
+    raise SceneError(f"a {width}x{height} render needs about {need / 2**30:.1f} GiB of memory and "
+                     f"{max(avail, 0) / 2**30:.1f} GiB are available{fit}")
+
+
+def fallback_path(out: Path) -> Path:
+    """Where the render goes if `out` cannot be written: an EXR beside it, or
+    in the temp folder when that folder is not writable."""
+    name = f"{out.stem or 'render'}.clpt-unsaved.exr"
+    beside = (out.parent if str(out.parent) else Path(".")) / name
+    try:
+        if beside.parent.is_dir() and os.access(beside.parent, os.W_OK | os.X_OK) and beside != out:
+            return beside
+    except OSError:
+        pass
+    return Path(tempfile.gettempdir()) / name
+
+
+def save_with_fallback(save, out: Path, image, metadata, warn) -> Path | None:
+    """save(out); if that fails, the image as a float EXR at fallback_path(out)
+    (returned) after warning with both reasons."""
+    from .image import ImageError, save_image
+
+    try:
+        save(out)
+        return None
+    except (ImageError, OSError, RuntimeError, ValueError, TypeError, OverflowError) as e:
+        first = e
+    fb = fallback_path(out)
+    try:
+        save_image(fb, image, metadata=metadata)
+    except Exception as e:  # noqa: BLE001 - the last resort: the temp folder
+        fb = Path(tempfile.mkdtemp(prefix="clpt-")) / fb.name
+        try:
+            save_image(fb, image, metadata=metadata)
+        except Exception as e2:  # noqa: BLE001
+            raise SceneError(f"cannot save the render to {out} ({first}) nor to a fallback ({e}; {e2})") from None
+    warn(f"cannot save {out} ({first}); the render was written to {fb}")
+    return fb
