@@ -8,7 +8,10 @@ interrupted by Ctrl-C (a render still writes the image it has so far).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -221,7 +224,60 @@ def _warn(msg):
     print(f"clpt: warning: {msg}", file=sys.stderr)
 
 
+class _Signals:
+    """SIGTERM and SIGHUP end a render as Ctrl-C does (the image so far is
+    written); while images are being written, Ctrl-C, SIGTERM and SIGHUP wait
+    for the write to finish instead of cutting it short. Exit codes follow
+    the shell's 128 + signal number (130 for Ctrl-C)."""
+
+    SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+
+    def __init__(self):
+        self.received = None
+        self._old = {}
+        self.active = threading.current_thread() is threading.main_thread()
+
+    def _interrupt(self, signum, frame):
+        self.received = signum
+        raise KeyboardInterrupt
+
+    def _note(self, signum, frame):
+        self.received = self.received or signum
+
+    def __enter__(self):
+        if self.active:
+            for sig in self.SIGNALS:
+                self._old[sig] = signal.signal(sig, self._interrupt)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, h in self._old.items():
+            signal.signal(sig, h)
+
+    @contextlib.contextmanager
+    def hold(self):
+        """No signal interrupts what runs inside; one that came is noted."""
+        if not self.active:
+            yield
+            return
+        sigs = (signal.SIGINT,) + self.SIGNALS
+        old = {sig: signal.signal(sig, self._note) for sig in sigs}
+        try:
+            yield
+        finally:
+            for sig, h in old.items():
+                signal.signal(sig, h)
+
+    def exit_code(self) -> int:
+        return 128 + int(self.received) if self.received else 130
+
+
 def cmd_render(a) -> int:
+    with _Signals() as signals:
+        return _render(a, signals)
+
+
+def _render(a, signals) -> int:
     from . import preflight
     from .render import Renderer
     from .scene import load_scene
@@ -287,6 +343,18 @@ def cmd_render(a) -> int:
     end()
     if viewer is not None and a.verbose and viewer.updates:
         print(viewer.summary(), file=sys.stderr)
+    if res.samples == 0:  # stopped before the first sample: leave any existing output alone
+        print(f"clpt: interrupted before the first sample; {out} was not written", file=sys.stderr)
+        return signals.exit_code()
+    with signals.hold():
+        fallback = _write_outputs(a, res, out)
+    return _report(a, res, out, fallback, signals)
+
+
+def _write_outputs(a, res, out):
+    from . import preflight
+    from .image import save_image
+
     meta = res.metadata(a.exposure)
     if res.filtered is not None:
         meta = {**meta, "clpt:filtered": 1}
@@ -306,6 +374,10 @@ def cmd_render(a) -> int:
         from .adaptive import sample_map_image
         save_image(a.save_sample_map, sample_map_image(res.sample_count),
                    metadata={"clpt:max_spp": int(res.sample_count.max()), "clpt:min_spp": int(res.sample_count.min())})
+    return fallback
+
+
+def _report(a, res, out, fallback, signals) -> int:
     st = res.stats
     secs = max(st.render_seconds, 1e-9)
     spp_text = (f"{res.sample_count.mean():.1f} spp on average" if res.stats.adaptive_rounds else f"{res.spp} spp")
@@ -330,9 +402,9 @@ def cmd_render(a) -> int:
     if res.stats.adaptive_rounds and not a.quiet:
         print(f"adaptive: {res.stats.adaptive_rounds} rounds, {res.sample_count.min()} to {res.sample_count.max()} "
               f"samples per pixel", file=sys.stderr)
-    if res.interrupted:
+    if res.interrupted or signals.received:
         print(f"interrupted after {res.spp} spp; the image so far was written", file=sys.stderr)
-        return 130
+        return signals.exit_code()
     return 1 if fallback is not None else 0
 
 

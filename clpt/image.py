@@ -7,6 +7,8 @@ sRGB transfer curve, clamping and dithering-free rounding.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import struct
 import zlib
 from pathlib import Path
@@ -88,11 +90,23 @@ def save_image(path, img: np.ndarray, metadata: dict | None = None, exposure: fl
     out = oiio.ImageOutput.create(str(path))
     if out is None:
         raise ImageError(f"{path}: cannot write this image format ({oiio.geterror()})")
+    # Written beside the target under a temporary name (the same extension,
+    # which picks the format), flushed to disk, then renamed over it: a write
+    # that is killed or fails never leaves a truncated file where a good image was.
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     try:
-        if not out.open(str(path), spec) or not out.write_image(data):
-            raise ImageError(f"{path}: {out.geterror()}")
-    finally:
-        out.close()
+        try:
+            if not out.open(str(tmp), spec) or not out.write_image(data):
+                raise ImageError(f"{path}: {out.geterror()}")
+        finally:
+            out.close()
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
 
 
 def load_image(path) -> np.ndarray:
