@@ -621,18 +621,21 @@ class Renderer:
             if offline:  # the caustic buffer
                 st.run(0, min(pset.offline_spp, spp), prepass=True)
 
-        # With several devices, each one's first (one-sample) pass is a sample
-        # index reserved for it, so a device that starts late (a slower build or
-        # photon map) still gets work instead of finding every sample taken.
+        # With several devices, each one's first pass is reserved for it (a
+        # sample index, or a photon iteration's samples when progressive), so
+        # a device that starts late (a slower build or photon map) still gets
+        # work instead of finding every sample taken.
         reserved = {}
-        if len(self.states) > 1 and not progressive:
-            reserved = {id(st): i for i, st in enumerate(self.states[:uniform_spp])}
-            state["next"] = len(reserved)
+        if len(self.states) > 1:
+            k = pset.spp_per_map if progressive else 1
+            firsts = range(0, uniform_spp, k)
+            reserved = {id(st): (s0, min(k, uniform_spp - s0)) for st, s0 in zip(self.states, firsts)}
+            state["next"] = min(uniform_spp, len(reserved) * k)
 
         def take(st, per_spp):
             with lock:
                 if id(st) in reserved and state["error"] is None:
-                    return reserved.pop(id(st)), 1
+                    return reserved.pop(id(st))
                 if state["stop"] or state["next"] >= uniform_spp:
                     return None
                 s0 = state["next"]
