@@ -415,29 +415,32 @@ def measure_gather_cost(scene, *, device=None, width=128, height=128, spp=64, ro
 
 
 def caustic_reference(scene, *, device=None, width=128, height=128, max_depth=64, reference=None, ref_spp=16384):
-    """A path-traced reference (no photon map made it) and its caustic
-    region: the 3% of pixels where plain path tracing is noisiest (relative
-    per-sample variance). Read from / saved to `reference` (an EXR holding
-    the image and, as a fourth channel, the per-sample luminance variance)."""
+    """A path-traced reference (no photon map made it) and the caustic
+    region: the pixels where an offline caustic buffer (2 x 10^6 photons
+    gathered at the first diffuse vertex) is at least 5% of its peak, that is
+    the caustics themselves (under the glass, off the mirror), not the other
+    pixels path tracing finds noisy (a small light's jittered edge). The
+    reference is read from / saved to `reference` (an EXR)."""
     from pathlib import Path
 
     from .image import load_image, save_image
+    from .photons import PhotonSettings
     from .render import Renderer
 
     ref_path = Path(reference) if reference else None
     if ref_path is not None and ref_path.exists():
-        data = load_image(ref_path).astype(np.float64)
-        img, var = data[..., :3], data[..., 3]
+        img = load_image(ref_path).astype(np.float64)[..., :3]
     else:
         res = Renderer(scene, device=device, photons=False).render(ref_spp, width=width, height=height, seed=12345,
                                                                    max_depth=max_depth)
-        img, var = res.image.astype(np.float64), res.lum_var.astype(np.float64)
+        img = res.image.astype(np.float64)
         if ref_path is not None:
-            save_image(ref_path, np.dstack([img, var]).astype(np.float32),
-                       metadata={"clpt:reference_spp": ref_spp, "clpt:max_depth": max_depth})
-    lum = img @ LUMA
-    rel = var / np.maximum(lum, 1e-3) ** 2
-    return img, rel >= np.quantile(rel, 0.97)
+            save_image(ref_path, res.image, metadata={"clpt:reference_spp": ref_spp, "clpt:max_depth": max_depth})
+    buf = Renderer(scene, device=device).render(
+        16, width=width, height=height, max_depth=max_depth,
+        photons=PhotonSettings(mode="offline", pilot=False, count=2_000_000, offline_spp=16)).caustic_image
+    lum = buf @ np.array([0.2126, 0.7152, 0.0722])
+    return img, lum >= 0.05 * max(float(lum.max()), 1e-300)
 
 
 def caustic_equal_time(scene, *, device=None, width=128, height=128, seconds=(2.0, 4.0, 16.0), reference=None,
