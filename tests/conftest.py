@@ -72,7 +72,9 @@ class Probe:
         obufs = [cl.Buffer(ctx, mf.WRITE_ONLY, o.nbytes) for o in outs]
         k = self.kernels.get(name) or self.kernels.setdefault(name, cl.Kernel(self.program, name))
         k.set_args(*prefix, *scalars, *bufs, *scalars_after, *obufs)
-        cl.enqueue_nd_range_kernel(q, k, (pad // self.lanes,), None)
+        # A fixed work-group size: PoCL compiles a kernel once per local size,
+        # and lets it choose by the global size otherwise (a compile per probe size).
+        cl.enqueue_nd_range_kernel(q, k, (pad // self.lanes,), (1,))
         for o, b in zip(outs, obufs):
             cl.enqueue_copy(q, o, b)
         q.finish()
