@@ -454,7 +454,11 @@ def cmd_check(a) -> int:
     scene = load_scene(a.scene)
     packed = pack_scene(scene)
     names = ("materials", "spheres", "quads", "triangles", "planes", "lights")
-    print(f"{a.scene}: ok; " + ", ".join(f"{n} {c}" for n, c in zip(names, packed.counts)))
+    line = ", ".join(f"{n} {c}" for n, c in zip(names, packed.counts))
+    if packed.bvh is not None:
+        line = (f"materials {packed.count('materials')}, {packed.primitives} spheres, quads and triangles in a BVH "
+                f"of {packed.count('nodes')} nodes, planes {packed.count('planes')}, lights {packed.count('lights')}")
+    print(f"{a.scene}: ok; {line}")
     print(f"features: {scene_features(packed).describe()}")
     return 0
 
@@ -608,6 +612,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", "-d", default=None)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=lambda a: __import__("clpt.bench_denoise", fromlist=["x"]).run_bench_denoise(a))
+
+    p = sub.add_parser("bench-bvh", help="BVH build time, memory and rays/s for generated meshes; plain loops "
+                                          "vs BVH; scene setup time")
+    p.add_argument("--triangles", default="1e3,1e5,1e6", help="mesh sizes (comma list; empty: none)")
+    p.add_argument("--methods", default="sah,lbvh", help="BVH builders to compare (comma list)")
+    p.add_argument("--walks", default="packet", help="BVH traversals to compare: packet, lane (comma list)")
+    p.add_argument("--width", type=int, default=128)
+    p.add_argument("--height", type=int, default=128)
+    p.add_argument("--max-depth", type=int, default=8)
+    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--threshold", action="store_true", help="also measure plain loops against the BVH")
+    p.add_argument("--setup", default=None, metavar="TRIANGLES", help="also time scene setup for this many")
+    p.add_argument("--mitsuba", default=None, metavar="MESH", help="also race Mitsuba 3 (llvm_ad_rgb; pip install "
+                                                                  "mitsuba) on this mesh in the Cornell box")
+    p.add_argument("--device", "-d", default=None)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=lambda a: __import__("clpt.bench", fromlist=["x"]).run_bench_bvh(a))
 
     p = sub.add_parser("compare", help="uniform vs adaptive sampling vs the filter, at equal render time")
     p.add_argument("scene", nargs="+")
