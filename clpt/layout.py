@@ -99,7 +99,7 @@ def _r4(*names):
 
 MATERIAL = Record("MaterialRec", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_sides", "params"),
                   "material: kd.rgb, p_diffuse | ks.rgb, p_phong | kr.rgb, p_mirror | kt.rgb, p_refract | "
-                  "Le.rgb, two_sided | shininess, ior, nondelta, emissive")
+                  "Le.rgb, two_sided | shininess, ior, nondelta, one_sided")
 SPHERE = Record("SphereRec", "SPHERE", _r4("center_radius", "mat"),
                 "sphere: center.xyz, radius | material, light + 1 (0: not a light), prim id, 0")
 PLANAR = Record("PlanarRec", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "wv_kind"),

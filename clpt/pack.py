@@ -107,7 +107,7 @@ def _material_records(m: Material):
         (*m.kr, p_r),
         (*m.kt, p_t),
         (*m.emission, 1.0 if m.two_sided else 0.0),
-        (m.shininess, m.ior, nondelta, 1.0 if m.is_emissive else 0.0),
+        (m.shininess, m.ior, nondelta, 1.0 if m.one_sided else 0.0),
     ]
 
 

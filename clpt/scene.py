@@ -35,6 +35,10 @@ class SceneError(ValueError):
     """A scene is invalid. The message names the source, key path and reason."""
 
 
+class SceneWarning(UserWarning):
+    """Part of a scene is approximated or left out; the message says which and where."""
+
+
 # --- data model --------------------------------------------------------------------
 
 
@@ -47,7 +51,9 @@ class Material:
     refraction through a dielectric interface with exact Fresnel. Absorption
     is what remains, 1 - (kd + ks + kr + kt), which must not be negative.
     emission is radiance leaving the surface (on the side its normal points
-    to, or both sides if two_sided).
+    to, or both sides if two_sided). one_sided makes the surface black from
+    behind (the side its normal points away from): no reflection, no
+    transmission, as Mitsuba's BSDFs outside a twosided wrapper.
     """
 
     kd: Vec3 = (0.0, 0.0, 0.0)
@@ -58,6 +64,7 @@ class Material:
     ior: float = 1.5
     emission: Vec3 = (0.0, 0.0, 0.0)
     two_sided: bool = False
+    one_sided: bool = False
 
     def __post_init__(self):
         # Types now (a clear TypeError at the mistake); ranges in check_material.
@@ -767,7 +774,7 @@ def _tname(v):
             dict: "table"}.get(type(v), type(v).__name__)
 
 
-_MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided"}
+_MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided", "one_sided"}
 _COMMON_SHAPE_KEYS = {"type", "material", "emission", "two_sided", "name"}
 _SHAPE_KEYS = {
     "sphere": {"center", "radius"},
@@ -795,8 +802,9 @@ def _read_material(r: _Reader, d, path) -> Material:
     for k in ("shininess", "ior"):
         if k in d:
             base[k] = r.number(d[k], f"{path}.{k}")
-    if "two_sided" in d:
-        base["two_sided"] = r.boolean(d["two_sided"], f"{path}.two_sided")
+    for k in ("two_sided", "one_sided"):
+        if k in d:
+            base[k] = r.boolean(d[k], f"{path}.{k}")
     m = Material(**base)
     check_material(r.source, path, m)
     return m
@@ -981,9 +989,16 @@ def _read_scene_text(p: Path, name) -> str:
         raise SceneError(f"{name}: not UTF-8 text ({e.reason} at byte {e.start})") from None
 
 
-def load_scene(path) -> Scene:
-    """Read a TOML scene file (or a shipped scene's name, e.g. "cornell_box")."""
+def load_scene(path, params: dict | None = None, *, strict: bool = False) -> Scene:
+    """Read a TOML scene file (or a shipped scene's name, e.g. "cornell_box"),
+    or a Mitsuba 3 XML file (.xml, clpt.mitsuba): params then override its
+    <default> values, and strict makes every SceneWarning an error."""
     p = Path(path)
+    if p.suffix.lower() == ".xml":
+        from .mitsuba import load_mitsuba
+        return load_mitsuba(p, params, strict=strict)
+    if params:
+        raise SceneError(f"{path}: parameters (-D NAME=VALUE) apply to Mitsuba XML scenes only")
     if not p.exists() and p.suffix == "" and len(p.parts) == 1:
         from .resources import scene_path
         shipped = scene_path(str(path))

@@ -389,6 +389,7 @@ typedef struct {
     vreal shininess, ior;
     vreal two_sided;           // emission on both sides (else the normal's side)
     vreal nondelta;            // 1 if kd or ks is nonzero (light sampling applies)
+    vreal one_sided;           // 1: black from behind (no reflection or transmission)
 } Material;
 
 // Per-lane material by selecting over the (few) materials: cheaper on a CPU
@@ -397,7 +398,7 @@ inline Material material_fetch(const Scene *sc, vreal id)
 {
     Material m;
     m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
-    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.nondelta = (vreal)R(0);
+    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.nondelta = m.one_sided = (vreal)R(0);
     m.ior = (vreal)R(1);
     for (uint i = 0; i < NUM_MATERIALS; i++) {
         uint r = MAT_STRIDE * i;
@@ -421,6 +422,7 @@ inline Material material_fetch(const Scene *sc, vreal id)
 #endif
         m.Le = v3_sel4(m.Le, f, is); m.two_sided = VSEL(m.two_sided, (vreal)f.w, is);
         m.nondelta = VSEL(m.nondelta, (vreal)g.z, is);
+        m.one_sided = VSEL(m.one_sided, (vreal)g.w, is);
     }
     return m;
 }

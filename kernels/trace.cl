@@ -416,6 +416,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 #endif
 
         vmask go = hit && ps.depth < lane_depth;
+        go = go && (front || m.one_sided == R(0));  // a one-sided surface is black from behind
         vuint group = VUINT(ps.depth) * 2u + 1u;
 
         LobeProbs pr = lobe_probs(&m, ps.depth < (real)rr_depth);
