@@ -274,9 +274,9 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     """bvh: "auto" (a BVH from BVH_MIN_PRIMS bounded primitives), True/"on"
     (always), False/"off" (never: plain loops)."""
     scene.check()
-    k = length_scale(scene.extent())
-    if k != 1.0:
-        scene = scene.scaled(k)
+    scale = length_scale(scene.extent())
+    if scale != 1.0:
+        scene = scene.scaled(scale)
     surfaces: dict[Material, int] = {}
     b = _Builder()
     for _, p in scene.primitives():
@@ -373,7 +373,7 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
                        light_kinds=frozenset(kinds[int(r[0][3])] for _, _, _, r, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,
                        max_radiance=max((max(m.emission) for _, _, m, *_ in lights), default=1.0),
-                       smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=k)
+                       smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale)
 
 
 @dataclass(frozen=True)
