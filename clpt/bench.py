@@ -531,3 +531,271 @@ def run_bench_photons(a) -> int:
             print(f"  {run['method']:44s} {run['seconds']:6.2f} s ({run['cpu_seconds']:6.2f} CPU s) {run['spp']:8.1f} spp  relMSE caustic "
                   f"{run['relmse_caustic']:.3e}, image {run['relmse_image']:.3e}{gain}")
     return 0
+
+
+# --- BVH and meshes --------------------------------------------------------------------------
+
+def sphere_mesh(n_triangles: int, center=(0.0, -0.45, 0.0), radius=0.5, bumps=0.06):
+    """(vertices, triangles, normals) of a bumpy latitude-longitude sphere of
+    about n_triangles triangles (smooth normals of the bumpy surface)."""
+    n_theta = max(3, int(round((n_triangles / 4) ** 0.5)))
+    n_phi = max(4, int(round(n_triangles / (2 * n_theta))))
+    th = np.linspace(0.0, np.pi, n_theta + 1)[1:-1]
+    ph = np.linspace(0.0, 2 * np.pi, n_phi + 1)[:-1]
+    t, p = np.meshgrid(th, ph, indexing="ij")
+    r = radius * (1 + bumps * np.sin(7 * t) * np.cos(5 * p))
+    pts = np.stack([r * np.sin(t) * np.cos(p), r * np.cos(t), r * np.sin(t) * np.sin(p)], -1).reshape(-1, 3)
+    v = np.concatenate([[(0, radius, 0)], pts, [(0, -radius, 0)]]) + np.asarray(center, dtype=np.float64)
+    ring = (1 + np.arange(n_theta - 1)[:, None] * n_phi + np.arange(n_phi)[None, :])
+    nxt = np.roll(ring, -1, axis=1)
+    south = len(v) - 1
+    caps = [np.stack([np.zeros(n_phi, dtype=np.int64), nxt[0], ring[0]], 1),
+            np.stack([np.full(n_phi, south), ring[-1], nxt[-1]], 1)]
+    a, b, c, d = ring[:-1], nxt[:-1], nxt[1:], ring[1:]
+    quads = [np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)]
+    tris = np.concatenate(caps + quads)
+    # Vertex normals: area-weighted face normals.
+    fn = np.cross(v[tris[:, 1]] - v[tris[:, 0]], v[tris[:, 2]] - v[tris[:, 0]])
+    vn = np.zeros_like(v)
+    for k in range(3):
+        np.add.at(vn, tris[:, k], fn)
+    return v, tris, vn / np.linalg.norm(vn, axis=1, keepdims=True)
+
+
+def mesh_box_scene(n_triangles: int, material="white"):
+    """The Cornell box with a bumpy sphere mesh of about n_triangles."""
+    from .scene import Mesh, load_scene
+
+    s = load_scene("cornell_box")
+    v, t, n = sphere_mesh(n_triangles)
+    s.shapes = [sh for sh in s.shapes if not (sh.name or "").startswith(("small-box", "large-box"))] + [
+        Mesh(vertices=v, triangles=t, normals=n, material=material, name="ball")]
+    return s
+
+
+def _bvh_bytes(packed) -> int:
+    """Device bytes (float build) of the BVH nodes, items and vertex normals."""
+    from .pack import LIGHT_STRIDE, PLANE_STRIDE, MAT_STRIDE
+    c = packed.counts
+    head = MAT_STRIDE * c[0] + PLANE_STRIDE * c[4] + LIGHT_STRIDE * c[5] + c[6]
+    return (len(packed.records) - head) * 16
+
+
+def measure_bvh(counts, *, methods=("sah", "lbvh"), walks=("packet",), device=None, width=128, height=128,
+                max_depth=8, rounds=3, pass_seconds=0.5) -> list[dict]:
+    """Per triangle count and builder: build time, memory, SAH cost, depth,
+    and path-tracing throughput of the mesh in the Cornell box (rounds
+    interleaved over all configurations)."""
+    from .render import Renderer
+
+    rows, runners = [], []
+    for n in counts:
+        scene = mesh_box_scene(int(n))
+        for method, walk in itertools.product(methods, walks):
+            r = Renderer(scene, device=device, bvh="on", bvh_method=method, bvh_walk=walk, photons=False)
+            tree = r.packed.bvh
+            row = {"triangles": int(scene.shapes[-1].triangles.shape[0]), "method": method, "walk": walk,
+                   "build_seconds": tree.seconds, "pack_seconds": r.pack_seconds,
+                   "bytes_per_triangle": _bvh_bytes(r.packed) / scene.shapes[-1].triangles.shape[0],
+                   "nodes": int(r.packed.count("nodes")), "depth": tree.depth(), "sah_cost": tree.sah_cost(),
+                   "rates": [], "ray_rates": []}
+            probe = r.render(1, width=width, height=height, max_depth=max_depth)
+            probe = r.render(1, width=width, height=height, max_depth=max_depth)
+            row["pass_spp"] = max(1, int(pass_seconds / max(probe.stats.render_seconds, 1e-6)))
+            rows.append(row)
+            runners.append(r)
+    for i in range(rounds):
+        for row, r in zip(rows, runners):
+            res = r.render(row["pass_spp"], width=width, height=height, max_depth=max_depth, seed=i + 1,
+                           pass_seconds=1e9)
+            row["rates"].append(_pass_rate(res) / 1e6)
+            row["ray_rates"].append(res.stats.rays / res.stats.render_seconds / 1e6)
+    for row in rows:
+        row["msamples_per_s"] = statistics.median(row["rates"])
+        row["mrays_per_s"] = statistics.median(row["ray_rates"])
+        row["mrays_per_s_range"] = [min(row["ray_rates"]), max(row["ray_rates"])]
+    return rows
+
+
+def measure_threshold(sizes=(0, 8, 24, 48, 96, 200), *, device=None, width=128, height=128, rounds=3,
+                      pass_seconds=0.3) -> list[dict]:
+    """Samples/s of the Cornell box (18 primitives) plus a mesh of k
+    triangles, with the plain loops and with the BVH (interleaved rounds):
+    where the BVH starts to pay."""
+    from .render import Renderer
+    from .scene import Mesh, load_scene
+
+    rows, runners = [], []
+    for k in sizes:
+        s = load_scene("cornell_box")
+        if k:
+            v, t, n = sphere_mesh(k, center=(0.4, -0.7, 0.3), radius=0.25)
+            s.shapes.append(Mesh(vertices=v, triangles=t, normals=n, name="ball"))
+        for mode in ("off", "on"):
+            r = Renderer(s, device=device, bvh=mode, photons=False)
+            probe = r.render(1, width=width, height=height)
+            probe = r.render(1, width=width, height=height)
+            rows.append({"primitives": r.packed.primitives, "bvh": mode, "rates": [],
+                         "pass_spp": max(1, int(pass_seconds / max(probe.stats.render_seconds, 1e-6)))})
+            runners.append(r)
+    for i in range(rounds):
+        for row, r in zip(rows, runners):
+            row["rates"].append(_pass_rate(r.render(row["pass_spp"], width=width, height=height, seed=i + 1,
+                                                    pass_seconds=1e9)) / 1e6)
+    for row in rows:
+        row["msamples_per_s"] = statistics.median(row["rates"])
+    return rows
+
+
+def _setup_child(path: str, device) -> dict:
+    from .render import Renderer
+    from .scene import load_scene
+
+    t0 = time.perf_counter()
+    scene = load_scene(path)
+    t1 = time.perf_counter()
+    r = Renderer(scene, device=device)
+    t2 = time.perf_counter()
+    res = r.render(1, width=16, height=16)
+    t3 = time.perf_counter()
+    return {"load_seconds": t1 - t0, "pack_seconds": r.pack_seconds, "bvh_seconds": r.packed.bvh.seconds,
+            "build_seconds": r.build_seconds, "renderer_seconds": t2 - t1, "first_launch_seconds": t3 - t2,
+            "total_seconds": t3 - t0, "cache_hit": bool(r.states[0].build.cache_hit)}
+
+
+def measure_setup(n_triangles=100_000, *, device=None) -> dict:
+    """Load (a PLY file through a TOML scene), BVH and kernel build, and the
+    first 16x16 launch, in fresh processes: once with empty caches (cold)
+    and once with the kernel cache just filled (warm)."""
+    v, t, n = sphere_mesh(n_triangles)
+    out = {"triangles": len(t)}
+    with tempfile.TemporaryDirectory() as tmp:
+        head = ["ply", "format binary_little_endian 1.0", f"element vertex {len(v)}", "property float x",
+                "property float y", "property float z", "property float nx", "property float ny", "property float nz",
+                f"element face {len(t)}", "property list uchar int vertex_indices", "end_header"]
+        faces = np.zeros(len(t), dtype=[("n", "u1"), ("i", "<i4", (3,))])
+        faces["n"], faces["i"] = 3, t
+        body = np.concatenate([v, n], axis=1).astype("<f4").tobytes() + faces.tobytes()
+        with open(os.path.join(tmp, "ball.ply"), "wb") as f:
+            f.write(("\n".join(head) + "\n").encode() + body)
+        from .resources import scene_path
+        text = scene_path("cornell_box").read_text()
+        text += '\n[[shapes]]\ntype = "mesh"\nfile = "ball.ply"\nmaterial = "white"\n'
+        path = os.path.join(tmp, "scene.toml")
+        with open(path, "w") as f:
+            f.write(text)
+        env = dict(os.environ, CLPT_CACHE_DIR=os.path.join(tmp, "clpt"), POCL_CACHE_DIR=os.path.join(tmp, "pocl"))
+        code = f"import json; from clpt.bench import _setup_child; print(json.dumps(_setup_child({path!r}, {device!r})))"
+        for key in ("cold", "warm"):
+            p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+            if p.returncode != 0:
+                raise RuntimeError(f"setup measurement failed:\n{p.stderr.strip()}")
+            out[key] = json.loads(p.stdout.strip().splitlines()[-1])
+    return out
+
+
+def run_bench_bvh(a) -> int:
+    result = {}
+    counts = [int(float(c)) for c in a.triangles.split(",")] if a.triangles else []
+    if counts:
+        result["bvh"] = measure_bvh(counts, methods=tuple(a.methods.split(",")), walks=tuple(a.walks.split(",")),
+                                    device=a.device, width=a.width,
+                                    height=a.height, max_depth=a.max_depth, rounds=a.rounds)
+    if a.threshold:
+        result["threshold"] = measure_threshold(device=a.device, rounds=a.rounds)
+    if a.setup:
+        result["setup"] = measure_setup(int(float(a.setup)), device=a.device)
+    if a.mitsuba:
+        result["mitsuba"] = measure_vs_mitsuba(a.mitsuba, device=a.device, width=a.width, height=a.height,
+                                               max_depth=a.max_depth, rounds=a.rounds)
+    if a.json:
+        print(json.dumps(result, indent=2))
+        return 0
+    if "bvh" in result:
+        print(f"BVH over a bumpy sphere mesh in the Cornell box ({a.width}x{a.height}, depth {a.max_depth}, "
+              f"medians of {a.rounds} interleaved rounds):")
+        print(f"  {'triangles':>9} {'builder':7} {'walk':6} {'build s':>8} {'B/tri':>6} {'depth':>5} {'SAH cost':>8} "
+              f"{'Msamples/s':>10} {'Mrays/s':>8} (range)")
+        for r in result["bvh"]:
+            lo, hi = r["mrays_per_s_range"]
+            print(f"  {r['triangles']:>9} {r['method']:7} {r['walk']:6} {r['build_seconds']:8.3f} {r['bytes_per_triangle']:6.0f} "
+                  f"{r['depth']:>5} {r['sah_cost']:8.1f} {r['msamples_per_s']:10.4f} {r['mrays_per_s']:8.3f} "
+                  f"({lo:.3f}-{hi:.3f})")
+    if "threshold" in result:
+        print("plain loops vs BVH (Cornell box + a small mesh, Msamples/s):")
+        for off, on in zip(result["threshold"][0::2], result["threshold"][1::2]):
+            print(f"  {off['primitives']:>5} primitives: loops {off['msamples_per_s']:.4f}, BVH {on['msamples_per_s']:.4f}")
+    if "setup" in result:
+        s = result["setup"]
+        print(f"scene setup for {s['triangles']} triangles (PLY through TOML, fresh processes):")
+        for key in ("cold", "warm"):
+            c = s[key]
+            print(f"  {key}: load {c['load_seconds']:.3f} s, pack {c['pack_seconds']:.3f} s (BVH "
+                  f"{c['bvh_seconds']:.3f} s), kernel build {c['build_seconds']:.3f} s"
+                  f"{' (cache hit)' if c['cache_hit'] else ''}, first launch {c['first_launch_seconds']:.3f} s; "
+                  f"total {c['total_seconds']:.3f} s")
+    if "mitsuba" in result:
+        m = result["mitsuba"]
+        print(f"{a.mitsuba} ({m['triangles']} triangles) in the Cornell box, {m['width']}x{m['height']}, "
+              f"{m['max_depth']} bounces, Msamples/s in {len(m['clpt'])} alternating rounds:")
+        print(f"  clpt     {statistics.median(m['clpt']):.4f} (range {min(m['clpt']):.4f}-{max(m['clpt']):.4f}) "
+              f"[{m['clpt_features']}]")
+        print(f"  Mitsuba  {statistics.median(m['mitsuba']):.4f} (range {min(m['mitsuba']):.4f}-"
+              f"{max(m['mitsuba']):.4f}) [llvm_ad_rgb, path, max_depth {m['max_depth'] + 1}]")
+        print(f"  image means: clpt {m['clpt_image_mean']:.4f}, Mitsuba {m['mitsuba_image_mean']:.4f}")
+    return 0
+
+
+def bunny_box(path, *, mitsuba=False):
+    """The Cornell box (Mitsuba's cornell_box()) with its two blocks replaced by
+    the mesh at path (flat-shaded), scaled to 1.1 high and stood on the floor:
+    a clpt Scene, or with mitsuba=True the same scene as a Mitsuba 3 dict."""
+    from .meshio import read_mesh
+    from .scene import Mesh, load_scene
+
+    v, _, _ = read_mesh(path)
+    lo, hi = v.min(0), v.max(0)
+    k = 1.1 / (hi[1] - lo[1])
+    m = np.diag([k, k, k, 1.0])
+    m[:3, 3] = [-k * 0.5 * (lo[0] + hi[0]), -1.0 - k * lo[1], -k * 0.5 * (lo[2] + hi[2])]
+    if mitsuba:
+        import mitsuba as mi
+        d = mi.cornell_box()
+        d.pop("small-box")
+        d.pop("large-box")
+        d["mesh"] = {"type": "ply", "filename": str(path), "face_normals": True, "to_world": mi.ScalarTransform4f(m),
+                     "bsdf": {"type": "ref", "id": "white"}}
+        return d
+    s = load_scene("cornell_box")
+    s.shapes = [sh for sh in s.shapes if not (sh.name or "").startswith(("small-box", "large-box"))]
+    s.shapes.append(Mesh.from_file(path, transform=m, material="white", name="mesh"))
+    return s
+
+
+def measure_vs_mitsuba(path, *, device=None, width=256, height=256, max_depth=8, spp=16, rounds=3) -> dict:
+    """Samples/s of clpt and of Mitsuba 3 (llvm_ad_rgb, path tracer with
+    max_depth + 1: the same bounces) on bunny_box(path), in alternating
+    rounds after a warm-up (kernel builds and Mitsuba's JIT left out)."""
+    import mitsuba as mi
+
+    from .render import Renderer
+
+    mi.set_variant("llvm_ad_rgb")
+    d = bunny_box(path, mitsuba=True)
+    d["integrator"] = {"type": "path", "max_depth": max_depth + 1}
+    d["sensor"]["film"]["width"], d["sensor"]["film"]["height"] = width, height
+    mscene = mi.load_dict(d)
+    r = Renderer(bunny_box(path), device=device, photons=False)
+    out = {"triangles": int(r.scene.shapes[-1].triangles.shape[0]), "clpt": [], "mitsuba": [],
+           "clpt_features": r.features.describe(), "width": width, "height": height, "max_depth": max_depth}
+    r.render(1, width=width, height=height, max_depth=max_depth)
+    mi.render(mscene, spp=1).numpy()
+    for i in range(rounds):
+        res = r.render(spp, width=width, height=height, max_depth=max_depth, seed=i + 1, pass_seconds=1e9)
+        out["clpt"].append(width * height * spp / res.stats.render_seconds / 1e6)
+        t0 = time.perf_counter()
+        mi.render(mscene, spp=spp, seed=i + 1).numpy()
+        out["mitsuba"].append(width * height * spp / (time.perf_counter() - t0) / 1e6)
+        out["clpt_image_mean"] = float(res.image.mean())
+    out["mitsuba_image_mean"] = float(np.asarray(mi.render(mscene, spp=spp)).mean())
+    return out

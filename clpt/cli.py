@@ -13,6 +13,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from pathlib import Path
 
 from . import __version__
@@ -220,6 +221,30 @@ def _renderer_kwargs(a):
     return kw
 
 
+def _add_scene_params(p):
+    p.add_argument("-D", "--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="set a Mitsuba XML scene parameter ($NAME), overriding its <default> (repeatable)")
+    p.add_argument("--strict", action="store_true", help="Mitsuba XML: treat every import warning as an error")
+
+
+def _scene_params(a) -> dict:
+    from .scene import SceneError
+
+    params = {}
+    for item in a.param:
+        name, eq, value = item.partition("=")
+        if not eq or not name.strip():
+            raise SceneError(f"-D {item}: expected NAME=VALUE")
+        params[name.strip()] = value
+    return params
+
+
+def _load(a):
+    from .scene import load_scene
+
+    return load_scene(a.scene, _scene_params(a), strict=a.strict)
+
+
 def _warn(msg):
     print(f"clpt: warning: {msg}", file=sys.stderr)
 
@@ -284,7 +309,7 @@ def _render(a, signals) -> int:
 
     # Everything that can be checked is checked before the first sample.
     preflight.check_render_options(a)
-    scene = load_scene(a.scene)
+    scene = _load(a)
     out = preflight.check_output(a.output if a.output is not None else Path(a.scene).stem + ".png")
     if a.save_sample_map is not None:
         preflight.check_output(a.save_sample_map, "--save-sample-map")
@@ -449,12 +474,15 @@ def cmd_scenes(a) -> int:
 def cmd_check(a) -> int:
     from .features import scene_features
     from .pack import pack_scene
-    from .scene import load_scene
 
-    scene = load_scene(a.scene)
+    scene = _load(a)
     packed = pack_scene(scene)
     names = ("materials", "spheres", "quads", "triangles", "planes", "lights")
-    print(f"{a.scene}: ok; " + ", ".join(f"{n} {c}" for n, c in zip(names, packed.counts)))
+    line = ", ".join(f"{n} {c}" for n, c in zip(names, packed.counts))
+    if packed.bvh is not None:
+        line = (f"materials {packed.count('materials')}, {packed.primitives} spheres, quads and triangles in a BVH "
+                f"of {packed.count('nodes')} nodes, planes {packed.count('planes')}, lights {packed.count('lights')}")
+    print(f"{a.scene}: ok; {line}")
     print(f"features: {scene_features(packed).describe()}")
     return 0
 
@@ -552,6 +580,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_render_options(p)
     _add_photon_options(p)
     _add_quality_options(p)
+    _add_scene_params(p)
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("bench", help="measure samples/s, rays/s and kernel build times")
@@ -609,6 +638,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=lambda a: __import__("clpt.bench_denoise", fromlist=["x"]).run_bench_denoise(a))
 
+    p = sub.add_parser("bench-bvh", help="BVH build time, memory and rays/s for generated meshes; plain loops "
+                                          "vs BVH; scene setup time")
+    p.add_argument("--triangles", default="1e3,1e5,1e6", help="mesh sizes (comma list; empty: none)")
+    p.add_argument("--methods", default="sah,lbvh", help="BVH builders to compare (comma list)")
+    p.add_argument("--walks", default="packet", help="BVH traversals to compare: packet, lane (comma list)")
+    p.add_argument("--width", type=int, default=128)
+    p.add_argument("--height", type=int, default=128)
+    p.add_argument("--max-depth", type=int, default=8)
+    p.add_argument("--rounds", type=int, default=3)
+    p.add_argument("--threshold", action="store_true", help="also measure plain loops against the BVH")
+    p.add_argument("--setup", default=None, metavar="TRIANGLES", help="also time scene setup for this many")
+    p.add_argument("--mitsuba", default=None, metavar="MESH", help="also race Mitsuba 3 (llvm_ad_rgb; pip install "
+                                                                  "mitsuba) on this mesh in the Cornell box")
+    p.add_argument("--device", "-d", default=None)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=lambda a: __import__("clpt.bench", fromlist=["x"]).run_bench_bvh(a))
+
     p = sub.add_parser("compare", help="uniform vs adaptive sampling vs the filter, at equal render time")
     p.add_argument("scene", nargs="+")
     p.add_argument("--seconds", type=float, default=4.0)
@@ -640,6 +686,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_scenes)
     p = sub.add_parser("check", help="validate a scene file")
     p.add_argument("scene")
+    _add_scene_params(p)
     p.set_defaults(func=cmd_check)
     p = sub.add_parser("cache", help="show or clear the kernel build cache")
     p.add_argument("--clear", action="store_true")
@@ -655,7 +702,9 @@ def main(argv=None) -> int:
 
     args = build_parser().parse_args(argv)
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return args.func(args)
     except SceneError as e:
         print(f"clpt: error: {e}", file=sys.stderr)
         return 2
@@ -665,6 +714,16 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("\nclpt: interrupted", file=sys.stderr)
         return 130
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """Scene warnings as one line each, like the errors."""
+    from .scene import SceneWarning
+
+    if issubclass(category, SceneWarning):
+        print(f"clpt: warning: {message}", file=sys.stderr)
+    else:
+        print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ from dataclasses import asdict, dataclass
 from .pack import PackedScene
 
 KERNEL_MODES = ("specialized", "generic", "baked")
+BVH_WALKS = ("packet", "lane")
 
 
 @dataclass(frozen=True)
@@ -37,7 +38,11 @@ class Features:
     glass: bool = True
     triangle_lights: bool = True
     sphere_lights: bool = True
-    counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights, casters (not generic)
+    mesh_lights: bool = True
+    bvh: bool = True           # the scene's primitives are in a BVH
+    bvh_walk: str = "packet"   # BVH traversal: "packet" (all lanes together) or "lane" (each lane alone)
+    smooth: bool = True        # some triangles have vertex normals
+    counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights, casters, BVH nodes (not generic)
 
     def defines(self) -> dict[str, int]:
         d = {
@@ -59,9 +64,14 @@ class Features:
             "CLPT_HAS_GLASS": int(self.glass),
             "CLPT_HAS_TRIANGLE_LIGHTS": int(self.triangle_lights),
             "CLPT_HAS_SPHERE_LIGHTS": int(self.sphere_lights),
+            "CLPT_HAS_MESH_LIGHTS": int(self.mesh_lights),
+            "CLPT_HAS_BVH": int(self.bvh),
+            "CLPT_BVH_LANE_WALK": int(self.bvh_walk == "lane"),
+            "CLPT_HAS_SMOOTH": int(self.smooth),
         }
         if self.mode != "generic":
-            for name, n in zip(("MATERIALS", "SPHERES", "QUADS", "TRIANGLES", "PLANES", "LIGHTS", "CAUSTICS"),
+            for name, n in zip(("MATERIALS", "SPHERES", "QUADS", "TRIANGLES", "PLANES", "LIGHTS", "CAUSTICS",
+                                "NODES"),
                                self.counts):
                 d[f"CLPT_NUM_{name}"] = n
         return d
@@ -80,6 +90,8 @@ class Features:
         if self.counts:
             counts = " counts=" + ",".join(str(c) for c in self.counts)
         tiles = f" tiles={self.tile_width}x{self.lanes // self.tile_width}" if self.tile_width > 1 else ""
+        if self.bvh and self.bvh_walk != "packet":
+            counts += f" bvh-walk={self.bvh_walk}"
         return (f"{self.mode} lanes={self.lanes}{tiles} {'double' if self.double else 'float'} "
                 f"sums={'double' if self.accum_double else 'kahan-float'} "
                 f"features={'+'.join(on) or 'none'}{counts}")
@@ -87,14 +99,16 @@ class Features:
 
 def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False, accum_double: bool = True,
                    mode: str = "specialized", nee: bool = True, photons: bool | None = None,
-                   aux: bool = False, tiles: bool = False) -> Features:
+                   aux: bool = False, tiles: bool = False, bvh_walk: str = "packet") -> Features:
     """photons: None turns them on exactly when the scene has caustic casters."""
     if mode not in KERNEL_MODES:
         raise ValueError(f"kernel mode must be one of {', '.join(KERNEL_MODES)} (got {mode!r})")
+    if bvh_walk not in BVH_WALKS:
+        raise ValueError(f"bvh_walk must be one of {', '.join(BVH_WALKS)} (got {bvh_walk!r})")
     use_photons = packed.has_caustics if photons is None else bool(photons) and packed.has_caustics
     if mode == "generic":
         return Features(lanes=lanes, tiles=tiles, double=double, accum_double=accum_double, mode=mode, nee=nee,
-                        photons=use_photons, aux=aux)
+                        photons=use_photons, aux=aux, bvh_walk=bvh_walk)
     return Features(
         lanes=lanes, tiles=tiles, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
         spheres=packed.count("spheres") > 0,
@@ -106,5 +120,9 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         glass=packed.has_glass,
         triangle_lights="triangle" in packed.light_kinds,
         sphere_lights="sphere" in packed.light_kinds,
+        mesh_lights="mesh" in packed.light_kinds,
+        bvh=packed.count("nodes") > 0,
+        smooth=packed.smooth,
+        bvh_walk=bvh_walk,
         counts=tuple(packed.counts),
     )

@@ -1,7 +1,16 @@
-"""Scene -> the packed record array the kernels read (layout: kernels/scene.h).
+"""Scene -> the packed record array the kernels read.
 
-This is the only module that knows the buffer layout. Records are 4-vectors
-of the kernel's real type (float32, or float64 for double-precision builds).
+The records' layout is clpt/layout.py's (the kernels get the same from it);
+this module fills them. Records are 4-vectors of the kernel's real type
+(float32, or float64 for double-precision builds), in sections:
+
+  materials, spheres, quads, triangles, planes, lights, caustic casters,
+  then BVH nodes, BVH items, vertex normals and mesh-light triangles.
+
+Scenes with fewer than BVH_MIN_PRIMS bounded primitives keep them in the
+plain sections, which the kernels loop over; larger ones put every sphere,
+quad and triangle in a BVH (clpt/bvh.py) and leave those sections empty.
+Pointers between sections are absolute real4 indices.
 """
 
 from __future__ import annotations
@@ -11,17 +20,26 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .scene import Camera, Material, Plane, Quad, Scene, Sphere, Triangle, length_scale
+from . import bvh as bvh_mod
+from .layout import (BVH_NODE, CAUSTIC, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_QUAD,
+                     KIND_SPHERE, KIND_TRIANGLE, LIGHT, LIGHT_TRI, MATERIAL, NORMALS, PLANAR, PLANE, SPHERE)
+from .scene import Camera, Material, Scene, SceneError, Sphere, length_scale
 
-MAT_STRIDE = 6
-SPHERE_STRIDE = 2
-PLANAR_STRIDE = 4
-PLANE_STRIDE = 2
-LIGHT_STRIDE = 5
-CAUSTIC_STRIDE = 1
+MAT_STRIDE = MATERIAL.stride
+SPHERE_STRIDE = SPHERE.stride
+PLANAR_STRIDE = PLANAR.stride
+PLANE_STRIDE = PLANE.stride
+LIGHT_STRIDE = LIGHT.stride
+CAUSTIC_STRIDE = CAUSTIC.stride
 
-LIGHT_KIND_QUAD, LIGHT_KIND_TRIANGLE, LIGHT_KIND_SPHERE = 0, 1, 2
-COUNT_NAMES = ("materials", "spheres", "quads", "triangles", "planes", "lights", "caustics")
+LIGHT_KIND_QUAD, LIGHT_KIND_TRIANGLE, LIGHT_KIND_SPHERE, LIGHT_KIND_MESH = KIND_QUAD, KIND_TRIANGLE, KIND_SPHERE, KIND_MESH
+COUNT_NAMES = ("materials", "spheres", "quads", "triangles", "planes", "lights", "caustics", "nodes")
+
+# Below this many bounded primitives (spheres, quads, triangles) the kernels'
+# plain loops beat the BVH (measured: README, "BVH").
+BVH_MIN_PRIMS = 64
+# Records are indexed by reals: exact integers below 2^24 in float builds.
+MAX_FLOAT_RECORDS = 1 << 24
 
 
 @dataclass(frozen=True)
@@ -35,6 +53,9 @@ class PackedScene:
     max_flux: float              # total emitted power (pi * area * max Le * sides), for photon sum scales
     max_radiance: float = 1.0    # the brightest emission's largest channel
     length_scale: float = 1.0    # the records' lengths are the scene's times this (see length_scale)
+    smooth: bool = False         # some triangles have vertex normals
+    bvh: object = None           # the clpt.bvh.Tree, when the scene has one
+    primitives: int = 0          # bounded primitives (spheres, quads, triangles)
 
     @property
     def lum_scale(self) -> float:
@@ -86,18 +107,46 @@ def _material_records(m: Material):
         (*m.kr, p_r),
         (*m.kt, p_t),
         (*m.emission, 1.0 if m.two_sided else 0.0),
-        (m.shininess, m.ior, nondelta, 1.0 if m.is_emissive else 0.0),
+        (m.shininess, m.ior, nondelta, 1.0 if m.one_sided else 0.0),
     ]
 
 
-def _planar_records(corner, u, v, mat_id):
+def _planar_array(c, u, v, mat, kind, prim, light1):
+    """PLANAR records (M, 4, 4) of parallelograms or triangles corner c with
+    edges u, v (M, 3 each), and their unit normals and areas of the
+    parallelogram. kind: ITEM_QUAD or ITEM_FLAT_TRIANGLE."""
     n_raw = np.cross(u, v)
-    nn = float(n_raw @ n_raw)
-    n = n_raw / math.sqrt(nn)
+    nn = np.einsum("ij,ij->i", n_raw, n_raw)
+    ln = np.sqrt(nn)
+    n = n_raw / ln[:, None]
     # Dual vectors: for q = a u + b v in the plane, a = q.wu and b = q.wv.
-    wu = np.cross(v, n_raw) / nn
-    wv = np.cross(n_raw, u) / nn
-    return [(*corner, mat_id), (*n, 0.0), (*wu, 0.0), (*wv, 0.0)], n, math.sqrt(nn)
+    wu = np.cross(v, n_raw) / nn[:, None]
+    wv = np.cross(n_raw, u) / nn[:, None]
+    out = np.empty((len(c), 4, 4))
+    out[:, 0, :3], out[:, 0, 3] = c, mat
+    out[:, 1, :3], out[:, 1, 3] = n, light1
+    out[:, 2, :3], out[:, 2, 3] = wu, prim
+    out[:, 3, :3], out[:, 3, 3] = wv, kind
+    return out, n, ln
+
+
+def alias_table(weights):
+    """Walker's alias table (Vose's construction) for weights > 0: slot j
+    keeps j with probability prob[j], else gives alias[j]."""
+    w = np.asarray(weights, dtype=np.float64)
+    n = len(w)
+    p = w * (n / w.sum())
+    prob = np.ones(n)
+    alias = np.arange(n)
+    small = [i for i in range(n) if p[i] < 1.0] if n < 4096 else list(np.flatnonzero(p < 1.0))
+    large = [i for i in range(n) if p[i] >= 1.0] if n < 4096 else list(np.flatnonzero(p >= 1.0))
+    while small and large:
+        s, g = small.pop(), large[-1]
+        prob[s], alias[s] = p[s], g
+        p[g] -= 1.0 - p[s]
+        if p[g] < 1.0:
+            small.append(large.pop())
+    return prob, alias
 
 
 def is_caustic_caster(m: Material) -> bool:
@@ -116,94 +165,215 @@ def _caustic_objects(scene: Scene):
             groups.setdefault(i, []).append(p)
     out = []
     for prims in groups.values():
-        if any(isinstance(p, Plane) for p in prims):
+        if not all(p.bounded for p in prims):
             out.append((0.0, 0.0, 0.0, -1.0))
             continue
         if len(prims) == 1 and isinstance(prims[0], Sphere):
-            out.append((*prims[0].center, prims[0].radius))
+            out.append((*prims[0].center, prims[0].radius))  # exact, not the box's sphere
             continue
-        pts = []
-        for p in prims:
-            if isinstance(p, Sphere):
-                c = np.array(p.center, dtype=np.float64)
-                pts += [c - p.radius, c + p.radius]
-            elif isinstance(p, Triangle):
-                pts += [np.array(v, dtype=np.float64) for v in p.vertices]
-            else:
-                pts += p.vertices()
-        pts = np.array(pts)
+        pts = np.concatenate([p.points() for p in prims])
         c = 0.5 * (pts.min(0) + pts.max(0))
         out.append((*c, float(np.linalg.norm(pts - c, axis=1).max()) * (1 + 1e-6)))
     return out
 
 
-def pack_scene(scene: Scene) -> PackedScene:
+class _Builder:
+    """Collects primitives as shapes pack themselves (Shape.pack calls
+    sphere, planar, plane or mesh); pack_scene then lays out the sections."""
+
+    def __init__(self):
+        self.spheres = []   # (center, radius, material id, prim id)
+        self.blocks = {KIND_QUAD: [], KIND_TRIANGLE: []}  # (M, 4, 4) record blocks
+        self.normals = []   # (records (M, 4, 4) of smooth triangles, their (M, 3, 3) vertex normals)
+        self.planes = []
+        self.lights = []    # (sides, area, material, records, material id, light triangles or None)
+        self.n_prims = 0    # every primitive, planes included, has an id
+        self.n_bounded = 0
+        self.bounds = []    # (lo, hi) blocks of the bounded primitives, in prim order
+
+    def _light1(self, m):
+        """The light record index + 1 a primitive of material m will have (0: none)."""
+        return float(len(self.lights) + 1) if m.is_emissive else 0.0
+
+    def _prims(self, m, bounded=True):
+        first = self.n_prims
+        self.n_prims += m
+        self.n_bounded += m if bounded else 0
+        return np.arange(first, first + m, dtype=np.float64)
+
+    def sphere(self, p, mat):
+        mid, m = mat
+        c = np.array(p.center, dtype=np.float64)
+        prim = self._prims(1)[0]
+        self.spheres.append((c, float(p.radius), mid, prim, self._light1(m)))
+        self.bounds.append((c[None] - p.radius, c[None] + p.radius))
+        if m.is_emissive:
+            self.lights.append((_sides(m), p.area(), m, [(*c, LIGHT_KIND_SPHERE), (p.radius, 0.0, 0.0, 0.0),
+                                                         (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0)], mid, None))
+
+    def planar(self, c, u, v, mat, triangle: bool, light: bool):
+        mid, m = mat
+        kind = KIND_TRIANGLE if triangle else KIND_QUAD
+        recs, n, ln = _planar_array(c[None], u[None], v[None], mid, ITEM_FLAT_TRIANGLE if triangle else ITEM_QUAD,
+                                    self._prims(1), self._light1(m) if light else 0.0)
+        self.blocks[kind].append(recs)
+        pts = np.array([c, c + u, c + v] + ([] if triangle else [c + u + v]))
+        self.bounds.append((pts.min(0)[None], pts.max(0)[None]))
+        area = float(ln[0]) * (0.5 if triangle else 1.0)
+        if light and m.is_emissive:
+            self.lights.append((_sides(m), area, m, [(*c, kind), (*u, 0.0), (*v, 0.0), (*n[0], 0.0)], mid, None))
+
+    def plane(self, p, mat):
+        mid, _ = mat
+        n = np.array(p.normal, dtype=np.float64)
+        self.planes += [(*p.point, mid), (*(n / np.linalg.norm(n)), self._prims(1, bounded=False)[0])]
+
+    def mesh(self, p, mat):
+        mid, m = mat
+        v, t = p.vertices, p.triangles
+        v0, v1, v2 = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+        u, w = v1 - v0, v2 - v0
+        recs, n, ln = _planar_array(v0, u, w, mid, ITEM_FLAT_TRIANGLE, self._prims(len(t)), self._light1(m))
+        self.blocks[KIND_TRIANGLE].append(recs)
+        tv = np.stack([v0, v1, v2], axis=1)
+        self.bounds.append((tv.min(1), tv.max(1)))
+        if p.normals is not None:
+            self.normals.append((recs, p.normals[t]))
+        if m.is_emissive:
+            areas = 0.5 * ln
+            prob, alias = alias_table(areas)
+            tris = np.zeros((len(t), LIGHT_TRI.stride, 4))
+            tris[:, 0, :3], tris[:, 0, 3] = v0, alias
+            tris[:, 1, :3], tris[:, 1, 3] = u, prob
+            tris[:, 2, :3] = w
+            # u.xy of the light record: first triangle record (set on layout), count.
+            self.lights.append((_sides(m), float(areas.sum()), m,
+                                [(0.0, 0.0, 0.0, LIGHT_KIND_MESH), (0.0, float(len(t)), 0.0, 0.0),
+                                 (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0)], mid, tris))
+
+
+def _sides(m: Material) -> float:
+    return 2.0 if m.two_sided else 1.0
+
+
+def _sphere_records(spheres):
+    """SPHERE records (plain section) and PLANAR-shaped BVH items of spheres."""
+    plain = np.zeros((len(spheres), SPHERE_STRIDE, 4))
+    items = np.zeros((len(spheres), PLANAR_STRIDE, 4))
+    for k, (c, r, mid, prim, light1) in enumerate(spheres):
+        plain[k, 0] = (*c, r)
+        plain[k, 1] = (mid, light1, prim, 0.0)
+        items[k, 0] = (*c, mid)
+        items[k, 1] = (r, 0.0, 0.0, light1)
+        items[k, 2] = (0.0, 0.0, 0.0, prim)
+        items[k, 3] = (0.0, 0.0, 0.0, ITEM_SPHERE)
+    return plain, items
+
+
+def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh") -> PackedScene:
+    """bvh: "auto" (a BVH from BVH_MIN_PRIMS bounded primitives), True/"on"
+    (always), False/"off" (never: plain loops)."""
     scene.check()
-    k = length_scale(scene.extent())
-    if k != 1.0:
-        scene = scene.scaled(k)
+    scale = length_scale(scene.extent())
+    if scale != 1.0:
+        scene = scene.scaled(scale)
     surfaces: dict[Material, int] = {}
-
-    def mat_id(shape) -> float:
-        m = scene.surface(shape)
-        return float(surfaces.setdefault(m, len(surfaces)))
-
-    spheres, quads, tris, planes, lights = [], [], [], [], []  # lights: (power, records)
+    b = _Builder()
     for _, p in scene.primitives():
-        mid = mat_id(p)
         m = scene.surface(p)
-        sides = 2.0 if m.two_sided else 1.0
-        # The primitive's light record index + 1 (0: not a light), for the
-        # light pdf of BSDF-sampled hits (multiple importance sampling).
-        light1 = float(len(lights) + 1) if m.is_emissive else 0.0
-        if isinstance(p, Sphere):
-            c = np.array(p.center, dtype=np.float64)
-            spheres += [(*c, p.radius), (mid, light1, 0.0, 0.0)]
-            if m.is_emissive:
-                area = 4 * math.pi * p.radius ** 2
-                lights.append((sides, area, m, [(*c, LIGHT_KIND_SPHERE), (p.radius, 0.0, 0.0, 0.0),
-                                                 (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0)], mid))
-        elif isinstance(p, (Quad, Triangle)):
-            if isinstance(p, Quad):
-                c, u, v = (np.array(a, dtype=np.float64) for a in (p.corner, p.edge_u, p.edge_v))
-            else:
-                v0, v1, v2 = (np.array(a, dtype=np.float64) for a in p.vertices)
-                c, u, v = v0, v1 - v0, v2 - v0
-            recs, n, area = _planar_records(c, u, v, mid)
-            recs[1] = (*n, light1)
-            kind = LIGHT_KIND_QUAD if isinstance(p, Quad) else LIGHT_KIND_TRIANGLE
-            if kind == LIGHT_KIND_TRIANGLE:
-                area *= 0.5
-            (quads if kind == LIGHT_KIND_QUAD else tris).extend(recs)
-            if m.is_emissive:
-                lights.append((sides, area, m, [(*c, kind), (*u, 0.0), (*v, 0.0), (*n, 0.0)], mid))
-        elif isinstance(p, Plane):
-            n = np.array(p.normal, dtype=np.float64)
-            planes += [(*p.point, mid), (*(n / np.linalg.norm(n)), 0.0)]
+        p.pack(b, (float(surfaces.setdefault(m, len(surfaces))), m))
+    if bvh not in ("auto", "on", "off", True, False, None):
+        raise ValueError(f"bvh must be 'auto', 'on' or 'off' (got {bvh!r})")
+    use_bvh = (b.n_bounded >= BVH_MIN_PRIMS) if bvh == "auto" else bvh in ("on", True)
+    use_bvh = use_bvh and b.n_bounded > 0
+
+    sphere_plain, sphere_items = _sphere_records(b.spheres)
+    quads = np.concatenate(b.blocks[KIND_QUAD]) if b.blocks[KIND_QUAD] else np.zeros((0, 4, 4))
+    tris = np.concatenate(b.blocks[KIND_TRIANGLE]) if b.blocks[KIND_TRIANGLE] else np.zeros((0, 4, 4))
+    planes = np.array(b.planes, dtype=np.float64).reshape(-1, 4)
 
     # Pick lights in proportion to their power: pi * area * mean(Le) per side.
-    powers = np.array([sides * math.pi * area * float(np.mean(m.emission)) for sides, area, m, _, _ in lights])
+    lights = b.lights
+    powers = np.array([sides * math.pi * area * float(np.mean(m.emission)) for sides, area, m, *_ in lights])
     probs = powers / powers.sum()
     cdf = np.cumsum(probs)
     cdf[-1] = 1.0
-    light_recs = []
-    for (sides, area, m, recs, mid), pr, cd in zip(lights, probs, cdf):
-        light_recs += recs + [(area, pr, cd, mid)]
+    caustics = np.array(_caustic_objects(scene), dtype=np.float64).reshape(-1, 4)
 
-    caustics = _caustic_objects(scene)
-    mat_recs = [r for m in surfaces for r in _material_records(m)]
-    records = np.array(mat_recs + spheres + quads + tris + planes + light_recs + caustics,
-                       dtype=np.float64).reshape(-1, 4)
-    counts = (len(surfaces), len(spheres) // SPHERE_STRIDE, len(quads) // PLANAR_STRIDE,
-              len(tris) // PLANAR_STRIDE, len(planes) // PLANE_STRIDE, len(lights), len(caustics))
-    kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere"}
+    n_mat = len(surfaces)
+    mat_recs = np.array([r for m in surfaces for r in _material_records(m)], dtype=np.float64).reshape(-1, 4)
+    head = (len(mat_recs) + (0 if use_bvh else len(sphere_plain) * SPHERE_STRIDE + PLANAR_STRIDE * (len(quads) + len(tris)))
+            + len(planes) + LIGHT_STRIDE * len(lights) + len(caustics))
+    tree = None
+    nodes = np.zeros((0, 4))
+    if use_bvh:
+        # Items in prim order, as the bounds are (spheres, quads and
+        # triangles are interleaved in scene order).
+        items = np.concatenate([sphere_items, quads, tris])
+        items = items[np.argsort(items[:, 2, 3], kind="stable")]
+        lo = np.concatenate([x for x, _ in b.bounds])
+        hi = np.concatenate([y for _, y in b.bounds])
+        tree = bvh_mod.build(lo, hi, method=bvh_method)
+        if tree.depth() >= bvh_mod.MAX_DEPTH:  # the kernels' traversal stack
+            raise SceneError(f"{scene.source}: the BVH is {tree.depth()} levels deep, more than the kernels' "
+                             f"{bvh_mod.MAX_DEPTH}; try bvh_method='lbvh'")
+        n_inner = max(1, int((tree.left >= 0).sum()))
+        item_base = head + BVH_NODE.stride * n_inner
+        nodes = bvh_mod.flatten(tree, head, item_base, PLANAR_STRIDE, double=False).reshape(-1, 4)
+        items = items[tree.order]
+        geo_sections = [items]
+    else:
+        item_base = None
+        geo_sections = []
+    # Vertex normals: one NORMALS record per smooth triangle, pointed to by
+    # the w of its planar record's last row (which the blocks above share).
+    normals_base = head + len(nodes) + sum(PLANAR_STRIDE * len(g) for g in geo_sections)
+    smooth = bool(b.normals)
+    normal_recs = []
+    if smooth:
+        if use_bvh:
+            slot_prims = geo_sections[0][:, 2, 3].astype(np.int64)
+            prim_to_slot = np.full(b.n_prims, -1, dtype=np.int64)
+            prim_to_slot[slot_prims] = np.arange(len(slot_prims))
+        k = 0
+        for recs, nv in b.normals:
+            idx = normals_base + NORMALS.stride * (k + np.arange(len(recs)))
+            prims = recs[:, 2, 3].astype(np.int64)
+            if use_bvh:
+                geo_sections[0][prim_to_slot[prims], 3, 3] = idx
+            else:
+                tris[np.searchsorted(tris[:, 2, 3], recs[:, 2, 3]), 3, 3] = idx
+            block = np.zeros((len(recs), NORMALS.stride, 4))
+            block[:, :, :3] = nv
+            normal_recs.append(block.reshape(-1, 4))
+            k += len(recs)
+    normal_recs = np.concatenate(normal_recs) if normal_recs else np.zeros((0, 4))
+    ltri_base = normals_base + len(normal_recs)
+    light_recs, ltri_recs = [], []
+    for (sides, area, m, recs, mid, ltris), pr, cd in zip(lights, probs, cdf):
+        recs = [list(r) for r in recs]
+        if ltris is not None:
+            recs[1][0] = ltri_base + sum(len(x) for x in ltri_recs)
+            ltri_recs.append(ltris.reshape(-1, 4))
+        light_recs += recs + [(area, pr, cd, mid)]
+    light_recs = np.array(light_recs, dtype=np.float64).reshape(-1, 4)
+    ltri_recs = np.concatenate(ltri_recs) if ltri_recs else np.zeros((0, 4))
+
+    plain = [] if use_bvh else [sphere_plain.reshape(-1, 4), quads.reshape(-1, 4), tris.reshape(-1, 4)]
+    records = np.concatenate([mat_recs, *plain, planes, light_recs, caustics, nodes,
+                              *[g.reshape(-1, 4) for g in geo_sections], normal_recs, ltri_recs])
+    n_nodes = len(nodes) // BVH_NODE.stride
+    counts = (n_mat, 0 if use_bvh else len(sphere_plain), 0 if use_bvh else len(quads),
+              0 if use_bvh else len(tris), len(planes) // PLANE_STRIDE, len(lights), len(caustics), n_nodes)
+    kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere",
+             LIGHT_KIND_MESH: "mesh"}
     lo, hi = scene.bounds(camera=False)
-    flux = sum(sides * math.pi * area * max(m.emission) for sides, area, m, _, _ in lights)
+    flux = sum(sides * math.pi * area * max(m.emission) for sides, area, m, *_ in lights)
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
-                       light_kinds=frozenset(kinds[int(r[0][3])] for _, _, _, r, _ in lights),
+                       light_kinds=frozenset(kinds[int(r[0][3])] for _, _, _, r, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,
-                       max_radiance=max((max(m.emission) for _, _, m, _, _ in lights), default=1.0),
-                       length_scale=k)
+                       max_radiance=max((max(m.emission) for _, _, m, *_ in lights), default=1.0),
+                       smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale)
 
 
 @dataclass(frozen=True)

@@ -28,8 +28,8 @@ from .constants import kernel_defines
 from .resources import kernel_dir
 
 # Device libraries in dependency order; entry files (*.cl) come after them.
-LIBRARY_FILES = ("features.h", "simd.h", "rng.h", "sampling.h", "scene.h", "lights.h", "photon_aim.h", "camera.h", "accum.h",
-                 "bsdf.h", "photon_grid.h")
+LIBRARY_FILES = ("features.h", "simd.h", "rng.h", "sampling.h", "scene.h", "bvh.h", "lights.h", "photon_aim.h",
+                 "camera.h", "accum.h", "bsdf.h", "photon_grid.h")
 
 
 class KernelBuildError(RuntimeError):
@@ -57,12 +57,16 @@ def clear_cache() -> int:
 def stitch(entry_files, generated: dict[str, str] | None = None, after: str = "simd.h") -> str:
     """The shared constants, library files, then entry files, with #line
     markers. `generated` maps a pseudo file name to text inserted right after
-    the library file `after`."""
+    the library file `after`; the record layout (clpt/layout.py) always comes
+    right after simd.h."""
+    from .layout import c_source
     kd = kernel_dir()
     parts = [f'#line 1 "<constants>"\n{kernel_defines()}']
     for name in list(LIBRARY_FILES) + list(entry_files):
         path = Path(name) if os.path.isabs(name) else kd / name
         parts.append(f'#line 1 "kernels/{path.name}"\n{path.read_text()}')
+        if name == "simd.h":
+            parts.append(f'#line 1 "<clpt/layout.py>"\n{c_source()}')
         if name == after and generated:
             for gname, text in generated.items():
                 parts.append(f'#line 1 "{gname}"\n{text}')

@@ -30,7 +30,7 @@ import pyopencl.cltypes as clt
 from . import program, tune
 from .device import DeviceContext, DeviceError, select_devices
 from .features import Features, scene_features
-from .pack import CameraFrame, PackedScene, camera_frame, pack_scene
+from .pack import MAX_FLOAT_RECORDS, CameraFrame, PackedScene, camera_frame, pack_scene
 from .adaptive import AdaptiveSettings, allocate_error, allocate_paper
 from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, LUMA, OFFSET_FLOOR
 from .denoise import ConeFilter, FilterSettings, OidnSettings, apply_denoiser
@@ -203,6 +203,9 @@ class _DeviceState:
         self.packed = packed
         real = np.float64 if features.double else np.float32
         mf = cl.mem_flags
+        if not features.double and len(packed.records) > MAX_FLOAT_RECORDS:
+            raise SceneError(f"{len(packed.records)} scene records exceed what float kernels index exactly "
+                             f"({MAX_FLOAT_RECORDS}); render with double=True or a smaller scene")
         recs = np.ascontiguousarray(packed.records, dtype=real)
         if recs.size == 0:
             recs = np.zeros((1, 4), dtype=real)
@@ -380,6 +383,9 @@ class _DeviceState:
 def _baked_source(records: np.ndarray, double: bool) -> str:
     t = "double4" if double else "float4"
     fmt = "%.17g" if double else "%.9g"
+    # Printed from the kernel's own precision: 9 digits give back exactly the
+    # float the buffer would hold (rounding the double's digits could miss it).
+    records = np.asarray(records, dtype=np.float64 if double else np.float32).astype(np.float64)
     rows = ",\n".join(f"    ({t})({', '.join(fmt % v for v in r)})" for r in records) or f"    ({t})(0)"
     return f"__constant real4 clpt_scene[{max(1, len(records))}] = {{\n{rows}\n}};\n"
 
@@ -422,12 +428,16 @@ class Renderer:
     can then be called any number of times with different settings.
     photons: None (the default) turns caustic photon mapping on when the scene
     has caustic casters (purely specular objects); False never compiles it.
+    bvh: "auto" puts the primitives in a BVH when the scene has at least
+    clpt.pack.BVH_MIN_PRIMS of them (plain loops are faster below), "on" or
+    "off" force it; bvh_method: "sah" or "lbvh" (clpt/bvh.py); bvh_walk:
+    "packet" or "lane" (kernels/bvh.h).
     """
 
     def __init__(self, scene, *, device=None, lanes: int | None = None, local_size: int | None = None,
                  precision: str = "float", kernel: str = "specialized", nee: bool = True,
                  photons: bool | None = None, aux: bool = False, use_cache: bool = True, accumulate: str = "auto",
-                 tiles: bool = False):
+                 tiles: bool = False, bvh="auto", bvh_method: str = "lbvh", bvh_walk: str = "packet"):
         if isinstance(scene, (str, Path)):
             scene = load_scene(scene)
         if not isinstance(scene, Scene):
@@ -444,7 +454,9 @@ class Renderer:
         if kernel not in ("specialized", "generic", "baked"):
             raise ValueError(f"kernel must be 'specialized', 'generic' or 'baked' (got {kernel!r})")
         self.scene = scene
-        self.packed = pack_scene(scene)
+        t0 = time.perf_counter()
+        self.packed = pack_scene(scene, bvh=bvh, bvh_method=bvh_method)
+        self.pack_seconds = time.perf_counter() - t0
         use_photons = self.packed.has_caustics and photons is not False
         self.devices = [DeviceContext(d) for d in select_devices(device)]
         self.states = []
@@ -460,7 +472,7 @@ class Renderer:
             def feats(n_lanes):
                 return scene_features(self.packed, lanes=n_lanes, double=precision == "double",
                                       accum_double=acc_double or precision == "double", mode=kernel, nee=nee,
-                                      photons=use_photons, aux=aux, tiles=tiles)
+                                      photons=use_photons, aux=aux, tiles=tiles, bvh_walk=bvh_walk)
 
             f = feats(lanes or 1)
             tuning, st = tune.choose(dctx, kernel_source(None, f), f.options(),

@@ -17,6 +17,7 @@ import difflib
 import hashlib
 import math
 import tomllib
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Union
@@ -34,6 +35,10 @@ class SceneError(ValueError):
     """A scene is invalid. The message names the source, key path and reason."""
 
 
+class SceneWarning(UserWarning):
+    """Part of a scene is approximated or left out; the message says which and where."""
+
+
 # --- data model --------------------------------------------------------------------
 
 
@@ -46,7 +51,9 @@ class Material:
     refraction through a dielectric interface with exact Fresnel. Absorption
     is what remains, 1 - (kd + ks + kr + kt), which must not be negative.
     emission is radiance leaving the surface (on the side its normal points
-    to, or both sides if two_sided).
+    to, or both sides if two_sided). one_sided makes the surface black from
+    behind (the side its normal points away from): no reflection, no
+    transmission, as Mitsuba's BSDFs outside a twosided wrapper.
     """
 
     kd: Vec3 = (0.0, 0.0, 0.0)
@@ -57,6 +64,7 @@ class Material:
     ior: float = 1.5
     emission: Vec3 = (0.0, 0.0, 0.0)
     two_sided: bool = False
+    one_sided: bool = False
 
     def __post_init__(self):
         # Types now (a clear TypeError at the mistake); ranges in check_material.
@@ -129,10 +137,30 @@ class RenderSettings:
 
 @dataclass(frozen=True)
 class _ShapeBase:
+    """What every shape has. Each kind defines, once, its own geometry:
+    check (validation, SceneError naming src and path), area, points (what
+    its bounds enclose), primitives (what the packer sees: itself, or a
+    Box's quads) and, for primitives, pack (clpt/pack.py's builder)."""
+
     material: MaterialRef = "white"
     emission: Vec3 | None = None   # overrides the material's emission
     two_sided: bool | None = None  # overrides the material's two_sided
     name: str | None = None
+
+    can_emit = True  # class attributes: may this kind be a light? has it finite bounds?
+    bounded = True
+
+    def primitives(self):
+        return [self]
+
+    def points(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def area(self) -> float:
+        raise NotImplementedError
+
+    def check(self, src: str, path: str):
+        raise NotImplementedError
 
 
 @dataclass(frozen=True)
@@ -140,12 +168,43 @@ class Sphere(_ShapeBase):
     center: Vec3 = (0.0, 0.0, 0.0)
     radius: float = 1.0
 
+    def check(self, src, path):
+        _finite_vec(src, f"{path}.center", self.center)
+        _finite(src, f"{path}.radius", self.radius, lo=0.0)
+
+    def area(self):
+        return 4 * math.pi * self.radius ** 2
+
+    def points(self):
+        c = np.array(self.center, dtype=np.float64)
+        return np.array([c - self.radius, c + self.radius])
+
+    def pack(self, b, mat):
+        b.sphere(self, mat)
+
 
 @dataclass(frozen=True)
 class Triangle(_ShapeBase):
     """Triangle v0 v1 v2; its front face is given by the right-hand rule."""
 
     vertices: tuple[Vec3, Vec3, Vec3] = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+
+    def check(self, src, path):
+        if len(self.vertices) != 3:
+            _fail(src, f"{path}.vertices", f"must be 3 points (got {len(self.vertices)})")
+        v = [_finite_vec(src, f"{path}.vertices[{k}]", p) for k, p in enumerate(self.vertices)]
+        _planar_area(src, path, v[1] - v[0], v[2] - v[0], "triangle")
+
+    def area(self):
+        v0, v1, v2 = self.points()
+        return 0.5 * float(np.linalg.norm(np.cross(v1 - v0, v2 - v0)))
+
+    def points(self):
+        return np.array(self.vertices, dtype=np.float64)
+
+    def pack(self, b, mat):
+        v0, v1, v2 = self.points()
+        b.planar(v0, v1 - v0, v2 - v0, mat, triangle=True, light=True)
 
 
 @dataclass(frozen=True)
@@ -179,6 +238,22 @@ class Quad(_ShapeBase):
         c, u, v = (np.array(a, dtype=np.float64) for a in (self.corner, self.edge_u, self.edge_v))
         return [c, c + u, c + u + v, c + v]
 
+    def check(self, src, path):
+        _finite_vec(src, f"{path}.corner", self.corner)
+        u = _finite_vec(src, f"{path}.edge_u", self.edge_u)
+        v = _finite_vec(src, f"{path}.edge_v", self.edge_v)
+        _planar_area(src, path, u, v, "quad")
+
+    def area(self):
+        return float(np.linalg.norm(np.cross(self.edge_u, self.edge_v)))
+
+    def points(self):
+        return np.array(self.vertices())
+
+    def pack(self, b, mat):
+        c, u, v = (np.array(a, dtype=np.float64) for a in (self.corner, self.edge_u, self.edge_v))
+        b.planar(c, u, v, mat, triangle=False, light=True)
+
 
 @dataclass(frozen=True)
 class Plane(_ShapeBase):
@@ -186,6 +261,23 @@ class Plane(_ShapeBase):
 
     point: Vec3 = (0.0, 0.0, 0.0)
     normal: Vec3 = (0.0, 1.0, 0.0)
+
+    can_emit = False
+    bounded = False
+
+    def check(self, src, path):
+        _finite_vec(src, f"{path}.point", self.point)
+        if np.linalg.norm(_finite_vec(src, f"{path}.normal", self.normal)) == 0.0:
+            _fail(src, f"{path}.normal", "must not be zero")
+
+    def area(self):
+        return 0.0
+
+    def points(self):
+        return np.array([self.point], dtype=np.float64)
+
+    def pack(self, b, mat):
+        b.plane(self, mat)
 
 
 @dataclass(frozen=True)
@@ -197,6 +289,23 @@ class Box(_ShapeBase):
     size: Vec3 = (1.0, 1.0, 1.0)
     rotation: Vec3 = (0.0, 0.0, 0.0)
     inward: bool = False
+
+    def check(self, src, path):
+        _finite_vec(src, f"{path}.center", self.center)
+        _finite_vec(src, f"{path}.rotation", self.rotation)
+        size = _finite_vec(src, f"{path}.size", self.size)
+        if (size <= 0).any():
+            _fail(src, f"{path}.size", f"must be > 0 in every axis (got {list(self.size)})")
+
+    def area(self):
+        x, y, z = self.size
+        return 2 * (x * y + y * z + x * z)
+
+    def points(self):
+        return np.concatenate([q.points() for q in self.quads()])
+
+    def primitives(self):
+        return self.quads()
 
     def quads(self) -> list[Quad]:
         rx, ry, rz = (math.radians(a) for a in self.rotation)
@@ -229,8 +338,64 @@ class Box(_ShapeBase):
         return out
 
 
-Shape = Union[Sphere, Triangle, Quad, Plane, Box]
-SHAPE_TYPES = {"sphere": Sphere, "triangle": Triangle, "quad": Quad, "plane": Plane, "box": Box}
+@dataclass(frozen=True, eq=False)
+class Mesh(_ShapeBase):
+    """A triangle mesh in world space (any transform already applied).
+
+    vertices (N, 3) floats, triangles (M, 3) vertex indices (front faces by
+    the right-hand rule), normals (N, 3) per-vertex shading normals or None
+    (flat shading). The arrays are checked and copied (float64, int64,
+    read-only); degenerate triangles are dropped with one warning.
+    Mesh.from_file reads OBJ or PLY (clpt.meshio)."""
+
+    vertices: np.ndarray = None
+    triangles: np.ndarray = None
+    normals: np.ndarray | None = None
+
+    def __post_init__(self):
+        from .meshio import check_mesh
+        v, t, n = check_mesh(self.vertices, self.triangles, self.normals,
+                             source=f"mesh {self.name!r}" if self.name else "mesh")
+        for a in (v, t, n):
+            if a is not None:
+                a.setflags(write=False)
+        object.__setattr__(self, "vertices", v)
+        object.__setattr__(self, "triangles", t)
+        object.__setattr__(self, "normals", n)
+
+    def check(self, src, path):
+        pass  # checked (and degenerate triangles dropped) on construction
+
+    def triangle_areas(self) -> np.ndarray:
+        v, t = self.vertices, self.triangles
+        return 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
+
+    def area(self):
+        return float(self.triangle_areas().sum())
+
+    def points(self):
+        return self.vertices
+
+    def pack(self, b, mat):
+        b.mesh(self, mat)
+
+    @classmethod
+    def from_file(cls, path, transform=None, **kw) -> "Mesh":
+        """Read an OBJ or PLY file; transform: a 4x4 matrix applied to it."""
+        from .meshio import read_mesh, transform_mesh
+        v, t, n = read_mesh(path)
+        if transform is not None:
+            v, n = transform_mesh(v, n, transform)
+        return cls(vertices=v, triangles=t, normals=n, **kw)
+
+    def __repr__(self):
+        return (f"Mesh({len(self.triangles)} triangles, {len(self.vertices)} vertices"
+                f"{', normals' if self.normals is not None else ''}, material={self.material!r}"
+                f"{f', name={self.name!r}' if self.name else ''})")
+
+
+Shape = Union[Sphere, Triangle, Quad, Plane, Box, Mesh]
+SHAPE_TYPES = {"sphere": Sphere, "triangle": Triangle, "quad": Quad, "plane": Plane, "box": Box, "mesh": Mesh}
 
 
 @dataclass
@@ -265,28 +430,16 @@ class Scene:
     def primitives(self):
         """(index of the shape in self.shapes, primitive) with boxes expanded."""
         for i, s in enumerate(self.shapes):
-            if isinstance(s, Box):
-                for q in s.quads():
-                    yield i, q
-            else:
-                yield i, s
+            for p in s.primitives():
+                yield i, p
 
     def bounds(self, camera: bool = True):
         """Axis-aligned bounds of the finite geometry (and the camera)."""
-        pts = [np.array(self.camera.origin, dtype=np.float64)] if camera else []
-        for _, p in self.primitives():
-            if isinstance(p, Sphere):
-                c = np.array(p.center, dtype=np.float64)
-                pts += [c - p.radius, c + p.radius]
-            elif isinstance(p, Triangle):
-                pts += [np.array(v, dtype=np.float64) for v in p.vertices]
-            elif isinstance(p, Quad):
-                pts += p.vertices()
-            elif isinstance(p, Plane):
-                pts.append(np.array(p.point, dtype=np.float64))
+        pts = [np.array([self.camera.origin], dtype=np.float64)] if camera else []
+        pts += [s.points() for s in self.shapes]
         if not pts:
             return np.zeros(3), np.zeros(3)
-        pts = np.array(pts)
+        pts = np.concatenate(pts)
         return pts.min(axis=0), pts.max(axis=0)
 
     def extent(self) -> float:
@@ -317,6 +470,8 @@ class Scene:
                 sh = replace(sh, point=pts(sh.point))
             elif isinstance(sh, Box):
                 sh = replace(sh, center=pts(sh.center), size=pts(sh.size))
+            elif isinstance(sh, Mesh):
+                sh = replace(sh, vertices=np.asarray(sh.vertices, dtype=np.float64) * k)
             else:
                 raise SceneError(f"{self.source}: cannot rescale a {type(sh).__name__} shape")
             shapes.append(sh)
@@ -489,48 +644,32 @@ def check_scene(scene: Scene):
             _emission(src, f"{path}.emission", s.emission)
         if isinstance(s.material, Material):
             check_material(src, f"{path}.material", m)
+        s.check(src, path)
         emissive = m.is_emissive
         if s.two_sided is not None and not isinstance(s.two_sided, (bool, np.bool_)):
             _fail(src, f"{path}.two_sided", f"must be True, False or None (got {s.two_sided!r})")
+        # Sizes and precision: float must be able to hold each shape at its place.
         if isinstance(s, Sphere):
-            _finite_vec(src, f"{path}.center", s.center)
-            r = _finite(src, f"{path}.radius", s.radius, lo=0.0)
-            sizes.append((f"{path}.radius", r))
-            area = 4 * math.pi * r ** 2
+            sizes.append((f"{path}.radius", float(s.radius)))
         elif isinstance(s, Triangle):
-            if len(s.vertices) != 3:
-                _fail(src, f"{path}.vertices", f"must be 3 points (got {len(s.vertices)})")
-            v = [_finite_vec(src, f"{path}.vertices[{k}]", p) for k, p in enumerate(s.vertices)]
-            area = _planar_area(src, path, v[1] - v[0], v[2] - v[0], "triangle") / 2
+            v = [np.asarray(p, dtype=np.float64) for p in s.vertices]
             size = min(np.linalg.norm(v[1] - v[0]), np.linalg.norm(v[2] - v[0]))
             sizes.append((f"{path}.vertices", size))
             _precise(src, f"{path}.vertices", size, float(np.abs(v).max()))
         elif isinstance(s, Quad):
-            c = _finite_vec(src, f"{path}.corner", s.corner)
-            u = _finite_vec(src, f"{path}.edge_u", s.edge_u)
-            v = _finite_vec(src, f"{path}.edge_v", s.edge_v)
-            area = _planar_area(src, path, u, v, "quad")
+            c, u, v = (np.asarray(a, dtype=np.float64) for a in (s.corner, s.edge_u, s.edge_v))
             sizes.append((f"{path}.edge_u", float(np.linalg.norm(u))))
             sizes.append((f"{path}.edge_v", float(np.linalg.norm(v))))
             far = float(np.abs(c).max() + np.abs(u).max() + np.abs(v).max())
             _precise(src, f"{path}.edge_u", float(np.linalg.norm(u)), far)
             _precise(src, f"{path}.edge_v", float(np.linalg.norm(v)), far)
-        elif isinstance(s, Plane):
-            _finite_vec(src, f"{path}.point", s.point)
-            if np.linalg.norm(_finite_vec(src, f"{path}.normal", s.normal)) == 0.0:
-                _fail(src, f"{path}.normal", "must not be zero")
-            if emissive:
-                _fail(src, f"{path}.emission", "an infinite plane cannot be a light; use a quad")
-            area = 0.0
-        else:  # Box
-            center = _finite_vec(src, f"{path}.center", s.center)
-            _finite_vec(src, f"{path}.rotation", s.rotation)
-            size = _finite_vec(src, f"{path}.size", s.size)
-            if (size <= 0).any():
-                _fail(src, f"{path}.size", f"must be > 0 in every axis (got {list(s.size)})")
-            area = 2 * (size[0] * size[1] + size[1] * size[2] + size[0] * size[2])
+        elif isinstance(s, Box):
+            center, size = np.asarray(s.center, dtype=np.float64), np.asarray(s.size, dtype=np.float64)
             sizes.append((f"{path}.size", float(size.min())))
             _precise(src, f"{path}.size", float(size.min()), float(np.abs(center).max() + size.max()))
+        if emissive and not s.can_emit:
+            _fail(src, f"{path}.emission", f"an infinite {type(s).__name__.lower()} cannot be a light; use a quad")
+        area = s.area()
         if emissive:
             power += area * float(np.mean(m.emission))
     extent = scene.extent()
@@ -546,8 +685,8 @@ def check_scene(scene: Scene):
     if not math.isfinite(power):
         _fail(src, "shapes", "the lights' total power overflows; lower their emission or size")
     if power <= 0.0:
-        _fail(src, "shapes", "the scene has no light: give at least one shape (quad, triangle, sphere "
-                             "or box) a positive emission")
+        _fail(src, "shapes", "the scene has no light: give at least one shape (quad, triangle, sphere, "
+                             "box or mesh) a positive emission")
 
 
 def _planar_area(src, path, u, v, what):
@@ -635,7 +774,7 @@ def _tname(v):
             dict: "table"}.get(type(v), type(v).__name__)
 
 
-_MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided"}
+_MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided", "one_sided"}
 _COMMON_SHAPE_KEYS = {"type", "material", "emission", "two_sided", "name"}
 _SHAPE_KEYS = {
     "sphere": {"center", "radius"},
@@ -643,7 +782,9 @@ _SHAPE_KEYS = {
     "quad": {"vertices", "corner", "edge_u", "edge_v"},
     "plane": {"point", "normal"},
     "box": {"center", "size", "rotation", "inward"},
+    "mesh": {"file", "transform"},
 }
+_TRANSFORM_KEYS = {"translate", "rotate", "scale", "matrix"}
 
 
 def _read_material(r: _Reader, d, path) -> Material:
@@ -661,14 +802,47 @@ def _read_material(r: _Reader, d, path) -> Material:
     for k in ("shininess", "ior"):
         if k in d:
             base[k] = r.number(d[k], f"{path}.{k}")
-    if "two_sided" in d:
-        base["two_sided"] = r.boolean(d["two_sided"], f"{path}.two_sided")
+    for k in ("two_sided", "one_sided"):
+        if k in d:
+            base[k] = r.boolean(d[k], f"{path}.{k}")
     m = Material(**base)
     check_material(r.source, path, m)
     return m
 
 
-def _read_shape(r: _Reader, d, path, materials):
+def _read_transform(r: _Reader, d, path):
+    """A transform table: a 4x4 `matrix` (rows), or translate/rotate/scale
+    (scale first, then rotate in degrees about x, y, z, then translate)."""
+    from .meshio import compose
+    r.table(d, path, _TRANSFORM_KEYS)
+    if "matrix" in d:
+        if {"translate", "rotate", "scale"} & set(d):
+            r.fail(path, "give either matrix or translate/rotate/scale, not both")
+        m = d["matrix"]
+        if not isinstance(m, list) or len(m) != 4 or not all(isinstance(row, list) and len(row) == 4 for row in m):
+            r.fail(f"{path}.matrix", f"must be 4 rows of 4 numbers (got {_tname(m)} {m!r})")
+        return np.array([[r.number(x, f"{path}.matrix[{i}][{j}]") for j, x in enumerate(row)]
+                         for i, row in enumerate(m)])
+    scale = d.get("scale", 1.0)
+    return compose(translate=r.vec3(d.get("translate", [0.0, 0.0, 0.0]), f"{path}.translate"),
+                   rotate=r.vec3(d.get("rotate", [0.0, 0.0, 0.0]), f"{path}.rotate"),
+                   scale=r.vec3(scale, f"{path}.scale"))
+
+
+def _read_mesh(r: _Reader, d, path, base_dir, kw):
+    from .meshio import MeshError
+    name = r.string(r.require(d, path, "file"), f"{path}.file")
+    file = Path(name) if Path(name).is_absolute() or base_dir is None else Path(base_dir) / name
+    matrix = _read_transform(r, d["transform"], f"{path}.transform") if "transform" in d else None
+    try:
+        return Mesh.from_file(file, transform=matrix, **kw)
+    except MeshError as e:
+        r.fail(f"{path}.file", str(e))
+    except ValueError as e:
+        r.fail(f"{path}.transform", str(e))
+
+
+def _read_shape(r: _Reader, d, path, materials, base_dir=None):
     if not isinstance(d, dict):
         r.fail(path, f"must be a table (got {_tname(d)})")
     kind = r.string(r.require(d, path, "type"), f"{path}.type")
@@ -723,14 +897,17 @@ def _read_shape(r: _Reader, d, path, materials):
             except SceneError as e:
                 r.fail(f"{path}.vertices", str(e))
         return Quad(corner=vec("corner"), edge_u=vec("edge_u"), edge_v=vec("edge_v"), **kw)
+    if kind == "mesh":
+        return _read_mesh(r, d, path, base_dir, kw)
     if kind == "plane":
         return Plane(point=vec("point"), normal=vec("normal"), **kw)
     return Box(center=vec("center"), size=vec("size"), rotation=vec("rotation", (0.0, 0.0, 0.0)),
                inward=r.boolean(d.get("inward", False), f"{path}.inward"), **kw)
 
 
-def parse_scene(text: str, source: str = "<string>") -> Scene:
-    """Build and check a Scene from TOML text; errors name `source`."""
+def parse_scene(text: str, source: str = "<string>", base_dir=None) -> Scene:
+    """Build and check a Scene from TOML text; errors name `source`. Mesh
+    files are found relative to base_dir (default: the working directory)."""
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
@@ -767,7 +944,7 @@ def parse_scene(text: str, source: str = "<string>") -> Scene:
     sd = r.require(doc, "", "shapes")
     if not isinstance(sd, list):
         r.fail("shapes", f"must be an array of tables ([[shapes]]), got {_tname(sd)}")
-    shapes = [_read_shape(r, s, f"shapes[{i}]", mats) for i, s in enumerate(sd)]
+    shapes = [_read_shape(r, s, f"shapes[{i}]", mats, base_dir) for i, s in enumerate(sd)]
     scene = Scene(camera=cam, shapes=shapes, materials=mats, render=settings, source=source,
                   sha256=hashlib.sha256(text.encode("utf-8")).hexdigest())
     check_scene(scene)
@@ -812,14 +989,21 @@ def _read_scene_text(p: Path, name) -> str:
         raise SceneError(f"{name}: not UTF-8 text ({e.reason} at byte {e.start})") from None
 
 
-def load_scene(path) -> Scene:
-    """Read a TOML scene file (or a shipped scene's name, e.g. "cornell_box")."""
+def load_scene(path, params: dict | None = None, *, strict: bool = False) -> Scene:
+    """Read a TOML scene file (or a shipped scene's name, e.g. "cornell_box"),
+    or a Mitsuba 3 XML file (.xml, clpt.mitsuba): params then override its
+    <default> values, and strict makes every SceneWarning an error."""
     p = Path(path)
+    if p.suffix.lower() == ".xml":
+        from .mitsuba import load_mitsuba
+        return load_mitsuba(p, params, strict=strict)
+    if params:
+        raise SceneError(f"{path}: parameters (-D NAME=VALUE) apply to Mitsuba XML scenes only")
     if not p.exists() and p.suffix == "" and len(p.parts) == 1:
         from .resources import scene_path
         shipped = scene_path(str(path))
         if shipped is not None:
             p = shipped
     text = _read_scene_text(p, path)
-    return parse_scene(text, source=str(path))
+    return parse_scene(text, source=str(path), base_dir=p.parent)
 

@@ -20,18 +20,21 @@
 #if !defined(CLPT_HAS_PHONG) || !defined(CLPT_HAS_MIRROR) || !defined(CLPT_HAS_GLASS)
 #error "clpt: every CLPT_HAS_<lobe> flag must be defined"
 #endif
-#if !defined(CLPT_HAS_TRIANGLE_LIGHTS) || !defined(CLPT_HAS_SPHERE_LIGHTS)
+#if !defined(CLPT_HAS_TRIANGLE_LIGHTS) || !defined(CLPT_HAS_SPHERE_LIGHTS) || !defined(CLPT_HAS_MESH_LIGHTS)
 #error "clpt: every CLPT_HAS_<kind>_LIGHTS flag must be defined"
 #endif
 #if !defined(CLPT_LUMA_R) || !defined(CLPT_OFFSET_REL_FLOAT)
 #error "clpt: the generated constants (clpt/constants.py) must come first"
+#endif
+#if !defined(CLPT_HAS_BVH) || !defined(CLPT_HAS_SMOOTH) || !defined(CLPT_BVH_LANE_WALK)
+#error "clpt: CLPT_HAS_BVH, CLPT_HAS_SMOOTH and CLPT_BVH_LANE_WALK must be defined"
 #endif
 #if !defined(CLPT_PHOTONS) || !defined(CLPT_AUX)
 #error "clpt: CLPT_PHOTONS and CLPT_AUX must be defined"
 #endif
 #if !CLPT_GENERIC && (!defined(CLPT_NUM_MATERIALS) || !defined(CLPT_NUM_SPHERES) || !defined(CLPT_NUM_QUADS) \
     || !defined(CLPT_NUM_TRIANGLES) || !defined(CLPT_NUM_PLANES) || !defined(CLPT_NUM_LIGHTS) \
-    || !defined(CLPT_NUM_CAUSTICS))
+    || !defined(CLPT_NUM_CAUSTICS) || !defined(CLPT_NUM_NODES))
 #error "clpt: a specialized build needs every CLPT_NUM_* count"
 #endif
 

@@ -1,7 +1,10 @@
-// lights.h: next event estimation. Every emissive quad, triangle or sphere is
-// an area light; one light is picked per lane by the power-proportional table
-// the host built, then a point on it is drawn:
+// lights.h: next event estimation. Every emissive quad, triangle or sphere,
+// and every emissive mesh as a whole, is an area light; one light is picked
+// per lane by the power-proportional table the host built, then a point on it
+// is drawn:
 //   quad, triangle  uniformly by area (pdf_sa = dist^2 / (area |cos_l|))
+//   mesh            a triangle by area from the mesh's alias table (O(1)),
+//                   then uniformly on it: uniform over the mesh's whole area
 //   sphere          uniformly in the cone it subtends (pdf_sa = 1 / (2 pi (1 - cos_max)))
 //                   or, from inside it, uniformly by area.
 // Emission leaves the side the normal points to, or both sides if two_sided.
@@ -26,6 +29,45 @@ inline real4 light_pick(const Scene *sc, uint i, vreal u_pick, vmask *taken, vma
     *taken = *taken || *pick;
     return info;
 }
+
+#if CLPT_HAS_MESH_LIGHTS
+// A point y on the mesh light whose records start at r, and the normal n of
+// its triangle (winding order), for the lanes in pick: the triangle by area
+// from the mesh's alias table (LightTriRec), then a uniform point on it. u1
+// picks the alias slot and, rescaled to [0, 1), serves again for the point.
+inline void mesh_light_point(const Scene *sc, uint r, vmask pick, vreal u1, vreal u2, V3 *y, V3 *n)
+{
+    real4 mi = scene_rec(sc, r + 1);  // first triangle record, triangles
+    uint base = (uint)mi.x, ntri = (uint)mi.y;
+    V3 p = v3_zero(), eu = v3_zero(), ev = v3_zero();
+    vreal ur = u1;
+    for (int l = 0; l < CLPT_LANES; l++) {
+        if (VLANE_M(pick, l) == 0)
+            continue;
+        real u = VLANE_R(u1, l) * (real)ntri;
+        uint j = min((uint)u, ntri - 1u);
+        real f = u - (real)j;
+        real4 a = scene_rec(sc, base + LTRI_STRIDE * j), b = scene_rec(sc, base + LTRI_STRIDE * j + 1);
+        if (f >= b.w) {
+            f = (f - b.w) / (R(1) - b.w);
+            j = (uint)a.w;
+            a = scene_rec(sc, base + LTRI_STRIDE * j);
+            b = scene_rec(sc, base + LTRI_STRIDE * j + 1);
+        } else {
+            f = f / b.w;
+        }
+        real4 c = scene_rec(sc, base + LTRI_STRIDE * j + 2);
+        VLANE_R(ur, l) = fmin(fmax(f, R(0)), R(1) - REAL_EPS);
+        VLANE_R(p.x, l) = a.x; VLANE_R(p.y, l) = a.y; VLANE_R(p.z, l) = a.z;
+        VLANE_R(eu.x, l) = b.x; VLANE_R(eu.y, l) = b.y; VLANE_R(eu.z, l) = b.z;
+        VLANE_R(ev.x, l) = c.x; VLANE_R(ev.y, l) = c.y; VLANE_R(ev.z, l) = c.z;
+    }
+    vreal a, b;
+    sample_uniform_triangle(ur, u2, &a, &b);
+    *y = v3_fma(ev, b, v3_fma(eu, a, p));
+    *n = v3_normalize(v3_cross(eu, ev));
+}
+#endif
 
 inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, vreal u2)
 {
@@ -81,18 +123,27 @@ inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, v
         } else
 #endif
         {
-            real4 u = scene_rec(sc, r + 1), v = scene_rec(sc, r + 2), n = scene_rec(sc, r + 3);
-            vreal a = u1, b = u2;
-#if CLPT_HAS_TRIANGLE_LIGHTS
-            if (kind == LIGHT_KIND_TRIANGLE)
-                sample_uniform_triangle(u1, u2, &a, &b);
+            V3 y, nl;
+#if CLPT_HAS_MESH_LIGHTS
+            if (kind == LIGHT_KIND_MESH) {
+                mesh_light_point(sc, r, pick, u1, u2, &y, &nl);
+            } else
 #endif
-            V3 y = v3(p.x + a * u.x + b * v.x, p.y + a * u.y + b * v.y, p.z + a * u.z + b * v.z);
+            {
+                real4 u = scene_rec(sc, r + 1), v = scene_rec(sc, r + 2), n = scene_rec(sc, r + 3);
+                vreal a = u1, b = u2;
+#if CLPT_HAS_TRIANGLE_LIGHTS
+                if (kind == LIGHT_KIND_TRIANGLE)
+                    sample_uniform_triangle(u1, u2, &a, &b);
+#endif
+                y = v3(p.x + a * u.x + b * v.x, p.y + a * u.y + b * v.y, p.z + a * u.z + b * v.z);
+                nl = v3_splat(n);
+            }
             V3 w = v3_sub(y, x);
             vreal d2 = v3_dot(w, w);
             dist = sqrt(d2);
             wi = v3_scale(w, R(1) / dist);
-            cos_l = -v3_dot4(wi, n);
+            cos_l = -v3_dot(wi, nl);
             pdf_sa = d2 / (info.x * fabs(cos_l));
         }
         emits = cos_l > R(0) || (m.w != R(0) && cos_l < R(0));
@@ -139,6 +190,11 @@ inline LightPoint light_sample_point(const Scene *sc, vreal u_pick, vreal u1, vr
             n = sample_uniform_sphere(u1, u2);
             y = v3_fma(n, (vreal)scene_rec(sc, r + 1).x, v3_splat(p));
             err = max_abs4(p) + scene_rec(sc, r + 1).x;
+        } else
+#endif
+#if CLPT_HAS_MESH_LIGHTS
+        if (kind == LIGHT_KIND_MESH) {
+            mesh_light_point(sc, r, pick, u1, u2, &y, &n);
         } else
 #endif
         {

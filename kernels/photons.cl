@@ -61,6 +61,8 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
         live = live && h.t < R(INFINITY);
         Material m = material_fetch(sc, h.mat);
         V3 x = v3_fma(d, h.t, o);
+        vmask front = v3_dot(h.ng, d) < R(0);
+        live = live && (front || m.one_sided == R(0));  // a one-sided surface absorbs from behind
         vmask diffuse = live && m.nondelta != R(0);
         vmask store = diffuse && bounces > R(0);
         s_pos = v3_sel(s_pos, x, store);
@@ -70,8 +72,9 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
         live = live && !diffuse;
         if (!VANY(live))
             break;
-        vmask front = v3_dot(h.ng, d) < R(0);
         V3 n = v3_sel(v3_neg(h.ng), h.ng, front);
+        V3 ng_side = n;
+        n = hit_shading_normal(sc, &h, ng_side);
         Rand4 rb = rng_uniform4(pseed, idx, zero_u, zero_u + (2u + b));
         // Russian roulette over the delta lobes; absorption takes the rest.
         vmask is_r = rb.a < m.p_r;
@@ -94,6 +97,7 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
         V3 wn = v3_normalize(wi);
         o = v3_sel(o, offset_scattered(sc, x, v3_sel(v3_neg(n), n, up), wn, h.err), live);
         d = v3_sel(d, wn, live);
+        keep_geometric_side(sc, &o, &d, x, n, ng_side, live && h.nrm >= R(0), h.err);
         bounces = bounces + R(1);
     }
 

@@ -1,19 +1,17 @@
 // scene.h: the packed scene and ray queries against it.
 //
 // The scene is one array of real4 records (float4, or double4 when
-// CLPT_DOUBLE), in sections whose order and
-// strides clpt/pack.py defines (and this file mirrors):
-//   materials  MAT_STRIDE records each
-//     0 kd.rgb, p_diffuse     1 ks.rgb, p_phong     2 kr.rgb, p_mirror
-//     3 kt.rgb, p_refract     4 Le.rgb, two_sided   5 shininess, ior, nondelta, emissive
-//   spheres    2 records: center.xyz, radius | material, light + 1, 0, 0
-//   quads      4 records: corner.xyz, material | n.xyz, light + 1 | wu.xyz, 0 | wv.xyz, 0
-//   triangles  4 records, as quads (corner = v0)
-//   planes     2 records: point.xyz, material | n.xyz, 0
-//   lights     5 records: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, 0 |
-//              area, pick probability, cumulative probability, material
-//   caustics   1 record: bounding sphere (centre.xyz, radius; radius < 0 if
-//              unbounded) of each purely specular object, for aiming photons
+// CLPT_DOUBLE), in sections whose order clpt/pack.py defines and whose
+// records clpt/layout.py defines (its generated typedefs and *_STRIDE /
+// field constants are stitched in before this file):
+//   materials  MaterialRec     spheres  SphereRec    quads, triangles  PlanarRec
+//   planes     PlaneRec        lights   LightRec     caustics  CausticRec
+//   then, when the scene has a BVH (NUM_NODES > 0): BVH nodes (BvhNode),
+//   BVH items (PlanarRec, spheres among them), vertex normals (NormalsRec)
+//   and mesh-light triangles (LightTriRec); pointers into these are absolute
+//   record indices stored as reals.
+// Caustics are bounding spheres (centre.xyz, radius; radius < 0 if
+// unbounded) of each purely specular object, for aiming photons.
 // wu and wv are the dual vectors of the edges u, v in the plane: for a point
 // q relative to the corner, (dot(q, wu), dot(q, wv)) are its coordinates
 // along u and v, so quads and triangles share one test and one record shape.
@@ -22,19 +20,14 @@
 // Section sizes come from CLPT_NUM_* (specialized builds: loops with compile-
 // time trip counts) or, when CLPT_GENERIC, from the Scene counts at run time.
 
-#define MAT_STRIDE 6
-#define SPHERE_STRIDE 2
-#define PLANAR_STRIDE 4
-#define PLANE_STRIDE 2
-#define LIGHT_STRIDE 5
-
-#define LIGHT_KIND_QUAD 0
-#define LIGHT_KIND_TRIANGLE 1
-#define LIGHT_KIND_SPHERE 2
+#define LIGHT_KIND_QUAD KIND_QUAD
+#define LIGHT_KIND_TRIANGLE KIND_TRIANGLE
+#define LIGHT_KIND_SPHERE KIND_SPHERE
+#define LIGHT_KIND_MESH KIND_MESH
 
 typedef struct {
     SCENE_SPACE const real4 *rec;
-    uint n_materials, n_spheres, n_quads, n_triangles, n_planes, n_lights, n_caustics;
+    uint n_materials, n_spheres, n_quads, n_triangles, n_planes, n_lights, n_caustics, n_nodes;
     real eps_abs;  // absolute part of the ray-origin offset (scene size * k eps)
 } Scene;
 
@@ -46,6 +39,7 @@ typedef struct {
 #define NUM_PLANES (sc->n_planes)
 #define NUM_LIGHTS (sc->n_lights)
 #define NUM_CAUSTICS (sc->n_caustics)
+#define NUM_NODES (sc->n_nodes)
 #else
 #define NUM_MATERIALS CLPT_NUM_MATERIALS
 #define NUM_SPHERES CLPT_NUM_SPHERES
@@ -54,6 +48,7 @@ typedef struct {
 #define NUM_PLANES CLPT_NUM_PLANES
 #define NUM_LIGHTS CLPT_NUM_LIGHTS
 #define NUM_CAUSTICS CLPT_NUM_CAUSTICS
+#define NUM_NODES CLPT_NUM_NODES
 #endif
 
 #define OFF_SPHERES (MAT_STRIDE * NUM_MATERIALS)
@@ -62,12 +57,13 @@ typedef struct {
 #define OFF_PLANES (OFF_TRIANGLES + PLANAR_STRIDE * NUM_TRIANGLES)
 #define OFF_LIGHTS (OFF_PLANES + PLANE_STRIDE * NUM_PLANES)
 #define OFF_CAUSTICS (OFF_LIGHTS + LIGHT_STRIDE * NUM_LIGHTS)
+#define OFF_BVH (OFF_CAUSTICS + CAUSTIC_STRIDE * NUM_CAUSTICS)
 
 inline real4 scene_rec(const Scene *sc, uint i) { return sc->rec[i]; }
 
 // The scene a kernel reads: its records (the baked constants, or the buffer)
 // and the section sizes (counts: materials, spheres, quads, triangles,
-// planes, lights, caustic casters).
+// planes, lights, caustic casters, BVH nodes).
 inline Scene scene_make(__global const real4 *records, uint8 counts, real eps_abs)
 {
     Scene s;
@@ -77,7 +73,7 @@ inline Scene scene_make(__global const real4 *records, uint8 counts, real eps_ab
     s.rec = records;
 #endif
     s.n_materials = counts.s0; s.n_spheres = counts.s1; s.n_quads = counts.s2; s.n_triangles = counts.s3;
-    s.n_planes = counts.s4; s.n_lights = counts.s5; s.n_caustics = counts.s6;
+    s.n_planes = counts.s4; s.n_lights = counts.s5; s.n_caustics = counts.s6; s.n_nodes = counts.s7;
     s.eps_abs = eps_abs;
     return s;
 }
@@ -130,19 +126,31 @@ inline V3 offset_scattered(const Scene *sc, V3 p, V3 n_side, V3 d, vreal err)
 // Each returns the ray parameter of the hit or +inf; NaNs from rays parallel
 // to a plane fail every comparison and so never count as hits.
 
-// Quad (planar_tri = 0) or triangle (planar_tri = 1) at records i..i+3.
-inline vreal intersect_planar(const Scene *sc, uint i, V3 o, V3 d, int planar_tri, real4 *n_out)
+// Quad (planar_tri = 0) or triangle (planar_tri = 1) with records p, n, wu,
+// wv; *a and *b get the hit's coordinates along the edges (a triangle's
+// barycentrics of v1 and v2).
+inline vreal intersect_planar_recs(real4 p, real4 n, real4 wu, real4 wv, V3 o, V3 d, int planar_tri,
+                                   vreal *a_out, vreal *b_out)
 {
-    real4 p = scene_rec(sc, i), n = scene_rec(sc, i + 1);
-    real4 wu = scene_rec(sc, i + 2), wv = scene_rec(sc, i + 3);
     V3 op = v3_sub4(o, p);  // relative to the corner first: no cancellation far from the origin
     vreal t = -v3_dot4(op, n) / v3_dot4(d, n);
     V3 q = v3_fma(d, t, op);
     vreal a = v3_dot4(q, wu), b = v3_dot4(q, wv);
     vmask in = planar_tri ? (a >= R(0) && b >= R(0) && a + b <= R(1))
                           : (a >= R(0) && b >= R(0) && a <= R(1) && b <= R(1));
-    *n_out = n;
+    *a_out = a;
+    *b_out = b;
     return VSEL((vreal)R(INFINITY), t, in && t > R(0));
+}
+
+// The same, for the primitive at records i..i+3.
+inline vreal intersect_planar(const Scene *sc, uint i, V3 o, V3 d, int planar_tri, real4 *n_out)
+{
+    real4 n = scene_rec(sc, i + 1);
+    vreal a, b;
+    *n_out = n;
+    return intersect_planar_recs(scene_rec(sc, i), n, scene_rec(sc, i + 2), scene_rec(sc, i + 3), o, d, planar_tri,
+                                 &a, &b);
 }
 
 inline vreal intersect_plane(const Scene *sc, uint i, V3 o, V3 d)
@@ -177,7 +185,54 @@ typedef struct {
     vreal mat;  // material id
     vreal light;  // light record index + 1 of an emissive primitive, 0 otherwise
     vreal err;  // magnitude the hit's rounding error follows: |o| + the primitive's position and size
+    vreal prim;   // primitive id (scene order, boxes and meshes expanded); -1 where the ray escaped
+    vreal bu, bv; // coordinates of the hit along the edges: a triangle's barycentrics of v1 and v2
+    vreal nrm;    // record index of a smooth triangle's vertex normals, < 0 otherwise
 } Hit;
+
+inline Hit hit_none(void)
+{
+    Hit h;
+    h.t = (vreal)R(INFINITY);
+    h.ng = v3_zero();
+    h.mat = (vreal)R(0);
+    h.light = (vreal)R(0);
+    h.prim = (vreal)R(-1);
+    h.bu = h.bv = (vreal)R(0);
+    h.nrm = (vreal)R(-1);
+    h.err = (vreal)R(0);
+    return h;
+}
+
+// Where closer: h takes the planar primitive with records p, n, wu, wv.
+inline void hit_planar(Hit *h, vreal t, vmask closer, real4 p, real4 n, real4 wu, real4 wv, vreal a, vreal b)
+{
+    h->t = VSEL(h->t, t, closer);
+    h->ng = v3_sel4(h->ng, n, closer);
+    h->mat = VSEL(h->mat, (vreal)p.w, closer);
+    h->light = VSEL(h->light, (vreal)n.w, closer);
+    h->prim = VSEL(h->prim, (vreal)wu.w, closer);
+    h->bu = VSEL(h->bu, a, closer);
+    h->bv = VSEL(h->bv, b, closer);
+    h->nrm = VSEL(h->nrm, (vreal)wv.w, closer);
+    h->err = VSEL(h->err, (vreal)max_abs4(p), closer);  // |corner|: the test is relative to it
+}
+
+// Where closer: h takes the sphere cr (centre, radius) hit at t.
+inline void hit_sphere(Hit *h, vreal t, vmask closer, real4 cr, V3 o, V3 d, real mat, real light1, real prim)
+{
+    h->t = VSEL(h->t, t, closer);
+    // The normal is formed now, from the ray's origin relative to the centre.
+    V3 n = v3_scale(v3_fma(d, t, v3_sub4(o, cr)), (vreal)(R(1) / cr.w));
+    h->ng = v3_sel(h->ng, n, closer);
+    h->mat = VSEL(h->mat, (vreal)mat, closer);
+    h->light = VSEL(h->light, (vreal)light1, closer);
+    h->prim = VSEL(h->prim, (vreal)prim, closer);
+    h->bu = VSEL(h->bu, (vreal)R(0), closer);
+    h->bv = VSEL(h->bv, (vreal)R(0), closer);
+    h->nrm = VSEL(h->nrm, (vreal)R(-1), closer);
+    h->err = VSEL(h->err, (vreal)(max_abs4(cr) + cr.w), closer);
+}
 
 // Closest hit among the quads (tri = 0) or triangles (tri = 1) at records
 // off.., updating h where nearer.
@@ -185,39 +240,29 @@ inline void closest_planar(const Scene *sc, uint off, uint count, int tri, V3 o,
 {
     for (uint i = 0; i < count; i++) {
         uint r = off + PLANAR_STRIDE * i;
-        real4 n;
-        vreal t = intersect_planar(sc, r, o, d, tri, &n);
-        vmask closer = t < h->t;
-        h->t = VSEL(h->t, t, closer);
-        h->ng = v3_sel4(h->ng, n, closer);
-        h->mat = VSEL(h->mat, (vreal)scene_rec(sc, r).w, closer);
-        h->light = VSEL(h->light, (vreal)n.w, closer);
-        h->err = VSEL(h->err, (vreal)max_abs4(scene_rec(sc, r)), closer);  // |corner|: the test is relative to it
+        real4 p = scene_rec(sc, r), n = scene_rec(sc, r + 1), wu = scene_rec(sc, r + 2), wv = scene_rec(sc, r + 3);
+        vreal a, b;
+        vreal t = intersect_planar_recs(p, n, wu, wv, o, d, tri, &a, &b);
+        hit_planar(h, t, t < h->t, p, n, wu, wv, a, b);
     }
 }
 
+// The BVH (bvh.h, after this file): closest hit and shadow queries over
+// every sphere, quad and triangle of scenes large enough to have one.
+#if CLPT_HAS_BVH
+void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h);
+vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ);
+#endif
+
 inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
 {
-    Hit h;
-    h.t = (vreal)R(INFINITY);
-    h.ng = v3_zero();
-    h.mat = (vreal)R(0);
-    h.light = (vreal)R(0);
-    h.err = (vreal)R(0);
+    Hit h = hit_none();
 #if CLPT_HAS_SPHERES
     for (uint i = 0; i < NUM_SPHERES; i++) {
         uint r = OFF_SPHERES + SPHERE_STRIDE * i;
-        real4 cr = scene_rec(sc, r);
+        real4 cr = scene_rec(sc, r), sm = scene_rec(sc, r + 1);
         vreal t = intersect_sphere(cr, o, d);
-        vmask closer = t < h.t;
-        h.t = VSEL(h.t, t, closer);
-        // The normal is formed now, from the ray's origin relative to the centre.
-        V3 n = v3_scale(v3_fma(d, t, v3_sub4(o, cr)), (vreal)(R(1) / cr.w));
-        h.ng = v3_sel(h.ng, n, closer);
-        real4 sm = scene_rec(sc, r + 1);
-        h.mat = VSEL(h.mat, (vreal)sm.x, closer);
-        h.light = VSEL(h.light, (vreal)sm.y, closer);
-        h.err = VSEL(h.err, (vreal)(max_abs4(cr) + cr.w), closer);
+        hit_sphere(&h, t, t < h.t, cr, o, d, sm.x, sm.y, sm.z);
     }
 #endif
 #if CLPT_HAS_QUADS
@@ -226,20 +271,78 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
 #if CLPT_HAS_TRIANGLES
     closest_planar(sc, OFF_TRIANGLES, NUM_TRIANGLES, 1, o, d, &h);
 #endif
+#if CLPT_HAS_BVH
+    if (NUM_NODES > 0)
+        bvh_closest(sc, o, d, &h);
+#endif
 #if CLPT_HAS_PLANES
     for (uint i = 0; i < NUM_PLANES; i++) {
         uint r = OFF_PLANES + PLANE_STRIDE * i;
         vreal t = intersect_plane(sc, r, o, d);
         vmask closer = t < h.t;
+        real4 pn = scene_rec(sc, r + 1);
         h.t = VSEL(h.t, t, closer);
-        h.ng = v3_sel4(h.ng, scene_rec(sc, r + 1), closer);
+        h.ng = v3_sel4(h.ng, pn, closer);
         h.mat = VSEL(h.mat, (vreal)scene_rec(sc, r).w, closer);
         h.light = VSEL(h.light, (vreal)R(0), closer);
         h.err = VSEL(h.err, (vreal)max_abs4(scene_rec(sc, r)), closer);
+        h.prim = VSEL(h.prim, (vreal)pn.w, closer);
+        h.bu = VSEL(h.bu, (vreal)R(0), closer);
+        h.bv = VSEL(h.bv, (vreal)R(0), closer);
+        h.nrm = VSEL(h.nrm, (vreal)R(-1), closer);
     }
 #endif
     h.err = h.err + max_abs3(o);
     return h;
+}
+
+// --- shading normals -----------------------------------------------------------
+// The shading normal at h: a smooth triangle's vertex normals interpolated
+// at the hit, turned to the side of n_side (the geometric normal facing the
+// incoming ray); n_side itself elsewhere.
+inline V3 hit_shading_normal(const Scene *sc, const Hit *h, V3 n_side)
+{
+#if CLPT_HAS_SMOOTH
+    vmask smooth = h->nrm >= R(0);
+    if (!VANY(smooth))
+        return n_side;
+    V3 ns = n_side;
+    for (int l = 0; l < CLPT_LANES; l++) {
+        vreal nrm = h->nrm, bu = h->bu, bv = h->bv;
+        real k = VLANE_R(nrm, l);
+        if (k >= R(0)) {
+            uint r = (uint)k;
+            real a = VLANE_R(bu, l), b = VLANE_R(bv, l);
+            real4 s = (R(1) - a - b) * scene_rec(sc, r) + a * scene_rec(sc, r + 1) + b * scene_rec(sc, r + 2);
+            VLANE_R(ns.x, l) = s.x;
+            VLANE_R(ns.y, l) = s.y;
+            VLANE_R(ns.z, l) = s.z;
+        }
+    }
+    ns = v3_normalize(ns);
+    ns = v3_sel(ns, v3_neg(ns), v3_dot(ns, n_side) < R(0));
+    return v3_sel(n_side, ns, smooth);
+#else
+    return n_side;
+#endif
+}
+
+// A ray scattered at x with a shading normal ns_side must still leave on the
+// side of the geometric surface (ng_side) that its lobe meant: the side of
+// ns_side for reflection, the other for refraction. A tilted shading normal
+// can send it across; there it is mirrored across the geometric plane. Its
+// origin is offset along the geometric normal's side it leaves by. Lanes in m.
+inline void keep_geometric_side(const Scene *sc, V3 *o, V3 *d, V3 x, V3 ns_side, V3 ng_side, vmask m, vreal err)
+{
+#if CLPT_HAS_SMOOTH
+    vreal cs = v3_dot(*d, ns_side), cg = v3_dot(*d, ng_side);
+    vmask wrong = m && ((cs > R(0) && cg <= R(0)) || (cs <= R(0) && cg > R(0)));
+    if (!VANY(wrong))
+        return;
+    *d = v3_sel(*d, v3_normalize(v3_fma(ng_side, R(-2) * cg, *d)), wrong);
+    cg = v3_dot(*d, ng_side);
+    *o = v3_sel(*o, offset_scattered(sc, x, v3_sel(v3_neg(ng_side), ng_side, cg > R(0)), *d, err), wrong);
+#endif
 }
 
 // --- shadow rays -----------------------------------------------------------------
@@ -272,6 +375,10 @@ inline vmask scene_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask test)
     for (uint i = 0; i < NUM_PLANES; i++)
         occ = occ || intersect_plane(sc, OFF_PLANES + PLANE_STRIDE * i, o, d) < tmax;
 #endif
+#if CLPT_HAS_BVH
+    if (NUM_NODES > 0 && !VALL(occ))
+        occ = bvh_occluded(sc, o, d, tmax, occ);
+#endif
     return occ && test;
 }
 
@@ -282,6 +389,7 @@ typedef struct {
     vreal shininess, ior;
     vreal two_sided;           // emission on both sides (else the normal's side)
     vreal nondelta;            // 1 if kd or ks is nonzero (light sampling applies)
+    vreal one_sided;           // 1: black from behind (no reflection or transmission)
 } Material;
 
 // Per-lane material by selecting over the (few) materials: cheaper on a CPU
@@ -290,7 +398,7 @@ inline Material material_fetch(const Scene *sc, vreal id)
 {
     Material m;
     m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
-    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.nondelta = (vreal)R(0);
+    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.nondelta = m.one_sided = (vreal)R(0);
     m.ior = (vreal)R(1);
     for (uint i = 0; i < NUM_MATERIALS; i++) {
         uint r = MAT_STRIDE * i;
@@ -314,6 +422,7 @@ inline Material material_fetch(const Scene *sc, vreal id)
 #endif
         m.Le = v3_sel4(m.Le, f, is); m.two_sided = VSEL(m.two_sided, (vreal)f.w, is);
         m.nondelta = VSEL(m.nondelta, (vreal)g.z, is);
+        m.one_sided = VSEL(m.one_sided, (vreal)g.w, is);
     }
     return m;
 }

@@ -355,6 +355,8 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         V3 x = v3_fma(ps.d, h.t, ps.o);
         vmask front = v3_dot(h.ng, ps.d) < R(0);
         V3 n = v3_sel(v3_neg(h.ng), h.ng, front);  // faces the incoming ray
+        V3 ng_side = n;
+        n = hit_shading_normal(sc, &h, ng_side);     // smooth triangles: the interpolated normal
 
 #if CLPT_AUX
         // --- features for the denoisers, at the feature vertex -------------------------
@@ -414,6 +416,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
 #endif
 
         vmask go = hit && ps.depth < lane_depth;
+        go = go && (front || m.one_sided == R(0));  // a one-sided surface is black from behind
         vuint group = VUINT(ps.depth) * 2u + 1u;
 
         LobeProbs pr = lobe_probs(&m, ps.depth < (real)rr_depth);
@@ -465,7 +468,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
             Rand4 rl = rng_uniform4(seed, pixel, sample, group);
             LightSample ls = light_sample(sc, x, rl.a, rl.b, rl.c);
             vreal cos_x = v3_dot(n, ls.wi);
-            nee = nee && ls.valid && cos_x > R(0);
+            nee = nee && ls.valid && cos_x > R(0) && v3_dot(ng_side, ls.wi) > R(0);
             if (VANY(nee)) {
                 V3 f = bsdf_eval(&m, ps.d, n, ls.wi);
                 vreal w_l = mis_power(ls.pdf, bsdf_pdf(&m, pr, ps.d, n, ls.wi));
@@ -473,7 +476,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
                 // The shadow ray runs from the offset origin to the light point
                 // itself: aimed along wi from there instead, it would cut into a
                 // sphere light near its silhouette and see the light block itself.
-                V3 so = offset_origin(sc, x, n, h.err);
+                V3 so = offset_origin(sc, x, ng_side, h.err);
                 V3 to = v3_sub(ls.p, so);
                 vreal len = sqrt(v3_dot(to, to));
                 vmask blocked = scene_occluded(sc, so, v3_scale(to, R(1) / len), len * R(0.9999), nee);
@@ -488,6 +491,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         if (VANY(go)) {
             Rand4 rs = rng_uniform4(seed, pixel, sample, group + 1u);
             cont = scatter(sc, &m, pr, &ps, x, n, front, go, rs, h.err);
+            keep_geometric_side(sc, &ps.o, &ps.d, x, n, ng_side, cont && h.nrm >= R(0), h.err);
             ps.depth = VSEL(ps.depth, ps.depth + R(1), cont);
 #if CLPT_PHOTONS
             // x's lobe decides whether the path can be the photon map's; after

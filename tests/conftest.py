@@ -40,12 +40,17 @@ def dctx(device_spec):
 class Probe:
     """The probe program for one lane width and precision."""
 
-    def __init__(self, dctx, lanes, double, accum_double=True):
+    def __init__(self, dctx, lanes, double, accum_double=True, bvh_walk="packet"):
         self.dctx = dctx
         self.lanes = lanes
         self.real = np.float64 if double else np.float32
-        feats = Features(lanes=lanes, double=double, accum_double=accum_double, mode="generic")
-        src = program.stitch(["photons.cl", "grid.cl", "filter.cl", str(TESTS / "kernels" / "probes.cl")])
+        feats = Features(lanes=lanes, double=double, accum_double=accum_double, mode="generic", bvh_walk=bvh_walk)
+        from clpt.layout import SCENE_RECORDS
+        fields = " ".join(f"PROBE_SIZE({r.name})" + "".join(f" PROBE_FIELD({r.name}, {f})" for f, _ in r.fields)
+                          for r in SCENE_RECORDS)
+        src = program.stitch(["photons.cl", "grid.cl", "filter.cl", str(TESTS / "kernels" / "probes.cl")],
+                             {"<probe record fields>": f"#define PROBE_RECORD_FIELDS {fields}\n"},
+                             after=program.LIBRARY_FILES[-1])
         self.program, _ = program.build(dctx, src, feats.options())
         self.kernels = {}
 
@@ -67,7 +72,9 @@ class Probe:
         obufs = [cl.Buffer(ctx, mf.WRITE_ONLY, o.nbytes) for o in outs]
         k = self.kernels.get(name) or self.kernels.setdefault(name, cl.Kernel(self.program, name))
         k.set_args(*prefix, *scalars, *bufs, *scalars_after, *obufs)
-        cl.enqueue_nd_range_kernel(q, k, (pad // self.lanes,), None)
+        # A fixed work-group size: PoCL compiles a kernel once per local size,
+        # and lets it choose by the global size otherwise (a compile per probe size).
+        cl.enqueue_nd_range_kernel(q, k, (pad // self.lanes,), (1,))
         for o, b in zip(outs, obufs):
             cl.enqueue_copy(q, o, b)
         q.finish()
@@ -78,17 +85,17 @@ class Probe:
         recs = np.ascontiguousarray(packed.records, dtype=self.real)
         buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=recs)
         c = packed.counts
-        return (buf, clt.make_uint8(c[0], c[1], c[2], c[3], c[4], c[5], 0, 0))
+        return (buf, clt.make_uint8(c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]))
 
 
 @pytest.fixture(scope="session")
 def probes(dctx):
     cache = {}
 
-    def get(lanes=1, double=False, accum_double=True):
-        key = (lanes, double, accum_double)
+    def get(lanes=1, double=False, accum_double=True, bvh_walk="packet"):
+        key = (lanes, double, accum_double, bvh_walk)
         if key not in cache:
-            cache[key] = Probe(dctx, lanes, double, accum_double)
+            cache[key] = Probe(dctx, lanes, double, accum_double, bvh_walk)
         return cache[key]
 
     return get

@@ -16,7 +16,7 @@ def test_features_follow_the_scene():
     f = scene_features(pack_scene(clpt.load_scene("cornell_box")))
     assert (f.quads, f.spheres, f.triangles, f.planes) == (True, False, False, False)
     assert (f.phong, f.mirror, f.glass, f.sphere_lights, f.triangle_lights) == (False,) * 5
-    assert f.counts == (4, 0, 18, 0, 0, 1, 0) and not f.photons
+    assert f.counts == (4, 0, 18, 0, 0, 1, 0, 0) and not f.photons and not f.bvh and not f.mesh_lights
     g = scene_features(pack_scene(clpt.load_scene("cornell_box_caustics")))
     assert g.spheres and g.mirror and g.glass and not g.phong and g.photons
     assert hash(f) != hash(g) and f.options() != g.options()

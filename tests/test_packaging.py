@@ -39,6 +39,7 @@ def test_from_a_plain_install(tmp_path):
     whl = next(wheels.glob("clpt-*.whl"))
     names = zipfile.ZipFile(whl).namelist()
     assert "clpt/kernels/trace.cl" in names and "clpt/scenes/cornell_box.toml" in names
+    assert "clpt/data/cie1931_2deg.csv" in names and "clpt/data/mitsuba_ior.json" in names
     target = tmp_path / "site"
     p = subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target", str(target), str(whl)],
                        capture_output=True, text=True)

@@ -20,6 +20,18 @@ __kernel void probe_layout(__global int *out)
     out[4] = LIGHT_STRIDE; out[5] = LIGHT_KIND_QUAD; out[6] = LIGHT_KIND_TRIANGLE; out[7] = LIGHT_KIND_SPHERE;
 }
 
+// sizeof and the offset of every field of each record clpt/layout.py defines,
+// in its order (the host generates the list: PROBE_RECORD_FIELDS).
+__kernel void probe_record_layout(__global uint *out)
+{
+    uint k = 0;
+#define PROBE_SIZE(T) out[k++] = (uint)sizeof(T);
+#define PROBE_FIELD(T, f) { T r_; out[k++] = (uint)((private char *)&r_.f - (private char *)&r_); }
+    PROBE_RECORD_FIELDS
+#undef PROBE_SIZE
+#undef PROBE_FIELD
+}
+
 __kernel void probe_rng(uint seed, __global const uint *pixel, __global const uint *sample,
                         __global const uint *group, __global real *a, __global real *b, __global real *c,
                         __global real *d)
@@ -125,6 +137,42 @@ __kernel void probe_intersect(__global const real4 *rec, uint8 counts,
     vmask all = h.t == h.t || h.t != h.t;
     vmask occ = scene_occluded(&s, o, d, (vreal)R(INFINITY), all);
     ST(VSEL((vreal)R(0), (vreal)R(1), occ), occluded, i);
+}
+
+// Closest hit (t, primitive, barycentrics, geometric normal) and shadow
+// queries with a finite tmax, for comparing the BVH with the plain loops.
+__kernel void probe_hit(__global const real4 *rec, uint8 counts,
+                        __global const real *ox, __global const real *oy, __global const real *oz,
+                        __global const real *dx, __global const real *dy, __global const real *dz,
+                        __global const real *tmax,
+                        __global real *t, __global real *prim, __global real *bu, __global real *bv,
+                        __global real *nx, __global real *ny, __global real *nz, __global real *light,
+                        __global real *occluded)
+{
+    size_t i = get_global_id(0);
+    Scene s = probe_scene(rec, counts);
+    V3 o = LD3(ox, oy, oz, i), d = LD3(dx, dy, dz, i);
+    Hit h = scene_intersect(&s, o, d);
+    ST(h.t, t, i); ST(h.prim, prim, i); ST(h.bu, bu, i); ST(h.bv, bv, i); ST(h.light, light, i);
+    ST3(h.ng, nx, ny, nz, i);
+    vmask all = h.t == h.t || h.t != h.t;
+    vmask occ = scene_occluded(&s, o, d, LD(tmax, i), all);
+    ST(VSEL((vreal)R(0), (vreal)R(1), occ), occluded, i);
+}
+
+// Shading normal at the closest hit, on the side facing the ray.
+__kernel void probe_shading_normal(__global const real4 *rec, uint8 counts,
+                                   __global const real *ox, __global const real *oy, __global const real *oz,
+                                   __global const real *dx, __global const real *dy, __global const real *dz,
+                                   __global real *nx, __global real *ny, __global real *nz)
+{
+    size_t i = get_global_id(0);
+    Scene s = probe_scene(rec, counts);
+    V3 o = LD3(ox, oy, oz, i), d = LD3(dx, dy, dz, i);
+    Hit h = scene_intersect(&s, o, d);
+    vmask front = v3_dot(h.ng, d) < R(0);
+    V3 n = hit_shading_normal(&s, &h, v3_sel(v3_neg(h.ng), h.ng, front));
+    ST3(n, nx, ny, nz, i);
 }
 
 __kernel void probe_light_sample(__global const real4 *rec, uint8 counts,

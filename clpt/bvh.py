@@ -1,0 +1,278 @@
+"""Bounding volume hierarchies over primitive boxes, built on the host in numpy.
+
+Two builders share one level-by-level frame (every node of a level is split
+in one set of vectorized array operations, so the Python loop runs once per
+level, not once per node):
+
+  "sah"   binned surface-area heuristic: 16 bins of centroids per axis and
+          node, the split of least expected cost (Wald 2007), for nodes of
+          more than SAH_MIN primitives; smaller ones split as in "lbvh";
+  "lbvh"  linear BVH: primitives sorted once along a 63-bit Morton curve of
+          their centroids, each node split where its codes' highest
+          differing bit changes (Karras 2012's hierarchy, built top-down).
+
+``build`` returns a ``Tree``: nodes in breadth-first order, each a range of
+``order`` (the primitive permutation), with its box and children. ``flatten``
+turns it into the device records of clpt/layout.py's BVH_NODE: every node
+stores its two children's boxes, so one visit tests both.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+METHODS = ("sah", "lbvh")
+BINS = 16
+SAH_MIN = 64        # smaller nodes take the Morton split (binning them costs more than it gains)
+MAX_LEAF = 8        # a node with more primitives is always split
+MAX_DEPTH = 64       # the kernels' traversal stack (BVH_STACK in kernels/bvh.h)
+SAH_TRAVERSAL = 1.0  # cost of visiting a node, relative to one primitive test
+
+
+@dataclass
+class Tree:
+    order: np.ndarray   # primitive index of each leaf slot
+    start: np.ndarray   # node -> first slot
+    count: np.ndarray   # node -> slots
+    left: np.ndarray    # node -> left child (-1: leaf); right child = left + 1
+    lo: np.ndarray      # node boxes (n_nodes, 3)
+    hi: np.ndarray
+    seconds: float = 0.0
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.start)
+
+    @property
+    def n_leaves(self) -> int:
+        return int((self.left < 0).sum())
+
+    levels: int = 1
+
+    def depth(self) -> int:
+        """Edges from the root to the deepest leaf (nodes are built level by level)."""
+        return self.levels - 1
+
+    def sah_cost(self) -> float:
+        """Expected cost of a random ray through the root (SAH units)."""
+        ext = np.maximum(self.hi - self.lo, 0)
+        area = ext[:, 0] * ext[:, 1] + ext[:, 1] * ext[:, 2] + ext[:, 0] * ext[:, 2]
+        leaf = self.left < 0
+        return float((area[~leaf].sum() * SAH_TRAVERSAL + (area[leaf] * self.count[leaf]).sum()) / area[0])
+
+
+def _segments(a, starts, counts, op):
+    """op.reduce of a over each range [start, start + count) (counts > 0;
+    ranges in increasing, disjoint order)."""
+    idx = np.empty(2 * len(starts), dtype=np.int64)
+    idx[0::2] = starts
+    idx[1::2] = starts + counts
+    pad = np.concatenate([a, a[:1]])  # the end index of the last range may be len(a)
+    return op.reduceat(pad, idx, axis=0)[0::2]
+
+
+def _morton(c, lo, hi):
+    """63-bit Morton codes (21 bits per axis) of points c in the box lo..hi."""
+    ext = np.where(hi > lo, hi - lo, 1.0)
+    q = np.clip(((c - lo) / ext * (1 << 21)).astype(np.int64), 0, (1 << 21) - 1).astype(np.uint64)
+    out = np.zeros(len(c), dtype=np.uint64)
+    for axis in range(3):
+        v = q[:, axis]
+        v = (v | (v << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+        v = (v | (v << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+        v = (v | (v << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+        v = (v | (v << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+        v = (v | (v << np.uint64(2))) & np.uint64(0x1249249249249249)
+        out |= v << np.uint64(2 - axis)
+    return out
+
+
+def _area(ext):
+    ext = np.maximum(ext, 0)
+    return ext[..., 0] * ext[..., 1] + ext[..., 1] * ext[..., 2] + ext[..., 0] * ext[..., 2]
+
+
+def _sah_splits(cen, lo, hi, starts, counts, node_lo, node_hi):
+    """For each node (range): the cost of its best binned-SAH split (inf if
+    none), each of its primitives' side (True: right), their slots and nodes."""
+    m = len(starts)
+    nid = np.repeat(np.arange(m), counts)
+    sl = np.repeat(starts - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts) + np.arange(counts.sum())
+    c = cen[sl]
+    cmin = _segments(cen, starts, counts, np.minimum)
+    cmax = _segments(cen, starts, counts, np.maximum)
+    ext = cmax - cmin
+    scale = np.where(ext > 0, BINS * (1 - 1e-9) / np.where(ext > 0, ext, 1), 0.0)
+    b = np.clip(((c - cmin[nid]) * scale[nid]).astype(np.int64), 0, BINS - 1)
+    plo, phi = lo[sl], hi[sl]
+    best_cost = np.full(m, np.inf)
+    best_axis = np.zeros(m, dtype=np.int64)
+    best_bin = np.ones(m, dtype=np.int64)
+    for axis in range(3):
+        key = nid * BINS + b[:, axis]
+        cnt = np.bincount(key, minlength=m * BINS).reshape(m, BINS)
+        blo = np.full((m * BINS, 3), np.inf)
+        bhi = np.full((m * BINS, 3), -np.inf)
+        for k in range(3):
+            np.minimum.at(blo[:, k], key, plo[:, k])
+            np.maximum.at(bhi[:, k], key, phi[:, k])
+        blo, bhi = blo.reshape(m, BINS, 3), bhi.reshape(m, BINS, 3)
+        # Left: bins < j; right: bins >= j, for j = 1 .. BINS-1.
+        llo = np.minimum.accumulate(blo, axis=1)[:, :-1]
+        lhi = np.maximum.accumulate(bhi, axis=1)[:, :-1]
+        rlo = np.minimum.accumulate(blo[:, ::-1], axis=1)[:, ::-1][:, 1:]
+        rhi = np.maximum.accumulate(bhi[:, ::-1], axis=1)[:, ::-1][:, 1:]
+        nl = np.cumsum(cnt, axis=1)[:, :-1]
+        nr = counts[:, None] - nl
+        with np.errstate(invalid="ignore"):
+            cost = np.where(nl > 0, _area(lhi - llo) * nl, 0) + np.where(nr > 0, _area(rhi - rlo) * nr, 0)
+        cost = np.where((nl > 0) & (nr > 0), cost, np.inf)
+        j = np.argmin(cost, axis=1)
+        cj = cost[np.arange(m), j]
+        better = cj < best_cost
+        best_cost = np.where(better, cj, best_cost)
+        best_axis = np.where(better, axis, best_axis)
+        best_bin = np.where(better, j + 1, best_bin)
+    parent = _area(node_hi - node_lo)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cost = SAH_TRAVERSAL + best_cost / np.where(parent > 0, parent, 1)
+    side = b[np.arange(len(sl)), best_axis[nid]] >= best_bin[nid]
+    return cost, side, sl, nid
+
+
+def build(lo, hi, method: str = "sah", max_leaf: int = 4) -> Tree:
+    """BVH over the boxes lo[i]..hi[i] (float64 (N, 3))."""
+    if method not in METHODS:
+        raise ValueError(f"BVH method must be one of {', '.join(METHODS)} (got {method!r})")
+    t0 = time.perf_counter()
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    n = len(lo)
+    cen = 0.5 * (lo + hi)
+    codes = _morton(cen, cen.min(0), cen.max(0))
+    order = np.argsort(codes, kind="stable")
+    codes = codes[order]
+    lo, hi, cen = lo[order], hi[order], cen[order]
+
+    starts, counts, lefts = [np.array([0])], [np.array([n])], []
+    level_s, level_c = starts[0], counts[0]
+    next_id = 1
+    while len(level_s):
+        split = level_c > max_leaf
+        s, c = level_s[split], level_c[split]
+        left = np.full(len(level_s), -1, dtype=np.int64)
+        if len(s):
+            keep = np.ones(len(s), dtype=bool)
+            lc = np.empty(len(s), dtype=np.int64)
+            big = (c > SAH_MIN) if method == "sah" else np.zeros(len(s), dtype=bool)
+            if big.any():
+                sb, cb = s[big], c[big]
+                node_lo = _segments(lo, sb, cb, np.minimum)
+                node_hi = _segments(hi, sb, cb, np.maximum)
+                cost, side, sl, nid = _sah_splits(cen, lo, hi, sb, cb, node_lo, node_hi)
+                no_split = ~np.isfinite(cost)  # all centroids in one bin: split at the middle
+                nr = np.bincount(nid, weights=side, minlength=len(sb)).astype(np.int64)
+                # Stable partition within each range, left side first (which
+                # keeps each side in Morton order for the splits below).
+                rank_l = np.cumsum(~side) - 1
+                rank_r = np.cumsum(side) - 1
+                base_l = np.concatenate([[0], np.cumsum(cb - nr)[:-1]])
+                base_r = np.concatenate([[0], np.cumsum(nr)[:-1]])
+                pos = np.where(side, sb[nid] + (cb - nr)[nid] + rank_r - base_r[nid],
+                               sb[nid] + rank_l - base_l[nid])
+                dest = np.where(no_split[nid], sl, pos)
+                for arr in (lo, hi, cen, codes, order):
+                    arr[dest] = arr[sl].copy()
+                lc[big] = np.where(no_split, cb // 2, cb - nr)
+            small = ~big
+            if small.any():
+                # Morton split: where the node's codes' highest differing bit
+                # changes (its codes are sorted), or the middle if all equal.
+                ss, cs = s[small], c[small]
+                first, last = codes[ss], codes[ss + cs - 1]
+                diff = first ^ last
+                with np.errstate(over="ignore"):
+                    hb = np.floor(np.log2(np.where(diff > 0, diff, 1).astype(np.float64))).astype(np.int64)
+                # float64 log2 of a 63-bit value may round up past the bit: correct it.
+                hb = np.where((diff >> hb.astype(np.uint64)) == 0, hb - 1, hb)
+                nid = np.repeat(np.arange(len(ss)), cs)
+                sl = np.repeat(ss - np.concatenate([[0], np.cumsum(cs)[:-1]]), cs) + np.arange(cs.sum())
+                zero = ((codes[sl] >> hb[nid].astype(np.uint64)) & np.uint64(1)) == 0
+                n0 = np.bincount(nid, weights=zero, minlength=len(ss)).astype(np.int64)
+                lc[small] = np.clip(np.where(diff > 0, n0, cs // 2), 1, cs - 1)
+            ls, rs, rc = s, s + lc, c - lc
+            idx = np.flatnonzero(split)[keep]
+            ls, lc, rs, rc = ls[keep], lc[keep], rs[keep], rc[keep]
+            left[idx] = next_id + 2 * np.arange(len(idx))
+            next_id += 2 * len(idx)
+            ns = np.empty(2 * len(idx), dtype=np.int64)
+            nc = np.empty(2 * len(idx), dtype=np.int64)
+            ns[0::2], ns[1::2], nc[0::2], nc[1::2] = ls, rs, lc, rc
+        else:
+            ns = nc = np.zeros(0, dtype=np.int64)
+        lefts.append(left)
+        starts.append(ns)
+        counts.append(nc)
+        level_s, level_c = ns, nc
+    start = np.concatenate(starts)
+    count = np.concatenate(counts)
+    left_all = np.concatenate(lefts)
+    # Boxes, level by level (ranges within a level are disjoint and increasing).
+    nlo = np.empty((len(start), 3))
+    nhi = np.empty((len(start), 3))
+    k = 0
+    for s in starts:
+        if len(s):
+            c = count[k:k + len(s)]
+            nlo[k:k + len(s)] = _segments(lo, s, c, np.minimum)
+            nhi[k:k + len(s)] = _segments(hi, s, c, np.maximum)
+        k += len(s)
+    return Tree(order=order, start=start, count=count, left=left_all, lo=nlo, hi=nhi,
+                seconds=time.perf_counter() - t0, levels=sum(1 for x in starts if len(x)))
+
+
+def flatten(tree: Tree, node_base: int, item_base: int, item_stride: int, double: bool):
+    """Device records (n_inner, 4, 4) float64 of the tree's inner nodes (a
+    leaf root gets one node with an empty right child). Pointers are
+    absolute real4 indices: nodes from node_base, leaf items from item_base
+    (item_stride records each, in tree.order). Boxes are rounded outwards
+    to the kernel's precision."""
+    left = tree.left
+    inner = np.flatnonzero(left >= 0)
+    if len(inner) == 0:
+        inner_nodes = np.array([0])
+        children = np.array([[0, -1]])
+    else:
+        inner_nodes = inner
+        children = np.stack([left[inner], left[inner] + 1], axis=1)
+    packed_id = np.full(tree.n_nodes, -1, dtype=np.int64)
+    packed_id[inner_nodes] = np.arange(len(inner_nodes))
+    if len(inner) == 0:
+        packed_id[0] = -1  # the root is a leaf: node 0 is its holder
+    lo, hi = _outward(tree.lo, tree.hi, double)
+    out = np.zeros((len(inner_nodes), 4, 4))
+    for side in (0, 1):
+        ch = children[:, side]
+        valid = ch >= 0
+        c = np.where(valid, ch, 0)
+        is_leaf = left[c] < 0
+        ptr = np.where(is_leaf, item_base + item_stride * tree.start[c], node_base + 4 * packed_id[c])
+        cnt = np.where(is_leaf, tree.count[c], 0)
+        out[:, 2 * side, :3] = np.where(valid[:, None], lo[c], 0)
+        out[:, 2 * side, 3] = np.where(valid, ptr, 0)
+        out[:, 2 * side + 1, :3] = np.where(valid[:, None], hi[c], 0)
+        out[:, 2 * side + 1, 3] = np.where(valid, cnt, -1)
+    return out
+
+
+def _outward(lo, hi, double):
+    """Boxes rounded outwards to float32 (conservative), or kept for double."""
+    if double:
+        return lo, hi
+    lo32, hi32 = lo.astype(np.float32), hi.astype(np.float32)
+    lo32 = np.where(lo32 > lo, np.nextafter(lo32, np.float32(-np.inf)), lo32)
+    hi32 = np.where(hi32 < hi, np.nextafter(hi32, np.float32(np.inf)), hi32)
+    return lo32.astype(np.float64), hi32.astype(np.float64)

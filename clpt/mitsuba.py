@@ -1,0 +1,1136 @@
+"""Mitsuba 3 XML scenes: a documented subset, read into a clpt Scene.
+
+``load_mitsuba("scene.xml", params={"spp": "16"})`` (or ``clpt.load_scene``
+on a ``.xml`` file) returns a checked ``Scene``. The subset and how each
+Mitsuba plugin maps onto clpt's materials is documented in scenes/README.md
+("Mitsuba 3 XML"). Anything outside it is reported, never dropped quietly:
+a ``SceneWarning`` (once per kind of problem, naming the file, the line and
+the element, with a count of further cases) where clpt renders an
+approximation or leaves the element out, and a ``SceneError`` for what
+cannot be read at all (bad XML, unknown tags, missing files, bad numbers,
+include cycles, undefined ids or parameters), e.g.::
+
+    scenes/box.xml:12: <float name="fov">: bad number 'wide'
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import warnings
+import xml.parsers.expat
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from .scene import Camera, Material, Quad, RenderSettings, Scene, SceneError, SceneWarning, Sphere, _suggest
+from .spectrum import constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb_checked
+
+
+# Mitsuba counts path segments (1: emitters only); clpt counts scattering events.
+# max_depth -1 (unlimited) becomes this many scattering events: a cap that only
+# lossless loops (facing perfect mirrors) ever reach.
+UNLIMITED_DEPTH = 1024
+
+# Segments of the triangle fan a disk becomes (its radius is scaled so that the
+# fan keeps the disk's area, and so a light's power).
+DISK_SEGMENTS = 96
+
+OBJECT_TAGS = ("scene", "shape", "bsdf", "emitter", "sensor", "film", "sampler", "integrator", "texture",
+               "rfilter", "medium", "phase", "volume")
+PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform", "ref")
+TRANSFORM_TAGS = ("translate", "rotate", "scale", "matrix", "lookat")
+OTHER_TAGS = ("default", "include", "alias", "path")
+KNOWN_TAGS = set(OBJECT_TAGS + PROPERTY_TAGS + TRANSFORM_TAGS + OTHER_TAGS)
+_XYZ = ("value", "x", "y", "z")
+ATTRIBUTES = {**{t: ("type", "id", "name") for t in OBJECT_TAGS}, "scene": ("version", "type", "id"),
+              **{t: ("name", "value") for t in ("float", "integer", "boolean", "string", "rgb")},
+              "spectrum": ("name", "value", "filename"), "point": ("name", *_XYZ), "vector": ("name", *_XYZ),
+              "transform": ("name",), "ref": ("id", "name"), "translate": _XYZ, "scale": _XYZ,
+              "rotate": (*_XYZ, "angle"), "matrix": ("value",), "lookat": ("origin", "target", "up"),
+              "default": ("name", "value"), "include": ("filename",), "alias": ("id", "as"), "path": ("value",)}
+
+_PARAM = re.compile(r"\$([A-Za-z_][A-Za-z0-9_]*)")
+
+
+# --- XML with line numbers -----------------------------------------------------------
+
+
+@dataclass
+class _Node:
+    tag: str
+    attrs: dict
+    file: str
+    line: int
+    children: list = field(default_factory=list)
+
+    def where(self) -> str:
+        return f"{self.file}:{self.line}"
+
+    def label(self) -> str:
+        keys = [k for k in ("type", "name", "id") if k in self.attrs]
+        return "<" + " ".join([self.tag] + [f'{k}="{self.attrs[k]}"' for k in keys]) + ">"
+
+    def fail(self, reason):
+        raise SceneError(f"{self.where()}: {self.label()}: {reason}")
+
+
+def _read_xml(path: Path, shown: str) -> _Node:
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise SceneError(f"{shown}: no such scene file") from None
+    except OSError as e:
+        raise SceneError(f"{shown}: cannot read the scene file: {e}") from None
+    p = xml.parsers.expat.ParserCreate()
+    stack: list[_Node] = []
+    root: list[_Node] = []
+
+    def start(tag, attrs):
+        n = _Node(tag, dict(attrs), shown, p.CurrentLineNumber)
+        (stack[-1].children if stack else root).append(n)
+        stack.append(n)
+
+    def end(tag):
+        stack.pop()
+
+    p.StartElementHandler = start
+    p.EndElementHandler = end
+    try:
+        p.Parse(data, True)
+    except xml.parsers.expat.ExpatError as e:
+        raise SceneError(f"{shown}:{e.lineno}: XML syntax error: {xml.parsers.expat.ErrorString(e.code)} "
+                         f"(column {e.offset + 1})") from None
+    return root[0]
+
+
+# --- numbers -------------------------------------------------------------------------------
+
+
+def _numbers(node: _Node, text: str, what: str = "value") -> list[float]:
+    out = []
+    for tok in re.split(r"[,\s]+", text.strip()):
+        if not tok:
+            continue
+        try:
+            x = float(tok)
+        except ValueError:
+            node.fail(f"bad number {tok!r} in {what}")
+        if not math.isfinite(x):
+            node.fail(f"{what} must be finite (got {tok})")
+        out.append(x)
+    return out
+
+
+def _attr(node: _Node, key: str) -> str:
+    if key not in node.attrs:
+        node.fail(f"missing attribute '{key}'")
+    return node.attrs[key]
+
+
+def _vec3(node: _Node, default=None, *, attrs=("x", "y", "z")) -> np.ndarray:
+    """value="x, y, z" (or one number for all three) or x/y/z attributes."""
+    if "value" in node.attrs:
+        v = _numbers(node, node.attrs["value"])
+        if len(v) == 1:
+            v = v * 3
+        if len(v) != 3:
+            node.fail(f"value must be 1 or 3 numbers (got {len(v)})")
+        return np.array(v)
+    if not any(a in node.attrs for a in attrs):
+        if default is None:
+            node.fail("needs value=\"x, y, z\" or x, y, z attributes")
+        return np.array(default, dtype=np.float64)
+    d = default if default is not None else (0.0, 0.0, 0.0)
+    return np.array([_numbers(node, node.attrs[a], a)[0] if a in node.attrs else d[i]
+                     for i, a in enumerate(attrs)])
+
+
+# --- transforms --------------------------------------------------------------------------
+
+
+def rotation_matrix(axis, angle_deg) -> np.ndarray:
+    """4x4 rotation by angle_deg degrees about axis (right-handed)."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    t = math.radians(angle_deg)
+    c, s = math.cos(t), math.sin(t)
+    x, y, z = a
+    m = np.eye(4)
+    m[:3, :3] = [[c + x * x * (1 - c), x * y * (1 - c) - z * s, x * z * (1 - c) + y * s],
+                 [y * x * (1 - c) + z * s, c + y * y * (1 - c), y * z * (1 - c) - x * s],
+                 [z * x * (1 - c) - y * s, z * y * (1 - c) + x * s, c + z * z * (1 - c)]]
+    return m
+
+
+def look_at_matrix(origin, target, up) -> np.ndarray:
+    """Mitsuba's look_at: columns left, up, forward, origin (camera looks along +z)."""
+    o, t, u = (np.asarray(v, dtype=np.float64) for v in (origin, target, up))
+    d = t - o
+    if np.linalg.norm(d) == 0:
+        raise ValueError("origin and target coincide")
+    d /= np.linalg.norm(d)
+    left = np.cross(u, d)
+    if np.linalg.norm(left) < 1e-9:
+        raise ValueError("up is parallel to the view direction")
+    left /= np.linalg.norm(left)
+    new_up = np.cross(d, left)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = left, new_up, d, o
+    return m
+
+
+def _transform(node: _Node) -> np.ndarray:
+    """A <transform>: its operations in document order, each applied after the ones before."""
+    m = np.eye(4)
+    for op in node.children:
+        if op.tag == "translate":
+            t = np.eye(4)
+            t[:3, 3] = _vec3(op, (0.0, 0.0, 0.0))
+        elif op.tag == "scale":
+            t = np.diag([*_vec3(op, (1.0, 1.0, 1.0)), 1.0])
+        elif op.tag == "rotate":
+            axis = _vec3(op, (0.0, 0.0, 0.0))
+            if np.linalg.norm(axis) == 0:
+                op.fail("needs an axis: value=\"x, y, z\" or x, y, z attributes")
+            t = rotation_matrix(axis, _numbers(op, _attr(op, "angle"), "angle")[0])
+        elif op.tag == "matrix":
+            v = _numbers(op, _attr(op, "value"))
+            if len(v) == 16:
+                t = np.array(v).reshape(4, 4)
+            elif len(v) == 9:
+                t = np.eye(4)
+                t[:3, :3] = np.array(v).reshape(3, 3)
+            else:
+                op.fail(f"value must be 16 (or 9) numbers, row by row (got {len(v)})")
+        elif op.tag == "lookat":
+            vecs = {}
+            for k, default in (("origin", None), ("target", None), ("up", "0, 1, 0")):
+                vals = _numbers(op, op.attrs.get(k, default) if default else _attr(op, k), k)
+                if len(vals) != 3:
+                    op.fail(f"{k} must be 3 numbers (got {len(vals)})")
+                vecs[k] = vals
+            try:
+                t = look_at_matrix(vecs["origin"], vecs["target"], vecs["up"])
+            except ValueError as e:
+                op.fail(str(e))
+        else:
+            op.fail(f"is not a transform operation (expected one of {', '.join(TRANSFORM_TAGS)})")
+        m = t @ m
+    return m
+
+
+def _floats3(v) -> tuple:
+    return tuple(float(c) for c in v)
+
+
+def _apply(m: np.ndarray, p) -> np.ndarray:
+    return m[:3, :3] @ np.asarray(p, dtype=np.float64) + m[:3, 3]
+
+
+# --- the loader ----------------------------------------------------------------------------
+
+
+def _load_json(name):
+    return json.loads((Path(__file__).resolve().parent / "data" / name).read_text())
+
+
+_IOR_DATA = None
+
+
+def _ior_data():
+    global _IOR_DATA
+    if _IOR_DATA is None:
+        _IOR_DATA = _load_json("mitsuba_ior.json")
+    return _IOR_DATA
+
+
+def fresnel_dielectric(cos_i: float, eta: float) -> float:
+    """Unpolarized Fresnel reflectance for light arriving at cos_i from the side
+    where the relative index (transmitted over incident) is eta."""
+    cos_i = min(max(cos_i, 0.0), 1.0)
+    sin_t2 = (1 - cos_i * cos_i) / (eta * eta)
+    if sin_t2 >= 1:
+        return 1.0
+    cos_t = math.sqrt(1 - sin_t2)
+    rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    return 0.5 * (rs * rs + rp * rp)
+
+
+def _hemispherical(f, n: int = 2048) -> float:
+    """2 int_0^1 f(mu) mu dmu (the cosine-weighted average over the hemisphere), midpoint rule."""
+    mu = (np.arange(n) + 0.5) / n
+    return float(2.0 * np.mean(np.array([f(m) for m in mu]) * mu))
+
+
+def fresnel_diffuse_reflectance(eta: float) -> float:
+    """The cosine-weighted hemispherical average of the Fresnel reflectance
+    (Mitsuba's fdr) seen from the side with relative index eta."""
+    return _hemispherical(lambda mu: fresnel_dielectric(mu, eta))
+
+
+def fresnel_conductor(cos_i, eta: float, k: float):
+    """Unpolarized Fresnel reflectance of a conductor of complex index eta + i k."""
+    n = complex(eta, k)
+    cos_i = np.clip(np.asarray(cos_i, dtype=np.float64), 0.0, 1.0)
+    cos_t = np.sqrt(1 - (1 - cos_i ** 2) / n ** 2 + 0j)
+    rs = (cos_i - n * cos_t) / (cos_i + n * cos_t)
+    rp = (n * cos_i - cos_t) / (n * cos_i + cos_t)
+    return 0.5 * (np.abs(rs) ** 2 + np.abs(rp) ** 2)
+
+
+def conductor_albedo(eta, k) -> tuple:
+    """A conductor's Fresnel reflectance averaged over the cosine-weighted
+    hemisphere, per channel: the energy it reflects of diffuse light."""
+    mu = (np.arange(2048) + 0.5) / 2048
+    return tuple(float(2.0 * np.mean(fresnel_conductor(mu, e, kk) * mu))
+                 for e, kk in zip(np.broadcast_to(eta, 3), np.broadcast_to(k, 3)))
+
+
+def phong_exponent(alpha: float) -> float:
+    """The modified-Phong exponent (lobe about the mirror direction) nearest a
+    Beckmann/GGX lobe of roughness alpha: near its peak the microfacet lobe is
+    exp(-theta_h^2 / alpha^2) in the half-vector angle, and theta_h is half the
+    angle from the mirror direction, so cos^n matches for n = 1/(2 alpha^2)
+    (Blinn's exponent 2/alpha^2 - 2, divided by 4, the half-angle change)."""
+    return max(0.5 / (alpha * alpha) - 0.5, 0.0)
+
+
+@dataclass
+class _Props:
+    """An object node's properties by name, tracking which ones were used."""
+
+    node: _Node
+    loader: "_Loader"
+    props: dict = field(default_factory=dict)     # name -> property node
+    objects: list = field(default_factory=list)   # (name or None, object node) of nested objects and refs
+    used: set = field(default_factory=set)
+
+    @property
+    def type(self):
+        return self.node.attrs.get("type", "")
+
+    def has(self, name):
+        return name in self.props
+
+    def _get(self, name, tags):
+        n = self.props.get(name)
+        if n is None:
+            return None
+        self.used.add(name)
+        if n.tag not in tags:
+            n.fail(f"'{name}' must be {' or '.join(tags)} (got <{n.tag}>)")
+        return n
+
+    def float(self, name, default=None, lo=None):
+        n = self._get(name, ("float", "integer"))
+        if n is None:
+            return default
+        v = _numbers(n, _attr(n, "value"))
+        if len(v) != 1:
+            n.fail("value must be one number")
+        if lo is not None and v[0] < lo:
+            n.fail(f"must be >= {lo} (got {v[0]:g})")
+        return v[0]
+
+    def integer(self, name, default=None):
+        n = self._get(name, ("integer",))
+        if n is None:
+            return default
+        try:
+            return int(_attr(n, "value").strip())
+        except ValueError:
+            n.fail(f"bad integer {n.attrs['value']!r}")
+
+    def boolean(self, name, default=False):
+        n = self._get(name, ("boolean",))
+        if n is None:
+            return default
+        v = _attr(n, "value").strip().lower()
+        if v not in ("true", "false", "1", "0"):
+            n.fail(f"must be true or false (got {n.attrs['value']!r})")
+        return v in ("true", "1")
+
+    def string(self, name, default=None):
+        n = self._get(name, ("string",))
+        return default if n is None else _attr(n, "value")
+
+    def point(self, name, default):
+        n = self._get(name, ("point", "vector"))
+        return np.array(default, dtype=np.float64) if n is None else _vec3(n)
+
+    def transform(self, name="to_world"):
+        n = self._get(name, ("transform",))
+        return np.eye(4) if n is None else _transform(n)
+
+    def ior(self, name, default: str):
+        """A float, or a named material ("bk7", "water", ...)."""
+        n = self.props.get(name)
+        if n is None:
+            return _ior_data()["ior"][default]
+        self.used.add(name)
+        if n.tag == "float":
+            return self.float(name)
+        if n.tag != "string":
+            n.fail(f"'{name}' must be a float or the name of a material")
+        key = _attr(n, "value").strip().lower()
+        table = _ior_data()["ior"]
+        if key not in table:
+            n.fail(f"unknown index of refraction {key!r}{_suggest(key, table)}; known: {', '.join(table)}")
+        return table[key]
+
+    def color(self, name, default=None, *, emitter=False, bounded=True):
+        """rgb, spectrum, float, or a texture (its mean, with a warning) -> RGB tuple."""
+        n = self.props.get(name)
+        obj = None
+        if n is None:
+            for nm, o in self.objects:
+                if nm == name:
+                    obj = o
+            if obj is None:
+                if default is None:
+                    self.node.fail(f"missing property '{name}'")
+                return tuple(float(c) for c in np.broadcast_to(np.asarray(default, dtype=np.float64), 3))
+            self.used.add(name)
+            return self.loader.texture_color(self.loader.deref(obj), self, name, emitter)
+        self.used.add(name)
+        if n.tag == "rgb":
+            v = _numbers(n, _attr(n, "value"))
+            if len(v) == 1:
+                v = v * 3
+            if len(v) != 3:
+                n.fail(f"value must be 3 numbers (got {len(v)})")
+            rgb = tuple(v)
+        elif n.tag in ("float", "integer"):
+            x = _numbers(n, _attr(n, "value"))
+            if len(x) != 1:
+                n.fail("value must be one number")
+            rgb = (x[0],) * 3
+        elif n.tag == "spectrum":
+            rgb = self.loader.spectrum(n, emitter, bounded)
+        else:
+            n.fail(f"'{name}' must be rgb, spectrum, float or a texture (got <{n.tag}>)")
+        if min(rgb) < 0:
+            n.fail(f"must not be negative (got {list(rgb)})")
+        if bounded and not emitter and max(rgb) > 1:
+            n.fail(f"a reflectance must be at most 1 (got {list(rgb)})")
+        return tuple(float(c) for c in rgb)
+
+    def nested(self, tag):
+        """The nested objects (or refs resolving to them) of the given tag."""
+        out = []
+        for nm, o in self.objects:
+            d = self.loader.deref(o)
+            if d.tag == tag:
+                out.append(d)
+                self.used.add(("obj", id(o)))
+        return out
+
+    def finish(self, quiet=()):
+        """Warn about properties and nested objects that were given but not used."""
+        for name, n in self.props.items():
+            if name not in self.used and name not in quiet:
+                self.loader.warn(n, f"property '{name}' of {self.node.tag} '{self.type}' is not supported; ignored",
+                                 key=("prop", self.node.tag, self.type, name))
+        for nm, o in self.objects:
+            if ("obj", id(o)) not in self.used and nm not in self.used:
+                d = self.loader.deref(o)
+                self.loader.warn(o, f"{d.tag} inside {self.node.tag} '{self.type}' is not supported; ignored",
+                                 key=("obj", self.node.tag, d.tag))
+
+
+class _Loader:
+    def __init__(self, path: Path, shown: str, params: dict | None, strict: bool):
+        self.root_path = path
+        self.params = {str(k): str(v) for k, v in (params or {}).items()}
+        self.given = set(self.params)
+        self.used_params: set = set()
+        self.declared: set = set()  # names with a <default>
+        self.strict = strict
+        self.ids: dict = {}
+        self.materials: dict = {}  # id(bsdf node) -> Material, each BSDF mapped once
+        self.warned: dict = {}
+        self.search_dirs = [path.parent]
+        self.shown = shown
+
+    # --- reporting -----------------------------------------------------------------------
+
+    def warn(self, node: _Node, msg: str, key=None):
+        key = key or msg
+        if key in self.warned:
+            self.warned[key][1] += 1
+            return
+        text = f"{node.where()}: {node.label()}: {msg}"
+        if self.strict:
+            raise SceneError(text + " (strict mode)")
+        self.warned[key] = [text, 0]
+
+    def emit_warnings(self):
+        for text, more in self.warned.values():
+            warnings.warn(text + (f" (and {more} more like it)" if more else ""), SceneWarning, stacklevel=4)
+
+    # --- files, includes and parameters -------------------------------------------------------
+
+    def resolve(self, node: _Node, filename: str) -> Path:
+        """A file named in the scene: relative to the file that names it, then to
+        the main file's folder and the <path> folders."""
+        p = Path(filename)
+        cands = [p] if p.is_absolute() else [Path(node.file).parent / p] + [d / p for d in self.search_dirs]
+        for c in cands:
+            if c.is_file():
+                return c
+        node.fail(f"file not found: {filename!r} (looked in {', '.join(sorted({str(c.parent) for c in cands}))})")
+
+    def substitute(self, node: _Node):
+        for k, v in node.attrs.items():
+            if "$" in v:
+                def rep(m):
+                    name = m.group(1)
+                    if name not in self.params:
+                        node.fail(f"undefined parameter ${name} in {k}=\"{v}\"{_suggest(name, self.params)}: "
+                                  f"declare it with <default name=\"{name}\" value=\"...\"/> or pass it "
+                                  f"(-D {name}=VALUE)")
+                    self.used_params.add(name)
+                    return self.params[name]
+                node.attrs[k] = _PARAM.sub(rep, v)
+
+    def expand(self, node: _Node, stack: tuple) -> list:
+        """The node's children with parameters substituted and includes inlined,
+        recursively, in document order (defaults take effect where they stand)."""
+        out = []
+        for c in node.children:
+            self.substitute(c)
+            if c.tag not in KNOWN_TAGS:
+                c.fail(f"unknown tag{_suggest(c.tag, KNOWN_TAGS)}")
+            for a in c.attrs:
+                if a not in ATTRIBUTES[c.tag]:
+                    c.fail(f"unknown attribute '{a}'{_suggest(a, ATTRIBUTES[c.tag])}; "
+                           f"<{c.tag}> takes {', '.join(ATTRIBUTES[c.tag])}")
+            if c.tag == "default":
+                name = _attr(c, "name")
+                if "value" not in c.attrs:
+                    c.fail("missing attribute 'value'")
+                if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+                    c.fail(f"bad parameter name {name!r}")
+                self.params.setdefault(name, c.attrs["value"])
+                self.declared.add(name)
+                continue
+            if c.tag == "include":
+                p = self.resolve(c, _attr(c, "filename"))
+                key = p.resolve()
+                if key in stack:
+                    chain = " -> ".join(str(s) for s in (*stack, key))
+                    c.fail(f"include cycle: {chain}")
+                shown = str(p)
+                sub = _read_xml(p, shown)
+                if sub.tag != "scene":
+                    sub.fail("an included file must have <scene> as its root")
+                out += self.expand(sub, (*stack, key))
+                continue
+            if c.tag == "path":
+                d = Path(_attr(c, "value"))
+                self.search_dirs.append(d if d.is_absolute() else Path(c.file).parent / d)
+                continue
+            c.children = self.expand(c, stack)
+            out.append(c)
+        return out
+
+    def register(self, nodes):
+        for n in nodes:
+            if n.tag == "alias":
+                continue
+            if n.tag in OBJECT_TAGS and "id" in n.attrs:
+                i = n.attrs["id"]
+                if i in self.ids:
+                    n.fail(f"duplicate id {i!r} (first defined at {self.ids[i].where()})")
+                self.ids[i] = n
+            self.register(n.children)
+        for n in nodes:
+            if n.tag == "alias":
+                src, dst = _attr(n, "id"), _attr(n, "as")
+                if src not in self.ids:
+                    n.fail(f"alias of an undefined id {src!r}{_suggest(src, self.ids)}")
+                self.ids[dst] = self.ids[src]
+
+    def deref(self, node: _Node) -> _Node:
+        seen = set()
+        while node.tag == "ref":
+            i = _attr(node, "id")
+            if i not in self.ids:
+                node.fail(f"reference to an undefined id {i!r}{_suggest(i, self.ids)}")
+            if i in seen:
+                node.fail(f"reference cycle through id {i!r}")
+            seen.add(i)
+            node = self.ids[i]
+        return node
+
+    def props(self, node: _Node) -> _Props:
+        p = _Props(node, self)
+        for c in node.children:
+            if c.tag in PROPERTY_TAGS and c.tag != "ref":
+                name = _attr(c, "name")
+                if name in p.props:
+                    c.fail(f"property '{name}' is given twice (also at line {p.props[name].line})")
+                p.props[name] = c
+            elif c.tag in OBJECT_TAGS or c.tag == "ref":
+                p.objects.append((c.attrs.get("name"), c))
+            elif c.tag in TRANSFORM_TAGS:
+                c.fail("a transform operation must be inside <transform>")
+            else:
+                c.fail(f"is not allowed inside <{node.tag}>")
+        return p
+
+    # --- colours --------------------------------------------------------------------------
+
+    def spectrum(self, n: _Node, emitter: bool, bounded: bool = True):
+        if "filename" in n.attrs:
+            path = self.resolve(n, n.attrs["filename"])
+            wl, vals = [], []
+            for i, line in enumerate(path.read_text().splitlines()):
+                line = line.split("#", 1)[0].strip()
+                if not line:
+                    continue
+                parts = line.split()
+                try:
+                    a, b = float(parts[0]), float(parts[1])
+                except (ValueError, IndexError):
+                    raise SceneError(f"{path}:{i + 1}: expected 'wavelength value' (got {line!r})") from None
+                wl.append(a)
+                vals.append(b)
+        else:
+            text = _attr(n, "value")
+            if ":" not in text:
+                v = _numbers(n, text)
+                if len(v) != 1:
+                    n.fail("value must be one number or wavelength:value pairs")
+                return constant_spectrum_to_rgb(v[0], emitter=emitter)
+            try:
+                wl, vals = parse_spectrum_pairs(text)
+            except ValueError as e:
+                n.fail(str(e))
+        try:
+            rgb, clamped = spectrum_to_rgb_checked(wl, vals, emitter=emitter, bounded=bounded and not emitter)
+        except ValueError as e:
+            n.fail(str(e))
+        if clamped:
+            self.warn(n, "spectrum out of the sRGB gamut: clamped, as Mitsuba does", key=("gamut",))
+        return rgb
+
+    def texture_color(self, tex: _Node, owner: _Props, name: str, emitter: bool):
+        if tex.tag != "texture":
+            tex.fail(f"'{name}' must be a colour or a texture (got <{tex.tag}>)")
+        tp = self.props(tex)
+        if tp.type == "checkerboard":
+            c0 = np.array(tp.color("color0", 0.4, emitter=emitter))
+            c1 = np.array(tp.color("color1", 0.2, emitter=emitter))
+            tp.transform("to_uv")
+            tp.finish()
+            self.warn(tex, "textures are not supported: the checkerboard's mean colour is used",
+                      key=("texture", "checkerboard"))
+            return tuple(float(c) for c in 0.5 * (c0 + c1))
+        if tp.type == "bitmap":
+            rgb = self._bitmap_mean(tex, tp)
+            tp.finish(quiet=("filter_type", "wrap_mode", "raw", "to_uv", "format"))
+            self.warn(tex, "textures are not supported: the bitmap's mean colour is used",
+                      key=("texture", "bitmap"))
+            return rgb
+        self.warn(tex, f"texture '{tp.type}' is not supported: a grey of 0.5 is used", key=("texture", tp.type))
+        return (0.5, 0.5, 0.5)
+
+    def _bitmap_mean(self, tex: _Node, tp: _Props):
+        from .image import ImageError, load_image
+
+        path = self.resolve(tex, tp.string("filename") or tex.fail("missing property 'filename'"))
+        raw = tp.boolean("raw", False)
+        try:
+            img = np.asarray(load_image(path), dtype=np.float64)
+        except (ImageError, OSError) as e:
+            tex.fail(f"cannot read {path}: {e}")
+        if img.ndim == 2:
+            img = img[:, :, None]
+        img = img[:, :, :3] if img.shape[2] >= 3 else np.repeat(img[:, :, :1], 3, axis=2)
+        if not raw and path.suffix.lower() not in (".exr", ".hdr", ".pfm"):
+            # 8-bit images hold sRGB-encoded values (as Mitsuba assumes unless raw).
+            img = np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4)
+        return tuple(float(c) for c in np.clip(img.reshape(-1, 3).mean(axis=0), 0.0, 1.0))
+
+    # --- BSDFs ---------------------------------------------------------------------------------
+
+    def bsdf(self, node: _Node) -> Material:
+        node = self.deref(node)
+        if node.tag != "bsdf":
+            node.fail("expected a <bsdf>")
+        key = id(node)
+        if key not in self.materials:
+            m = self._bsdf(node)
+            self.materials[key] = replace(m, **{k: _floats3(getattr(m, k)) for k in ("kd", "ks", "kr", "kt")})
+        return self.materials[key]
+
+    def _bsdf(self, node: _Node) -> Material:
+        p = self.props(node)
+        t = p.type
+        if t == "twosided":
+            inner = p.nested("bsdf")
+            if not inner:
+                node.fail("needs a nested <bsdf>")
+            if len(inner) > 1:
+                self.warn(node, "different front and back BSDFs are not supported: the first is used on both "
+                                "sides", key=("twosided2",))
+            m = replace(self.bsdf(inner[0]), one_sided=False)
+        elif t == "diffuse":
+            m = Material(kd=p.color("reflectance", 0.5), one_sided=True)
+        elif t in ("conductor", "roughconductor"):
+            spec = np.array(p.color("specular_reflectance", 1.0)) * self._conductor_albedo(p)
+            if t == "conductor":
+                m = Material(kr=tuple(spec), one_sided=True)
+            else:
+                m = Material(ks=tuple(spec), shininess=phong_exponent(self._alpha(p)), one_sided=True)
+                p.string("distribution")
+        elif t in ("dielectric", "roughdielectric", "thindielectric"):
+            eta = p.ior("int_ior", "bk7") / p.ior("ext_ior", "air")
+            refl = np.array(p.color("specular_reflectance", 1.0))
+            trans = np.array(p.color("specular_transmittance", 1.0))
+            if t == "thindielectric":
+                # Reflection summed over the slab's internal bounces, R' = 2R/(1+R), averaged over
+                # the hemisphere; the rest passes straight through (ior 1: no bending, no Fresnel).
+                r = _hemispherical(lambda mu: 2 * fresnel_dielectric(mu, eta) / (1 + fresnel_dielectric(mu, eta)))
+                m = Material(kr=tuple(refl * r), kt=tuple(trans * (1 - r)), ior=1.0)
+            else:
+                if t == "roughdielectric":
+                    self._alpha(p)
+                    p.string("distribution")
+                    self.warn(node, "rough dielectrics are mapped to smooth ones (clpt has no rough "
+                                    "transmission)", key=("roughdielectric",))
+                if np.abs(refl - trans).max() > 1e-6:
+                    self.warn(node, "specular_reflectance differs from specular_transmittance: clpt's "
+                                    "dielectric has one colour for both; specular_transmittance is used",
+                              key=("dielectric_colors",))
+                m = Material(kt=tuple(trans), ior=eta)
+        elif t in ("plastic", "roughplastic"):
+            eta = p.ior("int_ior", "polypropylene") / p.ior("ext_ior", "air")
+            kd = np.array(p.color("diffuse_reflectance", 0.5))
+            spec = np.array(p.color("specular_reflectance", 1.0))
+            fdr_ext = fresnel_diffuse_reflectance(eta)
+            fdr_int = fresnel_diffuse_reflectance(1.0 / eta)
+            if p.boolean("nonlinear", False):
+                kd_eff = kd / (1 - kd * fdr_int) * (1 - fdr_ext) ** 2 / (eta * eta)
+            else:
+                kd_eff = kd * (1 - fdr_ext) ** 2 / ((1 - fdr_int) * eta * eta)
+            ks = spec * fdr_ext
+            kd_eff = np.minimum(kd_eff, 1.0 - ks)
+            if t == "plastic":
+                m = Material(kd=tuple(kd_eff), kr=tuple(ks), one_sided=True)
+            else:
+                p.string("distribution")
+                m = Material(kd=tuple(kd_eff), ks=tuple(ks), shininess=phong_exponent(self._alpha(p)),
+                             one_sided=True)
+        elif t in ("bumpmap", "normalmap", "mask"):
+            inner = p.nested("bsdf")
+            if not inner:
+                node.fail("needs a nested <bsdf>")
+            self.warn(node, f"'{t}' is not supported: the nested BSDF is used as it is", key=("wrapper", t))
+            p.used.update(p.props)
+            p.used.update(("obj", id(o)) for _, o in p.objects)
+            m = self.bsdf(inner[0])
+        elif t == "blendbsdf":
+            inner = p.nested("bsdf")
+            if len(inner) != 2:
+                node.fail(f"needs two nested BSDFs (got {len(inner)})")
+            w = p.float("weight", 0.5)
+            if not 0 <= w <= 1:
+                node.fail(f"weight must be in [0, 1] (got {w})")
+            a, b = self.bsdf(inner[0]), self.bsdf(inner[1])
+            if (a.shininess and b.shininess and a.shininess != b.shininess) or (
+                    max(a.kt) > 0 and max(b.kt) > 0 and a.ior != b.ior):
+                self.warn(node, "blending lobes of different shininess or ior: the weighted mean is used",
+                          key=("blend",))
+            mix = lambda x, y: tuple((1 - w) * np.asarray(x) + w * np.asarray(y))  # noqa: E731
+            m = Material(kd=mix(a.kd, b.kd), ks=mix(a.ks, b.ks), kr=mix(a.kr, b.kr), kt=mix(a.kt, b.kt),
+                         shininess=(1 - w) * a.shininess + w * b.shininess if a.shininess and b.shininess
+                         else a.shininess or b.shininess, ior=a.ior if max(a.kt) > 0 else b.ior,
+                         one_sided=a.one_sided and b.one_sided)
+        else:
+            self.warn(node, f"BSDF '{t}' is not supported: a one-sided grey diffuse (0.5) is used",
+                      key=("bsdf", t))
+            p.used.update(p.props)
+            p.used.update(("obj", id(o)) for _, o in p.objects)
+            m = Material(kd=(0.5, 0.5, 0.5), one_sided=True)
+        p.finish()
+        return m
+
+    def _alpha(self, p: _Props) -> float:
+        if p.has("alpha_u") or p.has("alpha_v"):
+            au, av = p.float("alpha_u", 0.1, lo=0.0), p.float("alpha_v", 0.1, lo=0.0)
+            if au != av:
+                self.warn(p.node, "anisotropic roughness is not supported: the mean of alpha_u and alpha_v is "
+                                  "used", key=("aniso",))
+            a = 0.5 * (au + av)
+        else:
+            a = p.float("alpha", 0.1, lo=0.0)
+        return max(a, 1e-4)
+
+    def _conductor_albedo(self, p: _Props) -> np.ndarray:
+        if p.has("eta") or p.has("k"):
+            eta = np.array(p.color("eta", 0.0, bounded=False))
+            k = np.array(p.color("k", 1.0, bounded=False))
+            p.string("material")
+            return np.array(conductor_albedo(eta, k))
+        name = p.string("material", "none")
+        if name == "none":
+            return np.ones(3)
+        table = _ior_data()["conductor"]
+        if name not in table:
+            p.props["material"].fail(f"unknown conductor {name!r}{_suggest(name, table)}; known: none, "
+                                     f"{', '.join(table)}")
+        return np.array(conductor_albedo(table[name]["eta"], table[name]["k"]))
+
+    # --- shapes ----------------------------------------------------------------------------
+
+    def shape(self, node: _Node, out: list, to_world=None):
+        p = self.props(node)
+        t = p.type
+        m = p.transform("to_world")
+        if to_world is not None:
+            m = to_world @ m
+        bsdfs = p.nested("bsdf")
+        if len(bsdfs) > 1:
+            node.fail("has more than one BSDF")
+        mat = self.bsdf(bsdfs[0]) if bsdfs else Material(kd=(0.5, 0.5, 0.5), one_sided=True)
+        emission = None
+        for e in p.nested("emitter"):
+            ep = self.props(e)
+            if ep.type != "area":
+                self.warn(e, f"emitter '{ep.type}' on a shape is not supported; ignored", key=("emitter", ep.type))
+                continue
+            emission = ep.color("radiance", emitter=True)
+            ep.finish()
+        flip = p.boolean("flip_normals", False)
+        name = node.attrs.get("id") or f"{t} at {node.where()}"
+        kw = dict(material=mat, emission=emission, two_sided=False, name=name)
+        for obj_tag in ("medium", "sensor"):
+            for _ in p.nested(obj_tag):
+                self.warn(node, f"a {obj_tag} inside a shape is not supported; ignored", key=("shape", obj_tag))
+        if t == "rectangle":
+            out.append(self._parallelogram(m, (-1, -1, 0), (2, 0, 0), (0, 2, 0), flip, kw))
+        elif t == "cube":
+            for axis in range(3):
+                a1, a2 = (axis + 1) % 3, (axis + 2) % 3
+                for side in (-1.0, 1.0):
+                    c, u, v = np.zeros(3), np.zeros(3), np.zeros(3)
+                    c[axis], c[a1], c[a2] = side, -1.0, -1.0
+                    u[a1], v[a2] = 2.0, 2.0
+                    if side < 0:
+                        u, v = v, u
+                    out.append(self._parallelogram(m, c, u, v, flip, kw))
+        elif t == "sphere":
+            center = _apply(m, p.point("center", (0.0, 0.0, 0.0)))
+            r = p.float("radius", 1.0, lo=0.0)
+            sv = np.linalg.svd(m[:3, :3], compute_uv=False)
+            if sv.max() - sv.min() > 1e-6 * sv.max():
+                self.warn(node, "a sphere's to_world must scale uniformly (ellipsoids are not supported): "
+                                "the mean scale is used", key=("ellipsoid",))
+            if flip:
+                self.warn(node, "flip_normals on a sphere is not supported: it is made two-sided (reflecting "
+                                "and emitting on both sides)", key=("flip_sphere",))
+                kw = dict(kw, material=replace(mat, one_sided=False), two_sided=True)
+            out.append(Sphere(center=_floats3(center), radius=r * float(np.mean(sv)), **kw))
+        elif t == "disk":
+            k = DISK_SEGMENTS
+            ang = 2 * math.pi * np.arange(k) / k
+            scale = math.sqrt(2 * math.pi / (k * math.sin(2 * math.pi / k)))  # fan area = disk area
+            ring = np.stack([np.cos(ang) * scale, np.sin(ang) * scale, np.zeros(k)], axis=1)
+            verts = np.vstack([np.zeros((1, 3)), ring])
+            tris = np.stack([np.zeros(k, dtype=np.int64), 1 + np.arange(k), 1 + (np.arange(k) + 1) % k], axis=1)
+            out.append(self._mesh(node, verts, tris, None, m, flip, kw))
+        elif t == "cylinder":
+            p0, p1 = p.point("p0", (0.0, 0.0, 0.0)), p.point("p1", (0.0, 0.0, 1.0))
+            r = p.float("radius", 1.0, lo=0.0)
+            axis = p1 - p0
+            if np.linalg.norm(axis) == 0 or r == 0:
+                node.fail("a cylinder needs p0 != p1 and radius > 0")
+            k = DISK_SEGMENTS
+            ang = 2 * math.pi * np.arange(k) / k
+            scale = (math.pi / k) / math.sin(math.pi / k)  # the prism's side area = the cylinder's
+            w = axis / np.linalg.norm(axis)
+            a = np.cross(w, (1.0, 0.0, 0.0) if abs(w[0]) < 0.9 else (0.0, 1.0, 0.0))
+            a /= np.linalg.norm(a)
+            b = np.cross(w, a)
+            radial = np.outer(np.cos(ang), a) + np.outer(np.sin(ang), b)
+            verts = np.vstack([p0 + r * scale * radial, p1 + r * scale * radial])
+            i, j = np.arange(k), (np.arange(k) + 1) % k
+            tris = np.vstack([np.stack([i, j, k + j], axis=1), np.stack([i, k + j, k + i], axis=1)])
+            out.append(self._mesh(node, verts, tris, np.vstack([radial, radial]), m, flip, kw))
+        elif t in ("obj", "ply"):
+            from .meshio import read_mesh
+
+            path = self.resolve(node, p.string("filename") or node.fail("missing property 'filename'"))
+            try:
+                verts, tris, normals = read_mesh(path)
+            except (SceneError, ValueError, OSError) as e:
+                node.fail(str(e))
+            if p.boolean("face_normals", False):
+                normals = None
+            p.boolean("flip_tex_coords")
+            out.append(self._mesh(node, verts, tris, normals, m, flip, kw))
+        else:
+            self.warn(node, f"shape '{t}' is not supported; left out", key=("shape", t))
+            return
+        p.finish()
+
+    def _parallelogram(self, m, c, u, v, flip, kw):
+        c, u, v = (np.asarray(a, dtype=np.float64) for a in (c, u, v))
+        corner = _apply(m, c)
+        eu, ev = m[:3, :3] @ u, m[:3, :3] @ v
+        # The normal transforms by the inverse transpose; the edges' cross product by the
+        # cofactor, which differs by det(m): a mirroring transform keeps Mitsuba's normal.
+        if (np.linalg.det(m[:3, :3]) < 0) != flip:
+            eu, ev = ev, eu
+        return Quad(corner=_floats3(corner), edge_u=_floats3(eu), edge_v=_floats3(ev), **kw)
+
+    def _mesh(self, node, verts, tris, normals, m, flip, kw):
+        from .meshio import transform_mesh
+        from .scene import Mesh
+
+        verts, normals = transform_mesh(np.asarray(verts, dtype=np.float64),
+                                        None if normals is None else np.asarray(normals, dtype=np.float64), m)
+        tris = np.asarray(tris)
+        if (np.linalg.det(m[:3, :3]) < 0) != flip:
+            tris = tris[:, ::-1]
+        if flip and normals is not None:
+            normals = -normals
+        return Mesh(vertices=verts, triangles=tris, normals=normals, **kw)
+
+    # --- sensor, integrator ------------------------------------------------------------------
+
+    def sensor(self, node: _Node, settings: dict):
+        p = self.props(node)
+        if p.type not in ("perspective", "thinlens"):
+            node.fail(f"sensor '{p.type}' is not supported (only perspective)")
+        if p.type == "thinlens":
+            self.warn(node, "thinlens: depth of field is not supported; rendered as a pinhole camera",
+                      key=("thinlens",))
+            p.float("aperture_radius")
+            p.float("focus_distance")
+        m = p.transform("to_world")
+        origin = m[:3, 3]
+        fwd, up, left = m[:3, 2], m[:3, 1], m[:3, 0]
+        if np.linalg.norm(fwd) == 0 or np.linalg.norm(up) == 0:
+            node.fail("to_world is singular")
+        if np.linalg.det(m[:3, :3]) < 0:
+            self.warn(node, "a mirroring camera transform is not supported: the image is not mirrored",
+                      key=("mirror_cam",))
+        sv = np.linalg.svd(m[:3, :3], compute_uv=False)
+        if sv.max() - sv.min() > 1e-6 * sv.max() or abs(np.dot(fwd, up)) > 1e-6 * np.linalg.norm(fwd) * np.linalg.norm(up):
+            self.warn(node, "scale or shear in the camera transform is not supported; only its position and "
+                            "orientation are used", key=("cam_scale",))
+        films = p.nested("film")
+        width, height = 768, 576
+        for f in films:
+            fp = self.props(f)
+            if fp.type not in ("hdrfilm", "specfilm"):
+                self.warn(f, f"film '{fp.type}' is read as an hdrfilm", key=("film", fp.type))
+            width, height = fp.integer("width", 768), fp.integer("height", 576)
+            for k in ("width", "height"):
+                v = width if k == "width" else height
+                if not 1 <= v <= 1 << 16:
+                    fp.props[k].fail(f"must be from 1 to 65536 (got {v})")
+            if any(fp.has(k) for k in ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height")):
+                self.warn(f, "crop windows are not supported: the whole image is rendered", key=("crop",))
+                fp.used.update(("crop_offset_x", "crop_offset_y", "crop_width", "crop_height"))
+            for rf in fp.nested("rfilter"):
+                rp = self.props(rf)
+                if rp.type != "box":
+                    self.warn(rf, f"reconstruction filter '{rp.type}' is not supported: clpt averages "
+                                  "samples uniformly over each pixel (a box filter)", key=("rfilter",))
+                rp.used.update(rp.props)
+                rp.finish()
+            fp.finish(quiet=("pixel_format", "component_format", "file_format", "banner", "high_quality_edges",
+                             "sample_border", "compensate", "srgb_primaries"))
+        for s in p.nested("sampler"):
+            sp = self.props(s)
+            spp = sp.integer("sample_count", 4)
+            if spp < 1:
+                sp.props["sample_count"].fail(f"must be >= 1 (got {spp})")
+            settings["spp"] = spp
+            seed = sp.integer("seed", 0)
+            if seed < 0:
+                sp.props["seed"].fail(f"must be >= 0 (got {seed})")
+            settings["seed"] = seed
+            sp.finish(quiet=("jitter", "scramble_seed", "strategy"))  # sample patterns: clpt has its own
+        fov_axis = p.string("fov_axis", "x")
+        if fov_axis not in ("x", "y", "diagonal", "smaller", "larger"):
+            p.props["fov_axis"].fail(f"must be x, y, diagonal, smaller or larger (got {fov_axis!r})")
+        if p.has("fov"):
+            fov = p.float("fov")
+            if not 0 < fov < 180:
+                p.props["fov"].fail(f"must be between 0 and 180 degrees (got {fov})")
+            p.string("focal_length")
+        else:
+            fl = p.string("focal_length", "50mm").strip()
+            try:
+                f_mm = float(fl[:-2] if fl.endswith("mm") else fl)
+            except ValueError:
+                p.props["focal_length"].fail(f"bad focal length {fl!r} (e.g. \"50mm\")")
+            if f_mm <= 0:
+                p.props["focal_length"].fail(f"must be > 0 (got {fl})")
+            fov = math.degrees(2 * math.atan(math.hypot(36, 24) / (2 * f_mm)))
+            fov_axis = "diagonal"
+        if fov_axis == "diagonal":
+            # The x fov of the same image diagonal, for this film's shape.
+            half_diag = math.tan(math.radians(fov) / 2)
+            fov = math.degrees(2 * math.atan(half_diag * width / math.hypot(width, height)))
+            fov_axis = "x"
+        for k in ("principal_point_offset_x", "principal_point_offset_y"):
+            if p.float(k, 0.0) != 0.0:
+                self.warn(node, "principal point offsets are not supported", key=("ppo",))
+        p.finish(quiet=("near_clip", "far_clip", "focus_distance", "shutter_open", "shutter_close", "srf"))
+        return Camera(origin=_floats3(origin), target=_floats3(origin + fwd / np.linalg.norm(fwd)),
+                      up=_floats3(up / np.linalg.norm(up)), fov=fov, fov_axis=fov_axis, width=width, height=height)
+
+    def integrator(self, node: _Node, settings: dict):
+        p = self.props(node)
+        t = p.type
+        if t in ("path", "volpath", "volpathmis", "ptracer"):
+            if t != "path":
+                self.warn(node, f"integrator '{t}' is rendered by clpt's path tracer", key=("integrator", t))
+            depth = p.integer("max_depth", -1)
+            if depth < -1:
+                p.props["max_depth"].fail(f"must be -1 (unlimited) or >= 0 (got {depth})")
+            if depth == 0:
+                p.props["max_depth"].fail("max_depth 0 renders nothing (clpt's depths start at Mitsuba's 1)")
+            settings["max_depth"] = UNLIMITED_DEPTH if depth == -1 else depth - 1
+            if p.has("rr_depth"):
+                rr = p.integer("rr_depth")
+                if rr < 1:
+                    p.props["rr_depth"].fail(f"must be >= 1 (got {rr})")
+                settings["rr_depth"] = rr - 1
+            if p.boolean("hide_emitters", False):
+                self.warn(node, "hide_emitters is not supported: emitters seen directly are rendered",
+                          key=("hide_emitters",))
+            p.finish(quiet=("samples_per_pass", "timeout"))
+        elif t == "direct":
+            self.warn(node, "integrator 'direct' is rendered as path tracing with one bounce", key=("direct",))
+            settings["max_depth"] = 1
+            p.used.update(p.props)
+            p.finish()
+        else:
+            self.warn(node, f"integrator '{t}' is not supported: clpt's path tracer is used", key=("integrator", t))
+
+    # --- the scene --------------------------------------------------------------------------
+
+    def load(self) -> Scene:
+        root = _read_xml(self.root_path, self.shown)
+        if root.tag != "scene":
+            root.fail("the root element must be <scene>")
+        self.substitute(root)
+        version = root.attrs.get("version")
+        if version is None:
+            root.fail("missing attribute 'version' (e.g. version=\"3.0.0\")")
+        try:
+            major = int(version.split(".")[0])
+        except ValueError:
+            root.fail(f"bad version {version!r}")
+        if major < 2:
+            _upgrade_names(root)
+            self.warn(root, f"version {version}: Mitsuba 0.x names (toWorld, sampleCount, intIOR, ...) are read "
+                            "as Mitsuba 3's; other 0.x features are not", key=("version",))
+        elif major > 3:
+            self.warn(root, f"version {version} is newer than the Mitsuba 3 subset clpt reads", key=("version",))
+        nodes = self.expand(root, (self.root_path.resolve(),))
+        self.register(nodes)
+        unused = self.given - self.used_params
+        if unused:
+            name = sorted(unused)[0]
+            raise SceneError(f"{self.shown}: parameter {name!r} is not used by the scene"
+                             f"{_suggest(name, self.used_params | self.declared)}")
+
+        settings: dict = {}
+        camera = None
+        shapes: list = []
+        materials: dict = {}
+        for n in nodes:
+            if n.tag == "sensor":
+                if camera is not None:
+                    self.warn(n, "more than one sensor: the first is used", key=("sensors",))
+                    continue
+                camera = self.sensor(n, settings)
+            elif n.tag == "integrator":
+                self.integrator(n, settings)
+            elif n.tag == "shape":
+                self.top_shape(n, shapes)
+            elif n.tag == "bsdf":
+                m = self.bsdf(n)
+                if "id" in n.attrs:
+                    materials[n.attrs["id"]] = m
+            elif n.tag == "emitter":
+                t = n.attrs.get("type", "")
+                self.warn(n, f"emitter '{t}' is not supported (only area emitters on shapes); left out",
+                          key=("emitter", t))
+            elif n.tag in ("texture", "alias", "ref"):
+                pass  # used where referenced
+            elif n.tag in ("medium", "phase", "volume"):
+                self.warn(n, f"{n.tag}s are not supported; left out", key=(n.tag,))
+            else:
+                n.fail(f"is not allowed at the top level of <scene>")
+        if camera is None:
+            self.warn(root, "no sensor: Mitsuba's default camera is used (at the origin, looking along +z, "
+                            "fov 39.3 along x)", key=("nosensor",))
+            camera = Camera(origin=(0.0, 0.0, 0.0), target=(0.0, 0.0, 1.0), fov=39.3077, fov_axis="x",
+                            width=768, height=576)
+        if "max_depth" not in settings:
+            settings["max_depth"] = UNLIMITED_DEPTH  # Mitsuba's default path integrator
+        defaults = RenderSettings()
+        render = RenderSettings(spp=settings.get("spp", 4), max_depth=settings["max_depth"],
+                                seed=settings.get("seed", defaults.seed),
+                                rr_depth=settings.get("rr_depth", defaults.rr_depth))
+        self.emit_warnings()
+        scene = Scene(camera=camera, shapes=shapes, materials=materials, render=render, source=self.shown)
+        try:
+            scene.check()
+        except SceneError as e:
+            raise SceneError(f"{e} (after import from Mitsuba XML)") from None
+        return scene
+
+    def top_shape(self, n: _Node, shapes: list, to_world=None):
+        t = n.attrs.get("type", "")
+        if t == "shapegroup":
+            return  # instantiated by <shape type="instance">
+        if t == "instance":
+            p = self.props(n)
+            m = p.transform("to_world")
+            if to_world is not None:
+                m = to_world @ m
+            groups = [self.deref(o) for _, o in p.objects]
+            p.used.update(("obj", id(o)) for _, o in p.objects)
+            for g in groups:
+                if g.tag != "shape" or g.attrs.get("type") != "shapegroup":
+                    n.fail("an instance must refer to a shapegroup")
+                for c in g.children:
+                    if c.tag == "shape":
+                        self.top_shape(c, shapes, m)
+                    else:
+                        c.fail("a shapegroup may hold only shapes")
+            p.finish()
+            return
+        self.shape(n, shapes, to_world)
+
+
+def _upgrade_names(node: _Node):
+    """Mitsuba 0.x camelCase property names -> Mitsuba 3's snake_case, in place."""
+    if "name" in node.attrs:
+        nm = node.attrs["name"]
+        nm = {"intIOR": "int_ior", "extIOR": "ext_ior", "toWorld": "to_world"}.get(nm, nm)
+        node.attrs["name"] = re.sub(r"(?<=[a-z0-9])([A-Z])", lambda m: "_" + m.group(1).lower(), nm)
+    for c in node.children:
+        _upgrade_names(c)
+
+
+def load_mitsuba(path, params: dict | None = None, *, strict: bool = False) -> Scene:
+    """Read a Mitsuba 3 XML scene. params override the file's <default>
+    values (as Mitsuba's -D name=value); strict turns every SceneWarning into
+    a SceneError."""
+    p = Path(path)
+    return _Loader(p, str(path), params, strict).load()
