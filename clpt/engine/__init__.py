@@ -1,0 +1,1 @@
+"""The render engine: jobs, schedules, accumulators, executors, checkpoints and the driver loop."""

@@ -1,0 +1,275 @@
+"""One OpenCL device running a job's work items into sums it keeps.
+
+A DeviceWorker builds the kernels for a scene once; start(job) sizes its
+buffers for an image and loads the sums to continue from; run(item) adds an
+item's samples; sums() reads them back. The sums stay on the device between
+items, so one device adds every pixel's samples in sample order whatever the
+items were, and its image is bit-identical however the render was split.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pyopencl as cl
+
+from .. import program
+from ..denoise import ConeFilter
+from ..device import DeviceContext, DeviceError
+from ..features import Features, scene_features
+from ..pack import PackedScene, camera_frame
+from ..photons import PM_PREPASS, PhotonMap, PhotonSettings, counts_arg
+from .accum import Accumulator
+from .job import DeviceOptions, RenderJob, WorkItem, photon_plan
+from .launch import launch_dtype, trace_args
+
+LOCAL_SIZE_CPU = 16
+LOCAL_SIZE_GPU = 64
+PREPASS_SEED_SALT = 0x2545F491
+
+
+def device_features(dctx: DeviceContext, packed: PackedScene, opts: DeviceOptions) -> Features:
+    if (opts.precision == "double" or opts.accumulate == "double") and not dctx.fp64:
+        raise DeviceError(f"{dctx.label} has no double precision (cl_khr_fp64); render with precision='float'")
+    acc_double = dctx.fp64 if opts.accumulate == "auto" else opts.accumulate == "double"
+    return scene_features(packed, lanes=opts.lanes or dctx.default_lanes(), double=opts.precision == "double",
+                          accum_double=acc_double or opts.precision == "double", mode=opts.kernel, nee=opts.nee,
+                          photons=packed.has_caustics and opts.photons is not False, aux=opts.aux)
+
+
+def baked_source(records: np.ndarray, double: bool) -> str:
+    t = "double4" if double else "float4"
+    fmt = "%.17g" if double else "%.9g"
+    rows = ",\n".join(f"    ({t})({', '.join(fmt % v for v in r)})" for r in records) or f"    ({t})(0)"
+    return f"__constant real4 clpt_scene[{max(1, len(records))}] = {{\n{rows}\n}};\n"
+
+
+class _Sums:
+    """Per-pixel sums on a device (accum.h's layout)."""
+
+    def __init__(self, dctx, n_pix: int, accum_double: bool):
+        self.dctx, self.n_pix, self.accum_double = dctx, n_pix, accum_double
+        ctx = dctx.context
+        self.pix_sum = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 32)
+        self.pix_sq = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 8)
+        self.zero()
+
+    def zero(self):
+        q = self.dctx.queue
+        cl.enqueue_fill_buffer(q, self.pix_sum, np.float32(0), 0, self.n_pix * 32)
+        cl.enqueue_fill_buffer(q, self.pix_sq, np.float32(0), 0, self.n_pix * 8)
+
+    def read(self):
+        """(pix_sum, pix_sq) as the device holds them (float64, or Kahan pairs of float32)."""
+        q = self.dctx.queue
+        if self.accum_double:
+            s, sq = np.empty((self.n_pix, 4), np.float64), np.empty(self.n_pix, np.float64)
+        else:
+            s, sq = np.empty((self.n_pix, 8), np.float32), np.empty((self.n_pix, 2), np.float32)
+        cl.enqueue_copy(q, s, self.pix_sum)
+        cl.enqueue_copy(q, sq, self.pix_sq)
+        q.finish()
+        return s, sq
+
+    def write(self, s, sq):
+        q = self.dctx.queue
+        cl.enqueue_copy(q, self.pix_sum, s)
+        cl.enqueue_copy(q, self.pix_sq, sq)
+        q.finish()
+
+
+class DeviceWorker:
+    """Everything one device holds for one scene: programs, kernels, buffers, sums."""
+
+    def __init__(self, dctx: DeviceContext, packed: PackedScene, opts: DeviceOptions):
+        features = device_features(dctx, packed, opts)
+        self.dctx = dctx
+        self.label = dctx.label
+        self.features = features
+        self.packed = packed
+        real = np.float64 if features.double else np.float32
+        generated = {}
+        if features.mode == "baked":
+            generated["<baked scene>"] = baked_source(packed.records, features.double)
+        entries = (["trace.cl"] + (["photons.cl", "grid.cl"] if features.photons else [])
+                   + (["filter.cl"] if features.aux else []))
+        source = program.stitch(entries, generated)
+        self.program, self.build = program.build(dctx, source, features.options(), use_cache=opts.use_cache)
+        self.kernel = cl.Kernel(self.program, "trace_paths")
+        mf = cl.mem_flags
+        recs = np.ascontiguousarray(packed.records, dtype=real)
+        if recs.size == 0:
+            recs = np.zeros((1, 4), dtype=real)
+        self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
+        self.counts = counts_arg(packed.counts)
+        self.eps_abs = packed.extent * (1e-13 if features.double else 2e-6)
+        self.real = real
+        self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
+        self.launched = False
+        self.pmap = PhotonMap(dctx, self.program, real) if features.photons else None
+        self.filter = ConeFilter(dctx, self.program) if features.aux else None
+        self.aux = []
+        self.launches = {}
+        self.job = None
+
+    # --- a job's buffers ------------------------------------------------------------
+    def _allocate(self, n_pix: int, caustic_buffer: bool):
+        lanes = self.features.lanes
+        groups = -(-n_pix // lanes)
+        self.global_size = -(-groups // self.local) * self.local
+        need = n_pix * 40 * (2 if caustic_buffer else 1) + self.global_size * 16
+        dev = self.dctx.device
+        if n_pix * 32 > dev.max_mem_alloc_size or need > dev.global_mem_size:
+            raise DeviceError(f"{n_pix} pixels need {need / 2**20:.0f} MiB of accumulation buffers, more than "
+                              f"{self.label} offers ({dev.global_mem_size / 2**20:.0f} MiB, at most "
+                              f"{dev.max_mem_alloc_size / 2**20:.0f} MiB per buffer); render a smaller image")
+        ctx, q, rw = self.dctx.context, self.dctx.queue, cl.mem_flags.READ_WRITE
+        try:
+            self.main = _Sums(self.dctx, n_pix, self.features.accum_double)
+            self.caustic = _Sums(self.dctx, n_pix, self.features.accum_double) if caustic_buffer else None
+            self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
+            self.list_buf = cl.Buffer(ctx, rw, 4)   # adaptive passes replace these
+            self.jobs_buf = cl.Buffer(ctx, rw, 16)
+            self.aux = [cl.Buffer(ctx, rw, n_pix * 16) for _ in range(3)] if self.features.aux else []
+            self._zero_aux()
+            q.finish()
+        except cl.Error as e:
+            raise DeviceError(f"cannot allocate {need / 2**20:.0f} MiB on {self.label} for "
+                              f"{n_pix} pixels ({e}); render a smaller image") from None
+        self.stats_host = np.empty((self.global_size, 4), dtype=np.uint32)
+        self.n_pix = n_pix
+
+    def _zero_aux(self):
+        for b in self.aux:
+            cl.enqueue_fill_buffer(self.dctx.queue, b, np.float32(0), 0, b.size)
+
+    def start(self, job: RenderJob, initial: Accumulator | None = None):
+        """Get ready for a job: buffers for its image, zero sums (or `initial`)."""
+        n_pix = job.n_pix
+        self._allocate(n_pix, caustic_buffer=job.offline)
+        frame = camera_frame(job.scene.camera, job.width, job.height)
+        rec = np.zeros((), dtype=launch_dtype(self.features.double))
+        rec["counts"] = list(self.packed.counts) + [0] * (8 - len(self.packed.counts))
+        rec["eps_abs"], rec["lum_scale"] = self.eps_abs, self.packed.lum_scale
+        for k in ("origin", "corner", "dx", "dy"):
+            rec["cam_o" if k == "origin" else k] = (*getattr(frame, k), 0)
+        rec["width"], rec["height"] = job.width, job.height
+        rec["max_depth"], rec["rr_depth"] = min(job.max_depth, 2**31), min(job.rr_depth, 2**31)
+        self.record = rec
+        self.job = job
+        self.pm_iteration = None
+        self.launches = {}
+        if initial is not None:
+            self.load(initial)
+
+    # --- photon maps --------------------------------------------------------------------
+    def build_photons(self, seed: int, settings: PhotonSettings, radius: float, mode: int):
+        info = self.pmap.build(self.scene_buf, self.counts, self.eps_abs, self.features.lanes, seed, settings,
+                               radius)
+        self.pm_settings = settings
+        self.pm_mode = mode
+        for k, v in self.pmap.launches.items():
+            self.launches[k] = self.launches.get(k, 0) + v
+        self.pmap.launches.clear()
+        return {**info, "radius": radius, "seed": seed}
+
+    def prepare_photons(self, iteration: int):
+        """Build the photon map of `iteration` unless it is the one held; returns its info or None."""
+        job = self.job
+        if self.pmap is None or job.photons is None or self.pm_iteration == iteration:
+            return None
+        seed, radius = photon_plan(job, iteration, self.packed.size)
+        info = self.build_photons(seed, job.photons, radius, job.pm_mode)
+        self.pm_iteration = iteration
+        return {"device": self.label, "iteration": iteration, **info}
+
+    # --- work ---------------------------------------------------------------------------
+    def run(self, item: WorkItem) -> dict:
+        """Add an item's samples to the sums. Returns {"seconds" (device time of
+        the launch), "wall", "stats" (non-finite, camera, bounce, shadow),
+        "photon_maps", "launches"}."""
+        before = dict(self.launches)
+        pm = self.prepare_photons(item.iteration)
+        prepass = item.kind == "prepass"
+        rec = self.record.copy()
+        rec["seed"] = (self.job.seed ^ PREPASS_SEED_SALT) if prepass else self.job.seed
+        global_size = self.global_size
+        if item.kind == "pixels":
+            rec["n_list"] = n_list = len(item.pixels)
+            global_size = -(-(-(-n_list // self.features.lanes)) // self.local) * self.local
+            if global_size > len(self.stats_host):
+                self.stats_buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_WRITE, global_size * 16)
+                self.stats_host = np.empty((global_size, 4), dtype=np.uint32)
+            mf = cl.mem_flags
+            self.list_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                      hostbuf=np.ascontiguousarray(item.pixels, dtype=np.uint32))
+            self.jobs_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                                      hostbuf=np.ascontiguousarray(item.jobs, dtype=np.uint32))
+        else:
+            rec["sample_begin"], rec["n_samples"] = item.s0, item.n
+        sums = self.caustic if prepass else self.main
+        buffers = {"scene": self.scene_buf, "pix_sum": sums.pix_sum, "pix_sq": sums.pix_sq, "stats": self.stats_buf,
+                   "pix_list": self.list_buf, "pix_jobs": self.jobs_buf}
+        buffers.update(zip(("aux_normal", "aux_albedo", "aux_emit"), self.aux))
+        tail = None
+        if self.features.photons:
+            tail = self.pmap.kernel_args(self.job.photons or PhotonSettings(), PM_PREPASS if prepass else
+                                         self.job.pm_mode)
+        self.kernel.set_args(*trace_args(rec, buffers, self.features.aux, tail))
+        q = self.dctx.queue
+        t0 = time.perf_counter()
+        ev = cl.enqueue_nd_range_kernel(q, self.kernel, (global_size,), (self.local,))
+        stats = self.stats_host[:global_size]
+        cl.enqueue_copy(q, stats, self.stats_buf)
+        wall = time.perf_counter() - t0
+        try:
+            seconds = (ev.profile.end - ev.profile.start) * 1e-9
+        except cl.Error:
+            seconds = wall
+        first = not self.launched
+        self.launched = True
+        self.launches["trace_paths"] = self.launches.get("trace_paths", 0) + 1
+        delta = {k: v - before.get(k, 0) for k, v in self.launches.items() if v != before.get(k, 0)}
+        return {"seconds": seconds, "wall": wall, "first": first, "stats": stats.sum(axis=0, dtype=np.uint64),
+                "photon_maps": [pm] if pm else [], "launches": delta}
+
+    # --- sums -----------------------------------------------------------------------------
+    def sums(self) -> Accumulator:
+        main = self.main.read()
+        caustic = self.caustic.read() if self.caustic is not None else None
+        aux = None
+        if self.aux:
+            aux = [np.empty((self.n_pix, 4), np.float32) for _ in range(3)]
+            for h, b in zip(aux, self.aux):
+                cl.enqueue_copy(self.dctx.queue, h, b)
+            self.dctx.queue.finish()
+        return Accumulator.from_device(main, caustic, aux)
+
+    def load(self, acc: Accumulator):
+        """Replace the sums by acc's (in this device's layout)."""
+        kahan = not self.features.accum_double
+        self.main.write(*acc.to_device("", kahan))
+        if self.caustic is not None:
+            if "c_sum" in acc.planes:
+                self.caustic.write(*acc.to_device("c_", kahan))
+            else:
+                self.caustic.zero()
+        if self.aux:
+            if "aux" in acc.planes:
+                for b, h in zip(self.aux, acc.aux_to_device()):
+                    cl.enqueue_copy(self.dctx.queue, b, h)
+            else:
+                self._zero_aux()
+        self.dctx.queue.finish()
+
+    def zero(self):
+        self.main.zero()
+        if self.caustic is not None:
+            self.caustic.zero()
+        self._zero_aux()
+        self.dctx.queue.finish()
+
+    def empty_sums(self, job: RenderJob) -> Accumulator:
+        return Accumulator(job.n_pix, kahan=not self.features.accum_double, aux=self.features.aux,
+                           caustic=job.offline)
