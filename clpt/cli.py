@@ -2,7 +2,8 @@
 
 Exit codes: 0 done, 1 a device or kernel-build failure, 2 a mistake in the
 command or the scene (reported in one line, never a traceback), 130
-interrupted by Ctrl-C (a render still writes the image it has so far).
+interrupted by Ctrl-C, 143 by SIGTERM, 129 by SIGHUP (a render still writes
+the image it has so far, and a checkpoint to continue it from).
 """
 
 from __future__ import annotations
@@ -99,21 +100,10 @@ def _add_quality_options(p):
                    help="paper scheme: keep full depth for calm pixels (no bias)")
     g.add_argument("--paper-stop", action="store_true", help="paper scheme: stop calm pixels instead of slowing them")
     g.add_argument("--save-sample-map", metavar="FILE", help="write a heat map of samples per pixel")
-    g = p.add_argument_group("denoising", DENOISE_HELP)
-    g.add_argument("--denoise", choices=("cone", "oidn"), default=None,
-                   help="write the denoised image (and the raw one as <out>.unfiltered<ext>): the edge-aware "
-                        "cone filter, or Intel Open Image Denoise (pip install 'clpt[oidn]')")
-    g.add_argument("--filter", action="store_true", help="the same as --denoise cone")
-    g.add_argument("--oidn-aux", choices=("clean", "noisy", "none"), default=None,
-                   help="OIDN's guides: albedo and normal prefiltered by OIDN (clean, the default), as rendered "
-                        "(noisy), or none (colour only)")
-    g.add_argument("--aux-specular", choices=("surface", "through"), default=None,
-                   help="feature buffers of mirrors and glass: the surface itself (default) or what is seen "
-                        "through it")
-    g.add_argument("--filter-width", type=int, default=None,
-                   help="cone radius in pixels per pass (default 1, at most 16)")
-    g.add_argument("--filter-iterations", type=int, default=None,
-                   help="a-trous passes (default 3; passes wider than the image are skipped)")
+    g = p.add_argument_group("edge-aware cone filter")
+    g.add_argument("--filter", action="store_true", help="write the filtered image (and <out>.unfiltered<ext>)")
+    g.add_argument("--filter-width", type=int, default=None, help="cone radius in pixels per pass (default 2)")
+    g.add_argument("--filter-iterations", type=int, default=None, help="a-trous passes (default 3)")
     g.add_argument("--filter-interval", type=int, default=None,
                    help="also write the filtered image so far every N passes (a progressive preview)")
     g.add_argument("--write-aux", action="store_true",
@@ -136,33 +126,11 @@ def _adaptive_settings(a):
     return AdaptiveSettings(**kw).check()
 
 
-DENOISE_HELP = (
-    "Measured with clpt bench-denoise (128x128, 16 and 64 spp, against path-traced references): OIDN has less "
-    "error than the cone filter in every case (1.3-1.6x with cleaned albedo+normal, the default of --denoise "
-    "oidn) and keeps caustics within 2%, but costs 45-118% of a 16-spp render's CPU time at 512x512 with "
-    "cleaned guides (10-28% with --oidn-aux noisy or none). The cone filter (--denoise cone) costs 3-5%, needs "
-    "no extra package and leaves the photon map's caustics as rendered: use it for previews "
-    "(--filter-interval) and quick renders, OIDN for final images.")
-
-
 def _filter_settings(a):
-    from .denoise import FilterSettings, OidnSettings
-    from .scene import SceneError
+    from .denoise import FilterSettings
 
-    kind = a.denoise or ("cone" if a.filter else None)
-    if a.filter and a.denoise == "oidn":
-        raise SceneError("--filter is the cone filter; use either it or --denoise oidn")
-    if kind is None:
+    if not a.filter:
         return None
-    if kind == "oidn":
-        if a.filter_width is not None or a.filter_iterations is not None:
-            raise SceneError("--filter-width and --filter-iterations are the cone filter's")
-        kw = {"aux": a.oidn_aux} if a.oidn_aux else {}
-        if a.filter_interval is not None:
-            kw["interval"] = a.filter_interval
-        return OidnSettings(**kw).check()
-    if a.oidn_aux is not None:
-        raise SceneError("--oidn-aux is for --denoise oidn")
     kw = {}
     for k, v in (("width", a.filter_width), ("iterations", a.filter_iterations), ("interval", a.filter_interval)):
         if v is not None:
@@ -199,16 +167,56 @@ def _renderer_kwargs(a):
     return kw
 
 
-def cmd_render(a) -> int:
-    from .render import Renderer
-    from .scene import load_scene
+def _dask_client(spec: str):
+    """A distributed.Client for --dask: a scheduler's address, or local:N worker processes."""
+    from .scene import SceneError
 
-    scene = load_scene(a.scene)
-    out = Path(a.output) if a.output else Path(Path(a.scene).stem + ".png")
-    photons = _photon_settings(a) if a.photons != 0 else None
-    adaptive = _adaptive_settings(a)
-    filt = _filter_settings(a)
-    r = Renderer(scene, aux=filt is not None or a.write_aux, **_renderer_kwargs(a))
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise SceneError("--dask needs Dask: pip install 'clpt[dask]'") from None
+    if spec.startswith("local:"):
+        n = spec[6:]
+        if not n.isdigit() or int(n) < 1:
+            raise SceneError(f"--dask local:N needs a number of workers >= 1 (got {spec!r})")
+        cluster = LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True, dashboard_address=None)
+        return Client(cluster)
+    return Client(spec)
+
+
+SIGNAL_EXIT = {2: 130, 15: 143, 1: 129}  # SIGINT, SIGTERM, SIGHUP: 128 + the signal
+
+
+def cmd_render(a) -> int:
+    import threading
+
+    from .engine.checkpoint import Checkpoint
+    from .engine.driver import interrupt_signals
+    from .render import Renderer
+    from .scene import SceneError, load_scene
+
+    ck = Checkpoint(a.resume) if a.resume else None
+    if ck is not None:
+        scene = ck.job.scene if a.scene is None else load_scene(a.scene)
+        default_out = Path(a.resume).with_suffix("") if a.resume.endswith(".ckpt") else \
+            Path(Path(ck.job.scene.source).stem + ".png")
+    else:
+        scene = load_scene(a.scene or "cornell_box")
+        default_out = Path(Path(a.scene or "cornell_box").stem + ".png")
+    out = Path(a.output) if a.output else default_out
+    ckpt = Path(a.checkpoint) if a.checkpoint else (Path(a.resume) if a.resume else Path(f"{out}.ckpt"))
+    if a.checkpoint_every is not None and a.checkpoint_every < 0:
+        raise SceneError(f"--checkpoint-every must be >= 0 (got {a.checkpoint_every})")
+    if ck is not None:
+        o = ck.job.options
+        r = Renderer(scene, device=a.device, lanes=o.lanes, precision=o.precision, kernel=o.kernel, nee=o.nee,
+                     photons=o.photons, aux=o.aux, use_cache=not a.no_cache, accumulate=o.accumulate)
+        filt = ck.job.filter
+    else:
+        photons = _photon_settings(a) if a.photons != 0 else None
+        adaptive = _adaptive_settings(a)
+        filt = _filter_settings(a)
+        r = Renderer(scene, aux=filt is not None or a.write_aux, **_renderer_kwargs(a))
     if a.verbose:
         for st in r.states:
             b = st.build
@@ -224,10 +232,41 @@ def cmd_render(a) -> int:
     if filt is not None and filt.interval:
         def preview(img):
             save_image(out, img, exposure=a.exposure)
-    res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,
-                   height=a.height, photons=photons, adaptive=adaptive, filter=filt, progress=show,
-                   preview=preview, time_limit=a.time_limit, aux_specular=a.aux_specular or "surface")
-    end()
+    client = _dask_client(a.dask) if a.dask else None
+    stop = threading.Event()
+    every = 60.0 if a.checkpoint_every is None else a.checkpoint_every
+    run = dict(progress=show, preview=preview, time_limit=a.time_limit, executor=client, checkpoint=ckpt,
+               checkpoint_every=every or None, stop=stop)
+    # From here on a signal ends the render with a checkpoint and the image so
+    # far; a second one cannot cut the writing of either short.
+    with interrupt_signals(stop) as got:
+        try:
+            if ck is not None:
+                res = r.resume(ck, out_checkpoint=ckpt, **run)
+            else:
+                res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,
+                               height=a.height, photons=photons, adaptive=adaptive, filter=filt, **run)
+        finally:
+            if client is not None:
+                client.close()
+        end()
+        code = SIGNAL_EXIT.get(got["signal"], 130) if res.interrupted else 0
+        if res.interrupted and res.samples == 0:
+            print("clpt: interrupted before the first sample: nothing written", file=sys.stderr)
+            return code
+        _write_outputs(a, res, out)
+        if not res.interrupted:
+            ckpt.unlink(missing_ok=True)  # the image holds it all now
+    _report(a, res, out)
+    if res.interrupted:
+        print(f"interrupted after {res.spp} spp; the image so far was written to {out} and the render can be "
+              f"continued with: clpt render --resume {ckpt}", file=sys.stderr)
+    return code
+
+
+def _write_outputs(a, res, out: Path):
+    from .image import save_image
+
     if res.filtered is not None:
         save_image(out, res.filtered, metadata={**res.metadata(), "clpt:filtered": 1}, exposure=a.exposure)
         res.save(_sibling(out, "unfiltered"), exposure=a.exposure)
@@ -242,6 +281,9 @@ def cmd_render(a) -> int:
         from .adaptive import sample_map_image
         save_image(a.save_sample_map, sample_map_image(res.sample_count),
                    metadata={"clpt:max_spp": int(res.sample_count.max()), "clpt:min_spp": int(res.sample_count.min())})
+
+
+def _report(a, res, out: Path):
     st = res.stats
     secs = max(st.render_seconds, 1e-9)
     spp_text = (f"{res.sample_count.mean():.1f} spp on average" if res.stats.adaptive_rounds else f"{res.spp} spp")
@@ -251,6 +293,8 @@ def cmd_render(a) -> int:
         msg += f", {st.nonfinite} non-finite samples dropped"
     if not a.quiet:
         print(msg, file=sys.stderr)
+    for label, err in st.failures:
+        print(f"clpt: warning: {label} failed mid-render ({err}); the others finished its work", file=sys.stderr)
     if a.verbose:
         print(f"rays: {st.camera_rays} camera, {st.bounce_rays} bounce, {st.shadow_rays} shadow "
               f"({st.rays / secs / 1e6:.2f} Mrays/s); first launch {st.first_launch_seconds:.3f}s", file=sys.stderr)
@@ -263,13 +307,13 @@ def cmd_render(a) -> int:
                   f"trace {m['trace_seconds'] * 1e3:.1f} ms, grid {m['grid_seconds'] * 1e3:.1f} ms", file=sys.stderr)
         if len(st.photon_maps) > 3:
             print(f"photon maps: {len(st.photon_maps)} in all", file=sys.stderr)
+        if st.checkpoints:
+            secs_ck = sum(c[0] for c in st.checkpoints)
+            print(f"checkpoints: {len(st.checkpoints)}, {secs_ck:.3f}s in all, {st.checkpoints[-1][1] / 1e6:.1f} MB",
+                  file=sys.stderr)
     if res.stats.adaptive_rounds and not a.quiet:
         print(f"adaptive: {res.stats.adaptive_rounds} rounds, {res.sample_count.min()} to {res.sample_count.max()} "
               f"samples per pixel", file=sys.stderr)
-    if res.interrupted and a.time_limit is None:
-        print(f"interrupted after {res.spp} spp; the image so far was written", file=sys.stderr)
-        return 130
-    return 0
 
 
 def cmd_devices(a) -> int:
@@ -395,8 +439,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("render", help="render a scene to an image file")
-    p.add_argument("scene", nargs="?", default="cornell_box", help="scene file, or a shipped scene's name "
-                                                                  "(default: cornell_box)")
+    p.add_argument("scene", nargs="?", default=None, help="scene file, or a shipped scene's name "
+                                                         "(default: cornell_box, or the checkpoint's with --resume)")
     p.add_argument("-o", "--output", help="image file: .png, .jpg (8-bit sRGB) or .exr (linear float); "
                                           "default <scene>.png")
     p.add_argument("--spp", type=int, help="samples per pixel (default: the scene's)")
@@ -410,6 +454,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-v", "--verbose", action="store_true", help="report device, kernel features, build and rays")
     p.add_argument("-q", "--quiet", action="store_true")
     p.add_argument("--progress", action="store_true", help="show progress even when not on a terminal")
+    g = p.add_argument_group("checkpoints and clusters")
+    g.add_argument("--checkpoint", metavar="FILE", help="where the render so far is kept (default <output>.ckpt); "
+                                                        "removed when the image is written complete")
+    g.add_argument("--checkpoint-every", type=float, default=None, metavar="SECONDS",
+                   help="write the checkpoint this often (default 60; 0: only when interrupted)")
+    g.add_argument("--resume", metavar="CHECKPOINT", help="continue a checkpointed render (its scene and settings "
+                                                          "are in the checkpoint); -o as before by default")
+    g.add_argument("--dask", metavar="ADDRESS", help="render on a Dask cluster: a scheduler address, or local:N "
+                                                     "for N local worker processes (pip install 'clpt[dask]')")
     _add_render_options(p)
     _add_photon_options(p)
     _add_quality_options(p)
@@ -448,27 +501,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reference", default=None, help="reference EXR: read if it exists, else rendered and saved")
     p.add_argument("--ref-spp", type=int, default=16384)
     p.add_argument("--max-depth", type=int, default=64, help="path depth of the equal-time renders (default 64)")
-    p.add_argument("--cpu-time", action="store_true",
-                   help="equal CPU time of this process instead of equal wall time (for a machine shared with other work)")
     p.add_argument("--device", "-d", default=None)
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=lambda a: __import__("clpt.bench", fromlist=["x"]).run_bench_photons(a))
-
-    p = sub.add_parser("bench-denoise", help="the cone filter and OIDN against a path-traced reference: error, "
-                                             "caustic energy, halos around lights, time")
-    p.add_argument("scene", nargs="*", default=["cornell_box", "cornell_box_caustics"])
-    p.add_argument("--width", type=int, default=128)
-    p.add_argument("--height", type=int, default=128)
-    p.add_argument("--spp", default="16,64", help="comma list")
-    p.add_argument("--seeds", type=int, default=2)
-    p.add_argument("--max-depth", type=int, default=64)
-    p.add_argument("--ref-spp", type=int, default=4096)
-    p.add_argument("--ref-dir", default=".clpt-references", help="where references are cached")
-    p.add_argument("--time-size", type=int, default=512, help="image size of the timing (0: no timing)")
-    p.add_argument("--image", default=None, help="write raw | cone | OIDN | reference of the caustics box here")
-    p.add_argument("--device", "-d", default=None)
-    p.add_argument("--json", action="store_true")
-    p.set_defaults(func=lambda a: __import__("clpt.bench_denoise", fromlist=["x"]).run_bench_denoise(a))
 
     p = sub.add_parser("compare", help="uniform vs adaptive sampling vs the filter, at equal render time")
     p.add_argument("scene", nargs="+")

@@ -7,6 +7,7 @@ sRGB transfer curve, clamping and dithering-free rounding.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -52,11 +53,18 @@ def save_image(path, img: np.ndarray, metadata: dict | None = None, exposure: fl
     out = oiio.ImageOutput.create(str(path))
     if out is None:
         raise ImageError(f"{path}: cannot write this image format ({oiio.geterror()})")
+    # Atomically: into a temporary file beside it, then renamed over it, so a
+    # killed write never leaves a truncated image where a good one was.
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
     try:
-        if not out.open(str(path), spec) or not out.write_image(data):
-            raise ImageError(f"{path}: {out.geterror()}")
+        try:
+            if not out.open(str(tmp), spec) or not out.write_image(data):
+                raise ImageError(f"{path}: {out.geterror()}")
+        finally:
+            out.close()
+        os.replace(tmp, path)
     finally:
-        out.close()
+        tmp.unlink(missing_ok=True)
 
 
 def load_image(path) -> np.ndarray:
