@@ -242,6 +242,7 @@ def cmd_render(a) -> int:
     with interrupt_signals(stop) as got:
         try:
             if ck is not None:
+                run.pop("checkpoint")
                 res = r.resume(ck, out_checkpoint=ckpt, **run)
             else:
                 res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,

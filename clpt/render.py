@@ -14,6 +14,7 @@ a per-pixel caustic buffer that is added to the path-traced image.
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -219,6 +220,7 @@ class Renderer:
         if executor is None:
             if self._local is None:
                 self._local = LocalExecutor(self.states)
+                weakref.finalize(self, self._local.close)  # its threads end with the Renderer
             self._local.live = set(range(len(self.states)))
             return self._local
         if hasattr(executor, "scheduler_info") and hasattr(executor, "submit"):  # a distributed.Client

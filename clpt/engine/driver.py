@@ -147,6 +147,7 @@ class Driver:
                 raise WorkerFailure(f"every worker failed; the last: {label}: {err}") from err
             return
         self.schedule.done(item)
+        self.fresh = True  # work done since the last checkpoint
         if res.get("sums") is not None:
             self.host.add(res["sums"])
         elif self.ex.resident:
@@ -241,6 +242,8 @@ class Driver:
         if self.checkpoint is None:
             return None
         t = time.perf_counter()
+        self.fresh = False
+        self.last_checkpoint = t
         sums = sums if sums is not None else self.total()
         if sums.samples == 0:
             return None
@@ -249,6 +252,7 @@ class Driver:
                                 extra={"features": self.describe})
         self.checkpoints.append((time.perf_counter() - t, size))
         self.last_checkpoint = time.perf_counter()
+        self.fresh = False
         return size
 
     def _filtered(self, image, var, count, caustic, aux):
@@ -281,6 +285,7 @@ class Driver:
         self.done_spp = self.schedule.next
         self.passes = 0
         self.round_open = False
+        self.fresh = False
         self.ex.start(self.job, self.initial)
         self.first_slot = min(self.ex.slots) if self.ex.slots else 0
         self.host = self.empty()
@@ -293,7 +298,7 @@ class Driver:
                 if self.stop_event.is_set() and not interrupted:
                     interrupted = True
                     self.schedule.stop()
-                if (not interrupted and self.checkpoint_every and self.checkpoint is not None
+                if (not interrupted and self.checkpoint_every and self.checkpoint is not None and self.fresh
                         and time.perf_counter() - self.last_checkpoint >= self.checkpoint_every):
                     draining = True
                 if not interrupted and not draining:
