@@ -222,10 +222,13 @@ class Driver:
         jobs[:, 1] = np.minimum(depth.ravel()[pixels], 2**31)
         jobs[:, 2] = count[pixels]  # each pixel continues its own sample sequence
         # Contiguous parts, one per worker, sized by rate (neighbouring pixels
-        # share a work-item: their paths run alike in its lanes).
+        # share a work-item: their paths run alike in its lanes). Cut at whole
+        # work-items, so the lanes' samples do not depend on how many parts.
         live = self.ex.slots
         rates = np.array([1.0 / self.per_spp[s] if self.per_spp.get(s) else 1.0 for s in live])
-        cuts = np.round(np.cumsum(rates) / rates.sum() * len(pixels)).astype(int)[:-1]
+        groups = -(-len(pixels) // self.lanes)
+        cuts = np.round(np.cumsum(rates) / rates.sum() * groups).astype(int)[:-1] * self.lanes
+        cuts = np.minimum(cuts, len(pixels))
         parts = [p for p in np.split(np.arange(len(pixels)), cuts)]
         # A work-item lasts as long as its busiest lane: each lane gets as many
         # samples as the busiest of its work-item's lanes, when the budget allows.
