@@ -154,40 +154,64 @@ def test_sigterm_leaves_image_and_checkpoint_and_resume_finishes_it(tmp_path, de
     assert np.array_equal(clpt.load_image(out), uninterrupted) and not ck.exists()
 
 
-def kill_resume_cycles(out, cycles, device_spec=None, seed=0, log=None):
+def kill_resume_cycles(out, cycles, device_spec=None, seed=0, log=None, render=RENDER, every="0.05"):
     """Start (or resume) the CLI render, SIGKILL it after a random time, again
-    and again; then let it finish. Returns (kills, resumes, checkpoints seen)."""
+    and again; then let it finish. Returns (kills, resumes, checkpoints seen,
+    kills that cut a checkpoint write short)."""
     rng = random.Random(seed)
     ck = out.with_name(out.name + ".ckpt")
-    kills = resumes = seen = 0
+    kills = resumes = seen = mid_write = 0
     for i in range(cycles + 1):
         if ck.exists():
             Checkpoint(ck)  # never half-written: it always reads
             seen += 1
-            cmd, resumes = clpt_cmd("--resume", str(ck), "-o", str(out), "-q", "--checkpoint-every", "0.05",
+            cmd, resumes = clpt_cmd("--resume", str(ck), "-o", str(out), "-q", "--checkpoint-every", every,
                                     device_spec=device_spec), resumes + 1
         else:
-            cmd = clpt_cmd(*RENDER, "-o", str(out), "-q", "--checkpoint-every", "0.05", device_spec=device_spec)
+            cmd = clpt_cmd(*render, "-o", str(out), "-q", "--checkpoint-every", every, device_spec=device_spec)
         p = subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True)
         if i < cycles:
             time.sleep(rng.uniform(0.5, 4.0))
             if p.poll() is None:
                 p.send_signal(signal.SIGKILL)
                 kills += 1
-        err = p.communicate(timeout=300)[1]
+        err = p.communicate(timeout=600)[1]
+        cut = [f for f in out.parent.glob(f".{ck.name}.*.tmp")]
+        mid_write += bool(cut)
+        for f in cut:
+            f.unlink()
         if log:
-            log(f"cycle {i}: rc {p.returncode}, checkpoint {'yes' if ck.exists() else 'no'}")
+            log(f"cycle {i}: rc {p.returncode}, checkpoint {'yes' if ck.exists() else 'no'}"
+                f"{', killed during a checkpoint write' if cut else ''}")
         if p.returncode == 0:
             break
         assert p.returncode == -signal.SIGKILL, err
-    return kills, resumes, seen
+    return kills, resumes, seen, mid_write
 
 
 def test_sigkill_at_random_moments_then_resume(tmp_path, device_spec, uninterrupted):
     out = tmp_path / "k.exr"
-    kills, resumes, seen = kill_resume_cycles(out, 3, device_spec, seed=1)
+    kills, resumes, seen, _ = kill_resume_cycles(out, 3, device_spec, seed=1)
     assert kills >= 1
     # The last run may be a fresh start if every kill came before the first checkpoint.
     assert np.array_equal(clpt.load_image(out), uninterrupted)
     leftovers = [f for f in os.listdir(tmp_path) if f.startswith(".")]
     assert not [f for f in leftovers if not f.endswith(".tmp") and not f.endswith(".tmp.exr")]
+
+
+def test_on_update_between_passes_and_once_at_the_end(device_spec):
+    r = clpt.Renderer("cornell_box", device=device_spec, aux=True)
+    ups = []
+    res = r.render(12, width=16, height=8, filter=clpt.FilterSettings(), on_update=ups.append, update_interval=0,
+                   pass_seconds=1e-9)
+    assert len(ups) >= 3 and [u.final for u in ups].count(True) == 1 and ups[-1].final
+    assert all(u.filtered is None for u in ups[:-1]) and np.array_equal(ups[-1].filtered, res.filtered)
+    spp = [u.spp_done for u in ups]
+    assert spp == sorted(spp) and spp[-1] == 12 and ups[-1].spp_total == 12
+    last = ups[-1]
+    assert last.image.shape == (8, 16, 3) and last.image.dtype == np.float32
+    assert np.array_equal(last.image, res.image) and np.array_equal(last.sample_count, res.sample_count)
+    assert set(last.aux) == {"normal", "albedo", "depth", "emission"} and last.elapsed > 0
+    few = []
+    r.render(12, width=16, height=8, on_update=few.append, update_interval=1e9, pass_seconds=1e-9)
+    assert len(few) == 1 and few[0].final  # at most every update_interval: here only the final one
