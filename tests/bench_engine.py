@@ -30,7 +30,7 @@ def bench_kill(cycles: int):
     import clpt
     from test_checkpoint import clpt_cmd, kill_resume_cycles
 
-    render = ["--spp", "150", "--width", "256", "--height", "192", "--seed", "5"]
+    render = ["--spp", "500", "--width", "256", "--height", "192", "--seed", "5"]
     d = Path(tempfile.mkdtemp(prefix="clpt-kill-"))
     ref = d / "ref.exr"
     subprocess.run(clpt_cmd(*render, "-o", str(ref), "-q"), check=True)
