@@ -184,7 +184,8 @@ def _dask_client(spec: str):
     return Client(spec)
 
 
-SIGNAL_EXIT = {2: 130, 15: 143, 1: 129}  # SIGINT, SIGTERM, SIGHUP: 128 + the signal
+SIGNAL_EXIT = {2: 130, 15: 143, 1: 129}
+DASK_PASS_SECONDS = 2.0  # a range's raw sums travel back whole: ranges of seconds keep that a small share  # SIGINT, SIGTERM, SIGHUP: 128 + the signal
 
 
 def cmd_render(a) -> int:
@@ -237,6 +238,8 @@ def cmd_render(a) -> int:
     every = 60.0 if a.checkpoint_every is None else a.checkpoint_every
     run = dict(progress=show, preview=preview, time_limit=a.time_limit, executor=client, checkpoint=ckpt,
                checkpoint_every=every or None, stop=stop)
+    if client is not None:
+        run["pass_seconds"] = DASK_PASS_SECONDS
     # From here on a signal ends the render with a checkpoint and the image so
     # far; a second one cannot cut the writing of either short.
     with interrupt_signals(stop) as got:

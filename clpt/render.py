@@ -233,9 +233,11 @@ class Renderer:
         stats = RenderStats(build_seconds=self.build_seconds, cache_hits=sum(s.build.cache_hit for s in self.states))
         ex = self._executor(executor)
         empty = self.states[0].empty_sums
-        if initial is not None and not initial.same_layout(empty(job)):
-            raise CheckpointError("the checkpoint's sums do not fit this device's layout (fp64 or Kahan sums, "
-                                  "feature buffers, caustic buffer)")
+        if initial is not None:
+            try:
+                initial = initial.with_layout(empty(job))  # fp64 sums onto a Kahan device, or back
+            except ValueError as e:
+                raise CheckpointError(f"the checkpoint's sums do not fit this render: {e}") from None
         drv = Driver(job, ex, stats=stats, lum_scale=self.packed.lum_scale, lanes=self.features.lanes,
                      schedule=schedule, initial=initial, empty=lambda: empty(job), pass_seconds=pass_seconds,
                      time_limit=time_limit, progress=progress, preview=preview, on_update=on_update,

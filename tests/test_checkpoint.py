@@ -144,10 +144,12 @@ def test_sigterm_leaves_image_and_checkpoint_and_resume_finishes_it(tmp_path, de
                          stderr=subprocess.PIPE, text=True)
     wait_for(p, "spp")
     p.send_signal(signal.SIGTERM)
+    time.sleep(0.05)
+    p.send_signal(signal.SIGINT)  # a second signal while it finishes: the image is still written whole
     _, err = p.communicate(timeout=120)
     assert p.returncode == 143, err
     ck = tmp_path / "t.exr.ckpt"
-    assert out.is_file() and ck.is_file() and "--resume" in err
+    assert out.is_file() and ck.is_file() and "--resume" in err and "still writing" in err
     assert Checkpoint(ck).sums.samples > 0
     r = subprocess.run(clpt_cmd("--resume", str(ck), "-q", device_spec=device_spec), capture_output=True, text=True)
     assert r.returncode == 0, r.stderr

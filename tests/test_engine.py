@@ -80,6 +80,18 @@ def test_accumulator_device_layouts_round_trip_exactly():
     assert "comp" not in d.planes and np.array_equal(d.to_device()[0], s[:, :4].astype(np.float64))
 
 
+def test_accumulator_changes_layout_between_fp64_and_kahan_devices():
+    """A checkpoint of a device without fp64 continues on one with it ("auto" sums), and back."""
+    rng = np.random.default_rng(3)
+    k = random_acc(rng, 5, kahan=True, aux=True)
+    d = k.with_layout(Accumulator(5, aux=True))
+    assert "comp" not in d.planes and np.allclose(d.stats()[0], k.stats()[0], rtol=1e-12)
+    back = d.with_layout(Accumulator(5, kahan=True, aux=True))
+    assert np.array_equal(back.planes["comp"], np.zeros((5, 5))) and np.array_equal(back.count, d.count)
+    with pytest.raises(ValueError):
+        k.with_layout(Accumulator(5))  # no feature buffers there
+
+
 def test_accumulator_statistics():
     acc = Accumulator(2)
     x = np.array([[1.0, 2.0, 3.0], [0.5, 0.5, 0.5], [2.0, 1.0, 0.0]])

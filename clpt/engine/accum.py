@@ -63,6 +63,21 @@ class Accumulator:
             out.add(p)
         return out
 
+    def with_layout(self, like: "Accumulator") -> "Accumulator":
+        """These sums in like's layout: Kahan compensations folded in or added
+        as zeros (the feature and caustic planes must agree)."""
+        out = self.copy()
+        for p in ("", "c_"):
+            if p + "comp" in out.planes and p + "comp" not in like.planes:
+                comp = out.planes.pop(p + "comp")
+                out.planes[p + "sum"] = out.planes[p + "sum"] - comp[:, :4]
+                out.planes[p + "sq"] = out.planes[p + "sq"] - comp[:, 4]
+            elif p + "comp" in like.planes and p + "comp" not in out.planes and p + "sum" in out.planes:
+                out.planes[p + "comp"] = np.zeros((self.n_pix, 5))
+        if not out.same_layout(like):
+            raise ValueError(f"sums with planes {sorted(self.planes)} do not fit planes {sorted(like.planes)}")
+        return out
+
     def same_layout(self, other: "Accumulator") -> bool:
         return other.n_pix == self.n_pix and set(other.planes) == set(self.planes)
 
