@@ -312,9 +312,9 @@ def _report(a, res, out: Path):
         if len(st.photon_maps) > 3:
             print(f"photon maps: {len(st.photon_maps)} in all", file=sys.stderr)
         if st.checkpoints:
-            secs_ck = sum(c[0] for c in st.checkpoints)
-            print(f"checkpoints: {len(st.checkpoints)}, {secs_ck:.3f}s in all, {st.checkpoints[-1][1] / 1e6:.1f} MB",
-                  file=sys.stderr)
+            stall, write = sum(c[0] for c in st.checkpoints), sum(c[1] for c in st.checkpoints)
+            print(f"checkpoints: {len(st.checkpoints)}, the render waited {stall:.3f}s for them, writing took "
+                  f"{write:.3f}s in the background, {st.checkpoints[-1][2] / 1e6:.1f} MB", file=sys.stderr)
     if res.stats.adaptive_rounds and not a.quiet:
         print(f"adaptive: {res.stats.adaptive_rounds} rounds, {res.sample_count.min()} to {res.sample_count.max()} "
               f"samples per pixel", file=sys.stderr)

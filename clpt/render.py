@@ -51,7 +51,7 @@ class RenderStats:
     photon_pilot: dict | None = None  # what the pilot measured and chose (PhotonSettings.pilot)
     launches: dict = field(default_factory=dict)  # kernel name -> launches, all devices
     failures: list = field(default_factory=list)  # (worker, error) of workers dropped mid-render
-    checkpoints: list = field(default_factory=list)  # (seconds to write, bytes) per checkpoint written
+    checkpoints: list = field(default_factory=list)  # (seconds the render waited, seconds to write, bytes) each
 
     @property
     def rays(self) -> int:
@@ -246,7 +246,7 @@ class Renderer:
         interrupted = drv.run()
         sums = drv.total()
         if interrupted:
-            drv.write_checkpoint(sums)
+            drv.write_checkpoint(sums, wait=True)
         stats.render_seconds = drv.elapsed()
         stats.failures = drv.failures
         stats.checkpoints = drv.checkpoints

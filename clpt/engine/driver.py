@@ -241,22 +241,39 @@ class Driver:
         self.round_open = True
 
     # --- checkpoints and updates ---------------------------------------------------------
-    def write_checkpoint(self, sums: Accumulator | None = None):
+    def write_checkpoint(self, sums: Accumulator | None = None, wait: bool = False):
+        """Snapshot the sums and the schedule (no work is out) and write them,
+        in a background thread unless `wait`: the workers go on meanwhile."""
         if self.checkpoint is None:
-            return None
+            return
         t = time.perf_counter()
         self.fresh = False
         self.last_checkpoint = t
         sums = sums if sums is not None else self.total()
+        self.join_writer()
         if sums.samples == 0:
-            return None
-        size = write_checkpoint(self.checkpoint, self.job, sums, self.schedule.state(),
-                                elapsed=self.elapsed_before + self.elapsed(), devices=self.ex.labels,
-                                extra={"features": self.describe})
-        self.checkpoints.append((time.perf_counter() - t, size))
-        self.last_checkpoint = time.perf_counter()
-        self.fresh = False
-        return size
+            return
+        args = (self.checkpoint, self.job, sums, self.schedule.state())
+        kw = dict(elapsed=self.elapsed_before + self.elapsed(), devices=self.ex.labels,
+                  extra={"features": self.describe})
+        stall = time.perf_counter() - t
+
+        def write():
+            t0 = time.perf_counter()
+            size = write_checkpoint(*args, **kw)
+            self.checkpoints.append((stall, time.perf_counter() - t0, size))
+
+        if wait:
+            write()
+        else:
+            self.writer = threading.Thread(target=write, name="clpt-checkpoint")
+            self.writer.start()
+
+    def join_writer(self):
+        w = getattr(self, "writer", None)
+        if w is not None:
+            w.join()
+            self.writer = None
 
     def _filtered(self, image, var, count, caustic, aux):
         fset = self.job.filter
@@ -338,6 +355,7 @@ class Driver:
             except KeyboardInterrupt:
                 interrupted = True
                 self.schedule.stop()
+        self.join_writer()
         return interrupted
 
 
