@@ -179,7 +179,7 @@ def _dask_client(spec: str):
         n = spec[6:]
         if not n.isdigit() or int(n) < 1:
             raise SceneError(f"--dask local:N needs a number of workers >= 1 (got {spec!r})")
-        cluster = LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True, dashboard_address=None)
+        cluster = LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True, dashboard_address=":0")
         return Client(cluster)
     return Client(spec)
 

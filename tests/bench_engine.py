@@ -107,18 +107,18 @@ def bench_dask(rounds=3):
     out = {"in-process": [], "dask 1 worker": [], "dask 2 workers": []}
     over = []
     clusters = {n: distributed.Client(distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                                               dashboard_address=None)) for n in (1, 2)}
+                                                               dashboard_address=":0")) for n in (1, 2)}
     for c in clusters.values():
         r.render(4, width=128, height=128, executor=c)  # kernels built on the workers
     for i in range(rounds):
-        res = r.render(64, width=128, height=128, seed=i, pass_seconds=0.5)
+        res = r.render(256, width=128, height=128, seed=i, pass_seconds=0.5)
         out["in-process"].append(res.samples / res.stats.render_seconds)
         for n, c in clusters.items():
             t0 = time.perf_counter()
-            res = r.render(64, width=128, height=128, seed=i, executor=c, pass_seconds=0.5)
+            res = r.render(256, width=128, height=128, seed=i, executor=c, pass_seconds=0.5)
             wall = time.perf_counter() - t0
             out[f"dask {n} worker{'s' if n > 1 else ''}"].append(res.samples / wall)
-            if n == 1:  # one worker: the driver's wall time minus the device's, per range
+            if n == 1:  # one worker: the driver's wall time minus the device's, per range (start-up included)
                 dev = sum(p[3] for p in res.stats.passes)
                 over.append((wall - dev) / len(res.stats.passes) * 1e3)
     for c in clusters.values():

@@ -95,6 +95,13 @@ def test_other_scene_settings_or_version_are_refused(device_spec, tmp_path):
         r.resume(bad)
 
 
+def test_a_time_limit_render_is_complete_not_interrupted(device_spec, tmp_path):
+    r = clpt.Renderer("cornell_box", device=device_spec)
+    ck = tmp_path / "t.ckpt"
+    res = r.render(1 << 24, width=8, height=8, time_limit=0.5, checkpoint=ck)
+    assert not res.interrupted and 0 < res.samples and not ck.exists()
+
+
 def test_nothing_is_written_before_the_first_sample(device_spec, tmp_path):
     r = clpt.Renderer("cornell_box", device=device_spec)
     stop = threading.Event()

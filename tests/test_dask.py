@@ -17,7 +17,7 @@ distributed = pytest.importorskip("distributed", reason="Dask is an optional ext
 def client():
     # One OpenCL thread per worker process: two processes share the machine's cores.
     os.environ.setdefault("POCL_MAX_PTHREAD_COUNT", "1")
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None)
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0")
     c = distributed.Client(cluster)
     yield c
     c.close()

@@ -145,12 +145,14 @@ class DaskExecutor:
 
     resident = False
 
-    def __init__(self, client, device=None, slots: int | None = None):
+    def __init__(self, client, device=None, slots: int | None = None, depth: int = 2):
         self.client = client
         self.device = device
         if slots is None:
+            # `depth` items in flight per worker thread: the next one is queued
+            # there while the last one's sums travel back.
             info = client.scheduler_info()
-            slots = sum(w.get("nthreads", 1) for w in info.get("workers", {}).values()) or 1
+            slots = depth * (sum(w.get("nthreads", 1) for w in info.get("workers", {}).values()) or 1)
         self.labels = [f"dask slot {i}" for i in range(slots)]
         self.live = set(range(slots))
         self.futures = set()
