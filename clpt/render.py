@@ -14,6 +14,7 @@ a per-pixel caustic buffer that is added to the path-traced image.
 
 from __future__ import annotations
 
+import time
 import weakref
 from dataclasses import dataclass, field, replace
 from pathlib import Path

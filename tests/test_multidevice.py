@@ -40,7 +40,8 @@ def test_pocl_split_in_two_devices_gives_the_one_device_image(tmp_path):
 
 def test_a_device_failing_mid_render_leaves_its_work_to_the_other(device_spec):
     dev = clpt.device.select_devices(device_spec)[0]
-    one = clpt.Renderer("cornell_box_caustics", device=dev).render(16, width=16, height=16, seed=9)
+    ph = clpt.PhotonSettings(count=20_000, progressive=False)  # one map: ranges of any size
+    one = clpt.Renderer("cornell_box_caustics", device=dev).render(16, width=16, height=16, seed=9, photons=ph)
     r = clpt.Renderer("cornell_box_caustics", device=[dev, dev])
     bad = r.states[1]
     real_run, calls = bad.run, []
@@ -53,11 +54,11 @@ def test_a_device_failing_mid_render_leaves_its_work_to_the_other(device_spec):
 
     bad.run = failing
     with pytest.warns(UserWarning, match="device lost"):
-        two = r.render(16, width=16, height=16, seed=9, pass_seconds=1e-9)
+        two = r.render(16, width=16, height=16, seed=9, pass_seconds=1e-9, photons=ph)
     assert len(calls) == 3 and two.stats.failures and "device lost" in two.stats.failures[0][1]
     assert (two.sample_count == 16).all()
     assert np.allclose(one.image, two.image, rtol=1e-5, atol=1e-6)
     # The next render uses both devices again.
     bad.run = real_run
-    again = r.render(16, width=16, height=16, seed=9)
+    again = r.render(16, width=16, height=16, seed=9, photons=ph)
     assert not again.stats.failures and len({p[0] for p in again.stats.passes}) >= 1

@@ -17,7 +17,8 @@ TRACE_ARGS = ("scene", "counts", "eps_abs", "lum_scale", "cam_o", "corner", "dx"
               "pix_sum", "pix_sq", "stats", "pix_list", "pix_jobs", "n_list")
 AUX_ARGS = ("aux_normal", "aux_albedo", "aux_emit")
 PHOTON_ARGS = ("ph_pos", "ph_dir", "ph_pow", "bucket_start", "pm_mask", "pm_max", "pm_budget", "pm_radius",
-               "pm_cone_k", "pm_mode")
+               "pm_cone_k", "pm_mode", "pm_mis_k", "pm_merge_vertices", "pm_aim", "pm_merge_p", "pm_occ",
+               "pm_occ_mask", "pm_inv_cell")  # as PhotonMap.kernel_args gives them
 
 
 def launch_dtype(double: bool) -> np.dtype:
