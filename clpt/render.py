@@ -1,4 +1,5 @@
-"""Rendering: builds kernels per device, runs progressive passes, returns images.
+"""Rendering: the public API (Renderer, RenderResult, render, resume) over the
+engine (clpt/engine: jobs, schedule, accumulators, executors, driver).
 
 A pass adds samples [s0, s0 + n) to every pixel. Samples are keyed by
 (pixel, sample index), so passes can be of any size, on any device, in any
@@ -271,8 +272,9 @@ def render(scene, *, spp: int | None = None, seed: int | None = None, max_depth:
     settings; other keywords go to Renderer (lanes, precision, kernel, nee,
     photons: bool) or Renderer.render (rr_depth, progress, time_limit;
     photon_settings: a PhotonSettings)."""
-    render_kw = {k: kw.pop(k) for k in ("rr_depth", "progress", "time_limit", "pass_seconds", "adaptive")
-                 if k in kw}
+    render_kw = {k: kw.pop(k) for k in ("rr_depth", "progress", "time_limit", "pass_seconds", "adaptive",
+                                        "executor", "checkpoint", "checkpoint_every", "on_update",
+                                        "update_interval", "stop") if k in kw}
     if "photon_settings" in kw:
         render_kw["photons"] = kw.pop("photon_settings")
     r = Renderer(scene, device=device, **kw)
