@@ -301,3 +301,27 @@ def test_trace_args_match_the_kernel_signature():
     sig = re.sub(r"#if \w+|#endif", "", sig)
     names = [re.findall(r"(\w+)\s*$", p.strip())[0] for p in sig[sig.index("(") + 1:].split(",") if p.strip()]
     assert tuple(names) == TRACE_ARGS + AUX_ARGS + PHOTON_ARGS
+
+
+class FlakyWorker(FakeWorker):
+    """Fails every other item (a lost task, not a lost device)."""
+
+    calls = 0
+
+    def run(self, item):
+        FlakyWorker.calls += 1
+        if FlakyWorker.calls % 2:
+            raise RuntimeError("task lost")
+        return super().run(item)
+
+
+def test_executors_that_retry_keep_their_workers():
+    class Retrying(ReturningExecutor):
+        retries = 3
+
+    job = make_job(spp=12)
+    _, ref, _ = drive(job, [FakeWorker("a")])
+    with pytest.warns(UserWarning, match="trying again"):
+        drv, acc, _ = drive(job, [FlakyWorker("a"), FlakyWorker("b")], executor=Retrying, pass_seconds=1e-9)
+    assert (acc.count == 12).all() and not drv.failures
+    assert np.allclose(ref.planes["sum"], acc.planes["sum"], rtol=1e-13)

@@ -136,6 +136,10 @@ class Driver:
         label = self.ex.labels[slot]
         if err is not None:
             self.schedule.failed(item)
+            tries = self.tries[id(item)] = self.tries.get(id(item), 0) + 1
+            if tries <= getattr(self.ex, "retries", 0):  # the executor's own workers may be fine
+                warnings.warn(f"{label}: {item.describe()} failed ({type(err).__name__}: {err}); trying again")
+                return
             self.ex.drop(slot)
             self.failures.append((label, f"{type(err).__name__}: {err}"))
             warnings.warn(f"{label} failed ({type(err).__name__}: {err}); its work goes to the others")
@@ -306,6 +310,7 @@ class Driver:
         self.passes = 0
         self.round_open = False
         self.fresh = False
+        self.tries = {}
         self.ex.start(self.job, self.initial)
         self.first_slot = min(self.ex.slots) if self.ex.slots else 0
         self.host = self.empty()

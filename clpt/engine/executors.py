@@ -144,6 +144,7 @@ class DaskExecutor:
     """Work items as tasks on a Dask cluster (a distributed.Client)."""
 
     resident = False
+    retries = 3  # a failed task is the task's, not the slot's: it is tried again this often
 
     def __init__(self, client, device=None, slots: int | None = None, depth: int = 2):
         self.client = client
@@ -163,11 +164,12 @@ class DaskExecutor:
         return sorted(self.live)
 
     def start(self, job, initial):
+        # The job travels with each task (a few kB): scattered data dies with
+        # the worker that holds it, and takes its dependent tasks along.
         self.job = job
-        self._job_future = self.client.scatter(job, broadcast=True)
 
     def submit(self, slot, item, done):
-        fut = self.client.submit(dask_run_item, self._job_future, item, self.device, pure=False)
+        fut = self.client.submit(dask_run_item, self.job, item, self.device, pure=False)
         self.futures.add(fut)
 
         def cb(f):
@@ -188,7 +190,7 @@ class DaskExecutor:
         self.live.discard(slot)
 
     def filter(self, *args):
-        return self.client.submit(dask_filter, self._job_future, args, self.device, pure=False).result()
+        return self.client.submit(dask_filter, self.job, args, self.device, pure=False).result()
 
     def close(self):
         pass
