@@ -211,7 +211,7 @@ def cmd_render(a) -> int:
     if ck is not None:
         o = ck.job.options
         r = Renderer(scene, device=a.device, lanes=o.lanes, precision=o.precision, kernel=o.kernel, nee=o.nee,
-                     photons=o.photons, aux=o.aux, use_cache=not a.no_cache, accumulate=o.accumulate)
+                     photons=o.photons, aux=o.aux, use_cache=not a.no_cache, accumulate=o.accumulate, tiles=o.tiles)
         filt = ck.job.filter
     else:
         photons = _photon_settings(a) if a.photons != 0 else None

@@ -24,9 +24,10 @@ import numpy as np
 
 from .adaptive import AdaptiveSettings
 from .denoise import FilterSettings
-from .device import DeviceContext, select_devices
+from . import tune
+from .device import DeviceContext, DeviceError, select_devices
 from .engine.checkpoint import Checkpoint, CheckpointError
-from .engine.device import DeviceWorker
+from .engine.device import DeviceWorker, device_features, kernel_source, kernel_sources  # noqa: F401
 from .engine.driver import Driver, RenderUpdate  # noqa: F401 - RenderUpdate is part of the API
 from .engine.executors import DaskExecutor, LocalExecutor
 from .engine.job import DeviceOptions, RenderJob
@@ -52,6 +53,7 @@ class RenderStats:
     adaptive_rounds: int = 0
     photon_pilot: dict | None = None  # what the pilot measured and chose (PhotonSettings.pilot)
     launches: dict = field(default_factory=dict)  # kernel name -> launches, all devices
+    kernel_seconds: dict = field(default_factory=dict)  # kernel name -> device seconds per launch (profiling)
     failures: list = field(default_factory=list)  # (worker, error) of workers dropped mid-render
     checkpoints: list = field(default_factory=list)  # (seconds the render waited, seconds to write, bytes) each
 
@@ -110,9 +112,10 @@ class Renderer:
     has caustic casters (purely specular objects); False never compiles it.
     """
 
-    def __init__(self, scene, *, device=None, lanes: int | None = None, precision: str = "float",
-                 kernel: str = "specialized", nee: bool = True, photons: bool | None = None,
-                 aux: bool = False, use_cache: bool = True, accumulate: str = "auto"):
+    def __init__(self, scene, *, device=None, lanes: int | None = None, local_size: int | None = None,
+                 precision: str = "float", kernel: str = "specialized", nee: bool = True,
+                 photons: bool | None = None, aux: bool = False, use_cache: bool = True, accumulate: str = "auto",
+                 tiles: bool = False):
         if isinstance(scene, (str, Path)):
             scene = load_scene(scene)
         if not isinstance(scene, Scene):
@@ -121,14 +124,51 @@ class Renderer:
             raise ValueError(f"precision must be 'float' or 'double' (got {precision!r})")
         if accumulate not in ("auto", "double", "kahan"):
             raise ValueError(f"accumulate must be 'auto', 'double' or 'kahan' (got {accumulate!r})")
+        if lanes is not None and lanes not in tune.LANE_WIDTHS:
+            raise ValueError(f"lanes must be one of {', '.join(map(str, tune.LANE_WIDTHS))} (got {lanes!r})")
+        if local_size is not None and (isinstance(local_size, bool) or not isinstance(local_size, int)
+                                       or local_size < 1):
+            raise ValueError(f"local_size must be a positive integer (got {local_size!r})")
         self.scene = scene
         self.packed = pack_scene(scene)
         self.options = DeviceOptions(lanes=lanes, precision=precision, kernel=kernel, nee=nee, photons=photons,
-                                     aux=aux, use_cache=use_cache, accumulate=accumulate)
-        self.devices = [DeviceContext(d) for d in select_devices(device)]
-        self.states = [DeviceWorker(dctx, self.packed, self.options) for dctx in self.devices]
-        self.features = self.states[0].features
+                                     aux=aux, use_cache=use_cache, accumulate=accumulate, local_size=local_size,
+                                     tiles=tiles)
         self._local = None
+        self.devices = [DeviceContext(d) for d in select_devices(device)]
+        self.states = []
+        for dctx in self.devices:
+            if local_size is not None and local_size > dctx.device.max_work_group_size:
+                raise DeviceError(f"local size {local_size} is above {dctx.label}'s maximum work-group size "
+                                  f"{dctx.device.max_work_group_size}")
+
+            def make(n_lanes, dctx=dctx):
+                return DeviceWorker(dctx, self.packed, device_features(dctx, self.packed, self.options, n_lanes),
+                                    use_cache)
+
+            f = device_features(dctx, self.packed, self.options, lanes or 1)
+            tuning, st = tune.choose(dctx, kernel_source(None, f), f.options(), make, self._trial,
+                                     lanes=lanes, local_size=local_size, use_cache=use_cache)
+            if st is None:
+                st = make(tuning.lanes)
+            st.local = tuning.local_size
+            st.tuning = tuning
+            self.states.append(st)
+        self.features = self.states[0].features
+
+    def _trial(self, st, spp: int, seed: int):
+        """Render spp samples per pixel of a tune.TRIAL_SIZE square image the
+        default way on worker st alone; (samples/s of the passes after the
+        one-sample probe, seconds per spp)."""
+        shell = Renderer.__new__(Renderer)
+        shell.scene, shell.packed, shell.states, shell.features = self.scene, self.packed, [st], st.features
+        shell.options, shell._local = self.options, None
+        n = tune.TRIAL_SIZE
+        res = shell.render(spp, width=n, height=n, seed=seed, pass_seconds=1e9)
+        passes = res.stats.passes[1:] or res.stats.passes
+        secs = max(sum(p[3] for p in passes), 1e-9)
+        done = sum(p[2] for p in passes)
+        return done * n * n / secs, secs / max(done, 1)
 
     @property
     def build_seconds(self) -> float:
@@ -159,17 +199,14 @@ class Renderer:
         fset = filter.check() if filter is not None else None
         if fset is not None and not self.features.aux:
             raise SceneError("render: the filter needs the feature buffers: make the Renderer with aux=True")
-        job = RenderJob(self.scene, int(spp), int(seed), int(max_depth), int(rr_depth), int(width), int(height),
-                        self.options, pset, aset, fset)
-        if aset is not None and job.progressive:
-            raise SceneError("render: adaptive sampling and progressive photon mapping cannot be combined")
-        return job
+        return RenderJob(self.scene, int(spp), int(seed), int(max_depth), int(rr_depth), int(width), int(height),
+                         self.options, pset, aset, fset)
 
     def render(self, spp: int | None = None, *, seed: int | None = None, max_depth: int | None = None,
                rr_depth: int | None = None, width: int | None = None, height: int | None = None,
                photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
                filter: FilterSettings | None = None, progress=None, preview=None,
-               time_limit: float | None = None, pass_seconds: float = 0.25, executor=None,
+               time_limit: float | None = None, pass_seconds: float | None = None, executor=None,
                checkpoint=None, checkpoint_every: float | None = None, on_update=None,
                update_interval: float | None = 1.0, stop=None) -> RenderResult:
         """Render; keywords override the scene's settings.
@@ -188,6 +225,8 @@ class Renderer:
         done (result.interrupted)."""
         job = self.job(spp, seed=seed, max_depth=max_depth, rr_depth=rr_depth, width=width, height=height,
                        photons=photons, adaptive=adaptive, filter=filter)
+        if pass_seconds is None:
+            pass_seconds = self.states[0].tuning.pass_seconds
         t_pilot = time.perf_counter()
         pset, pilot_info = job.photons, None
         if pset is not None and pset.pilot and pset.mode == "merge" and pset.count > 0 and job.adaptive is None:
@@ -230,8 +269,10 @@ class Renderer:
         return executor
 
     def _run(self, job, schedule, initial, elapsed_before, *, progress=None, preview=None, time_limit=None,
-             pass_seconds=0.25, executor=None, checkpoint=None, checkpoint_every=None, on_update=None,
+             pass_seconds=None, executor=None, checkpoint=None, checkpoint_every=None, on_update=None,
              update_interval=1.0, stop=None):
+        if pass_seconds is None:
+            pass_seconds = self.states[0].tuning.pass_seconds
         stats = RenderStats(build_seconds=self.build_seconds, cache_hits=sum(s.build.cache_hit for s in self.states))
         ex = self._executor(executor)
         empty = self.states[0].empty_sums
@@ -287,5 +328,5 @@ def resume(checkpoint, *, device=None, use_cache: bool = True, **kw) -> RenderRe
     ck = Checkpoint(checkpoint)
     o = ck.job.options
     r = Renderer(ck.job.scene, device=device, lanes=o.lanes, precision=o.precision, kernel=o.kernel, nee=o.nee,
-                 photons=o.photons, aux=o.aux, use_cache=use_cache, accumulate=o.accumulate)
+                 photons=o.photons, aux=o.aux, use_cache=use_cache, accumulate=o.accumulate, tiles=o.tiles)
     return r.resume(ck, **kw)

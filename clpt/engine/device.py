@@ -10,11 +10,13 @@ items were, and its image is bit-identical however the render was split.
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pyopencl as cl
 
 from .. import program
+from ..constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, OFFSET_ABS
 from ..denoise import ConeFilter
 from ..device import DeviceContext, DeviceError
 from ..features import Features, scene_features
@@ -24,18 +26,35 @@ from .accum import Accumulator
 from .job import DeviceOptions, RenderJob, WorkItem, photon_plan
 from .launch import launch_dtype, trace_args
 
-LOCAL_SIZE_CPU = 16
-LOCAL_SIZE_GPU = 64
 PREPASS_SEED_SALT = 0x2545F491
 
 
-def device_features(dctx: DeviceContext, packed: PackedScene, opts: DeviceOptions) -> Features:
+def device_features(dctx: DeviceContext, packed: PackedScene, opts: DeviceOptions, lanes: int | None = None) -> Features:
     if (opts.precision == "double" or opts.accumulate == "double") and not dctx.fp64:
         raise DeviceError(f"{dctx.label} has no double precision (cl_khr_fp64); render with precision='float'")
     acc_double = dctx.fp64 if opts.accumulate == "auto" else opts.accumulate == "double"
-    return scene_features(packed, lanes=opts.lanes or dctx.default_lanes(), double=opts.precision == "double",
-                          accum_double=acc_double or opts.precision == "double", mode=opts.kernel, nee=opts.nee,
-                          photons=packed.has_caustics and opts.photons is not False, aux=opts.aux)
+    return scene_features(packed, lanes=lanes or opts.lanes or dctx.default_lanes(),
+                          double=opts.precision == "double", accum_double=acc_double or opts.precision == "double",
+                          mode=opts.kernel, nee=opts.nee, photons=packed.has_caustics and opts.photons is not False,
+                          aux=opts.aux, tiles=opts.tiles)
+
+
+def kernel_sources(packed: PackedScene | None, features: Features) -> list[str]:
+    """The stitched programs a scene's build compiles (without a baked scene's
+    records when packed is None): the path pass (and the filter), and for
+    scenes with caustic photons the photon pass and grid build apart, so that
+    the two build in parallel."""
+    generated = {}
+    if features.mode == "baked" and packed is not None:
+        generated["<baked scene>"] = baked_source(packed.records, features.double)
+    out = [program.stitch(["trace.cl"] + (["filter.cl"] if features.aux else []), generated)]
+    if features.photons:
+        out.append(program.stitch(["photons.cl", "grid.cl"], generated))
+    return out
+
+
+def kernel_source(packed: PackedScene | None, features: Features) -> str:
+    return "\n".join(kernel_sources(packed, features))
 
 
 def baked_source(records: np.ndarray, double: bool) -> str:
@@ -82,41 +101,65 @@ class _Sums:
 class DeviceWorker:
     """Everything one device holds for one scene: programs, kernels, buffers, sums."""
 
-    def __init__(self, dctx: DeviceContext, packed: PackedScene, opts: DeviceOptions):
-        features = device_features(dctx, packed, opts)
+    def __init__(self, dctx: DeviceContext, packed: PackedScene, features: Features, use_cache: bool = True):
         self.dctx = dctx
         self.label = dctx.label
         self.features = features
         self.packed = packed
         real = np.float64 if features.double else np.float32
-        generated = {}
-        if features.mode == "baked":
-            generated["<baked scene>"] = baked_source(packed.records, features.double)
-        entries = (["trace.cl"] + (["photons.cl", "grid.cl"] if features.photons else [])
-                   + (["filter.cl"] if features.aux else []))
-        source = program.stitch(entries, generated)
-        self.program, self.build = program.build(dctx, source, features.options(), use_cache=opts.use_cache)
-        self.kernel = cl.Kernel(self.program, "trace_paths")
         mf = cl.mem_flags
         recs = np.ascontiguousarray(packed.records, dtype=real)
         if recs.size == 0:
             recs = np.zeros((1, 4), dtype=real)
         self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
         self.counts = counts_arg(packed.counts)
-        self.eps_abs = packed.extent * (1e-13 if features.double else 2e-6)
+        self.eps_abs = packed.extent * OFFSET_ABS['double' if features.double else 'float']
         self.real = real
+        sources = kernel_sources(packed, features)
+        t0 = time.perf_counter()
+
+        def build(source):
+            return program.build(dctx, source, features.options(), use_cache=use_cache)
+
+        def build_photons(source):
+            # Then a one-photon map: PoCL generates the photon kernels' machine code
+            # at their first launch, here while the path pass is still compiling.
+            prg, info = build(source)
+            pmap = PhotonMap(dctx, prg, real)
+            pmap.build(self.scene_buf, self.counts, self.eps_abs, features.lanes, 0, PhotonSettings(count=1),
+                       0.01 * max(packed.size, 1e-30))
+            pmap.launches.clear()
+            pmap.kernel_times.clear()
+            return pmap, info
+
+        if len(sources) == 1:
+            built = [build(sources[0])]
+            self.pmap = None
+        else:  # the OpenCL compilers release the GIL: the programs build at once
+            with ThreadPoolExecutor(2) as pool:
+                photon_side = pool.submit(build_photons, sources[1])
+                built = [build(sources[0]), photon_side.result()]
+            self.pmap = built[1][0]
+        self.program = built[0][0]
+        self.build = program.BuildInfo(time.perf_counter() - t0, all(b.cache_hit for _, b in built),
+                                       "+".join(b.key for _, b in built), built[0][1].options)
+        self.kernel = cl.Kernel(self.program, "trace_paths")
         self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
         self.launched = False
-        self.pmap = PhotonMap(dctx, self.program, real) if features.photons else None
         self.filter = ConeFilter(dctx, self.program) if features.aux else None
         self.aux = []
         self.launches = {}
+        self.kernel_times = {}  # kernel name -> device seconds of each launch since start()
         self.job = None
 
     # --- a job's buffers ------------------------------------------------------------
-    def _allocate(self, n_pix: int, caustic_buffer: bool):
+    def _allocate(self, n_pix: int, caustic_buffer: bool, width: int | None = None):
         lanes = self.features.lanes
         groups = -(-n_pix // lanes)
+        tw = self.features.tile_width
+        if tw > 1:  # one work-item per tile (width None: one image row)
+            w = width or n_pix
+            groups = -(-w // tw) * -(-(n_pix // w) // (lanes // tw))
         self.global_size = -(-groups // self.local) * self.local
         need = n_pix * 40 * (2 if caustic_buffer else 1) + self.global_size * 16
         dev = self.dctx.device
@@ -147,7 +190,7 @@ class DeviceWorker:
     def start(self, job: RenderJob, initial: Accumulator | None = None):
         """Get ready for a job: buffers for its image, zero sums (or `initial`)."""
         n_pix = job.n_pix
-        self._allocate(n_pix, caustic_buffer=job.offline)
+        self._allocate(n_pix, caustic_buffer=job.offline, width=job.width)
         frame = camera_frame(job.scene.camera, job.width, job.height)
         rec = np.zeros((), dtype=launch_dtype(self.features.double))
         rec["counts"] = list(self.packed.counts) + [0] * (8 - len(self.packed.counts))
@@ -160,6 +203,7 @@ class DeviceWorker:
         self.job = job
         self.pm_iteration = None
         self.launches = {}
+        self.kernel_times = {}
         if initial is not None:
             self.load(initial)
 
@@ -172,6 +216,9 @@ class DeviceWorker:
         for k, v in self.pmap.launches.items():
             self.launches[k] = self.launches.get(k, 0) + v
         self.pmap.launches.clear()
+        for k, v in self.pmap.kernel_times.items():
+            self.kernel_times.setdefault(k, []).extend(v)
+        self.pmap.kernel_times.clear()
         return {**info, "radius": radius, "seed": seed}
 
     def prepare_photons(self, iteration: int):
@@ -190,6 +237,7 @@ class DeviceWorker:
         the launch), "wall", "stats" (non-finite, camera, bounce, shadow),
         "photon_maps", "launches"}."""
         before = dict(self.launches)
+        times_before = {k: len(v) for k, v in self.kernel_times.items()}
         pm = self.prepare_photons(item.iteration)
         prepass = item.kind == "prepass"
         rec = self.record.copy()
@@ -223,16 +271,40 @@ class DeviceWorker:
         stats = self.stats_host[:global_size]
         cl.enqueue_copy(q, stats, self.stats_buf)
         wall = time.perf_counter() - t0
-        try:
-            seconds = (ev.profile.end - ev.profile.start) * 1e-9
-        except cl.Error:
+        program.note_time(self.kernel_times, "trace_paths", ev)
+        seconds = self.kernel_times["trace_paths"][-1]
+        if not seconds == seconds:  # no profiling information: the host's time
             seconds = wall
         first = not self.launched
         self.launched = True
         self.launches["trace_paths"] = self.launches.get("trace_paths", 0) + 1
         delta = {k: v - before.get(k, 0) for k, v in self.launches.items() if v != before.get(k, 0)}
+        if self.filter is not None and self.filter.kernel_times:
+            for k, v in self.filter.kernel_times.items():
+                self.kernel_times.setdefault(k, []).extend(v)
+            self.filter.kernel_times = {}
+        times = {k: v[times_before.get(k, 0):] for k, v in self.kernel_times.items() if len(v) > times_before.get(k, 0)}
         return {"seconds": seconds, "wall": wall, "first": first, "stats": stats.sum(axis=0, dtype=np.uint64),
-                "photon_maps": [pm] if pm else [], "launches": delta}
+                "photon_maps": [pm] if pm else [], "launches": delta, "kernel_seconds": times}
+
+    def launch_seconds(self) -> float:
+        """Host seconds of an empty launch (no samples): the fixed cost of a pass."""
+        return self.run(WorkItem("samples", 0, 0))["wall"]
+
+    def buffer_bytes(self) -> dict[str, int]:
+        """Device memory per buffer this worker holds (after a render)."""
+        out = {"scene records": self.scene_buf.size}
+        for name, sums in (("pixel sums", getattr(self, "main", None)), ("caustic sums", getattr(self, "caustic", None))):
+            if sums is not None:
+                out[name] = sums.pix_sum.size + sums.pix_sq.size
+        if hasattr(self, "stats_buf"):
+            out["work-item stats"] = self.stats_buf.size
+            out["adaptive lists"] = self.list_buf.size + self.jobs_buf.size
+        if self.aux:
+            out["feature buffers"] = sum(b.size for b in self.aux)
+        if self.pmap is not None:
+            out.update(self.pmap.buffer_bytes())
+        return out
 
     # --- sums -----------------------------------------------------------------------------
     def sums(self) -> Accumulator:

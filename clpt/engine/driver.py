@@ -165,6 +165,8 @@ class Driver:
         st.shadow_rays += int(row[3])
         for k, v in res.get("launches", {}).items():
             st.launches[k] = st.launches.get(k, 0) + v
+        for k, v in res.get("kernel_seconds", {}).items():
+            st.kernel_seconds.setdefault(k, []).extend(v)
         st.photon_maps.extend(res.get("photon_maps", []))
         if item.kind == "samples":
             self.done_spp += item.n
@@ -240,7 +242,9 @@ class Driver:
         if sum(int(m.sum()) for m in more) <= left:
             for idx, m in zip(parts, more):
                 jobs[idx, 0] = m
-        sch.add_round([WorkItem("pixels", pixels=pixels[idx], jobs=jobs[idx], round=sch.rounds)
+        # Progressive photons: each round gathers from the next iteration's map.
+        it = -(-job.uniform_spp // job.spp_per_map) + sch.rounds if job.spp_per_map else 0
+        sch.add_round([WorkItem("pixels", pixels=pixels[idx], jobs=jobs[idx], iteration=it, round=sch.rounds)
                        for idx in parts if len(idx)])
         self.round_open = True
 

@@ -104,14 +104,15 @@ def _worker_device(job, device):
     """This process's DeviceWorker for the job's scene and options (built once)."""
     from ..device import DeviceContext, select_devices
     from ..pack import pack_scene
-    from .device import DeviceWorker
+    from .device import DeviceWorker, device_features
 
     key = (job.scene_key(), job.options, device)
     w = _WORKER_CACHE.get(key)
     if w is None:
         _WORKER_CACHE.clear()
         dctx = DeviceContext(select_devices(device)[0])
-        w = DeviceWorker(dctx, pack_scene(job.scene), job.options)
+        packed = pack_scene(job.scene)
+        w = DeviceWorker(dctx, packed, device_features(dctx, packed, job.options), job.options.use_cache)
         w.started = None
         _WORKER_CACHE[key] = w
     if w.started != job.key:

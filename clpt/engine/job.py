@@ -34,6 +34,8 @@ class DeviceOptions:
     aux: bool = False
     use_cache: bool = True
     accumulate: str = "auto"
+    local_size: int | None = None
+    tiles: bool = False
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,7 +65,8 @@ class RenderJob:
         out = {f.name: getattr(self, f.name) for f in fields(self) if f.name not in ("scene",)}
         for k in ("options", "photons", "adaptive", "filter"):
             out[k] = None if out[k] is None else asdict(out[k])
-        out["options"].pop("use_cache", None)  # where kernels come from does not change them
+        for k in ("use_cache", "local_size"):  # where kernels come from, work-group sizes: not the image
+            out["options"].pop(k, None)
         return out
 
     @property
