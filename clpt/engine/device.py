@@ -33,7 +33,10 @@ def device_features(dctx: DeviceContext, packed: PackedScene, opts: DeviceOption
     if (opts.precision == "double" or opts.accumulate == "double") and not dctx.fp64:
         raise DeviceError(f"{dctx.label} has no double precision (cl_khr_fp64); render with precision='float'")
     acc_double = dctx.fp64 if opts.accumulate == "auto" else opts.accumulate == "double"
-    return scene_features(packed, lanes=lanes or opts.lanes or dctx.default_lanes(),
+    if not (lanes or opts.lanes):
+        from .. import tune
+        lanes = (tune.query_tuning(dctx) or tune.fallback_tuning(dctx)).lanes  # no trial renders here
+    return scene_features(packed, lanes=lanes or opts.lanes,
                           double=opts.precision == "double", accum_double=acc_double or opts.precision == "double",
                           mode=opts.kernel, nee=opts.nee, photons=packed.has_caustics and opts.photons is not False,
                           aux=opts.aux, tiles=opts.tiles)
