@@ -177,7 +177,7 @@ class Renderer:
     def job(self, spp: int | None = None, *, seed: int | None = None, max_depth: int | None = None,
             rr_depth: int | None = None, width: int | None = None, height: int | None = None,
             photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
-            filter: FilterSettings | None = None) -> RenderJob:
+            filter=None, aux_specular: str = "surface") -> RenderJob:
         """The RenderJob of render()'s settings (checked; the scene's where not given)."""
         rs = self.scene.render
         spp = rs.spp if spp is None else spp
@@ -199,13 +199,15 @@ class Renderer:
         fset = filter.check() if filter is not None else None
         if fset is not None and not self.features.aux:
             raise SceneError("render: the filter needs the feature buffers: make the Renderer with aux=True")
+        if aux_specular not in ("through", "surface"):
+            raise SceneError(f"render: aux_specular must be 'through' or 'surface' (got {aux_specular!r})")
         return RenderJob(self.scene, int(spp), int(seed), int(max_depth), int(rr_depth), int(width), int(height),
-                         self.options, pset, aset, fset)
+                         self.options, pset, aset, fset, aux_specular)
 
     def render(self, spp: int | None = None, *, seed: int | None = None, max_depth: int | None = None,
                rr_depth: int | None = None, width: int | None = None, height: int | None = None,
                photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
-               filter: FilterSettings | None = None, progress=None, preview=None,
+               filter=None, aux_specular: str = "surface", progress=None, preview=None,
                time_limit: float | None = None, pass_seconds: float | None = None, executor=None,
                checkpoint=None, checkpoint_every: float | None = None, on_update=None,
                update_interval: float | None = 1.0, stop=None) -> RenderResult:
@@ -215,7 +217,11 @@ class Renderer:
         sampling, the budget shared among the pixels). progress(done_spp,
         total_spp, elapsed_seconds, samples_per_second) is called after each
         pass; preview(image) every filter.interval passes with the filtered
-        image so far; on_update(RenderUpdate) between passes at most every
+        image so far; filter: the cone filter (FilterSettings) or OIDN
+        (OidnSettings) on the final image; aux_specular: what the feature
+        buffers show of mirrors and glass, "surface" (the default) or
+        "through" (the first non-delta vertex seen through them);
+        on_update(RenderUpdate) between passes at most every
         update_interval seconds and once at the end (final=True).
         executor: a dask.distributed Client (or an executor object) to run the
         passes on instead of this Renderer's devices. checkpoint: a file that
@@ -224,7 +230,7 @@ class Renderer:
         (KeyboardInterrupt) or stop.set() ends the render early with what is
         done (result.interrupted)."""
         job = self.job(spp, seed=seed, max_depth=max_depth, rr_depth=rr_depth, width=width, height=height,
-                       photons=photons, adaptive=adaptive, filter=filter)
+                       photons=photons, adaptive=adaptive, filter=filter, aux_specular=aux_specular)
         if pass_seconds is None:
             pass_seconds = self.states[0].tuning.pass_seconds
         t_pilot = time.perf_counter()
@@ -252,7 +258,8 @@ class Renderer:
         ck = checkpoint if isinstance(checkpoint, Checkpoint) else Checkpoint(checkpoint)
         job = ck.job
         ck.check_against(RenderJob(self.scene, job.spp, job.seed, job.max_depth, job.rr_depth, job.width,
-                                   job.height, self.options, job.photons, job.adaptive, job.filter))
+                                   job.height, self.options, job.photons, job.adaptive, job.filter,
+                                   job.aux_specular))
         job = replace(job, scene=self.scene)
         return self._run(job, Schedule.from_state(job, ck.schedule), ck.sums, float(ck.meta.get("elapsed", 0.0)),
                          checkpoint=out_checkpoint or ck.path, **kw)

@@ -4,7 +4,8 @@ Planes (n = pixels):
   sum    n x 4   r, g, b, sample count
   sq     n       squared luminance (times lum_scale squared, as the kernels sum it)
   comp   n x 5   Kahan compensations of sum and sq (devices without fp64); value = sum - comp
-  aux    n x 12  feature sums: normal xyz + count, albedo rgb + distance, emission rgb + 0
+  aux    n x 16  feature sums: normal xyz + count, albedo rgb + distance, emission rgb + emitter count,
+                 online caustic rgb + its squared scaled luminance
   c_sum, c_sq, c_comp   the offline caustic buffer, as sum, sq and comp
 
 Sums add plane by plane, so accumulators of disjoint work merge into the
@@ -21,7 +22,7 @@ import warnings
 import numpy as np
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
-WIDTHS = {"sum": 4, "sq": 0, "comp": 5, "aux": 12, "c_sum": 4, "c_sq": 0, "c_comp": 5}
+WIDTHS = {"sum": 4, "sq": 0, "comp": 5, "aux": 16, "c_sum": 4, "c_sq": 0, "c_comp": 5}
 
 
 class Accumulator:
@@ -112,13 +113,14 @@ class Accumulator:
     def images(self, width: int, height: int, lum_scale: float = 1.0):
         """(image, lum_var, count, caustic image, aux dict) as a RenderResult holds them."""
         mean, var, count = self.stats(lum_scale)
-        caustic = None
+        caustic = caustic_var = None
         if "c_sum" in self.planes:
             c_mean, c_var, c_count = self.stats(lum_scale, "c_")
             caustic = c_mean.astype(np.float32).reshape(height, width, 3)
             mean = mean + c_mean
             # As the variance of one sample: the caustic mean's variance scaled to count samples.
-            var = var + c_var * np.maximum(count, 1.0) / np.maximum(c_count, 1.0)
+            caustic_var = c_var * np.maximum(count, 1.0) / np.maximum(c_count, 1.0)
+            var = var + caustic_var
         image = mean.astype(np.float32).reshape(height, width, 3)
         bad = ~np.isfinite(image)
         if bad.any():  # the kernels drop non-finite samples; this is the last guard
@@ -126,15 +128,27 @@ class Accumulator:
             image[bad] = 0.0
         aux = None
         if "aux" in self.planes:
-            a = np.zeros((self.n_pix, 12)) + self.planes["aux"]
-            nsum, asum, esum = a[:, 0:4], a[:, 4:8], a[:, 8:12]
+            a = np.zeros((self.n_pix, 16)) + self.planes["aux"]
+            nsum, asum, esum, csum = a[:, 0:4], a[:, 4:8], a[:, 8:12], a[:, 12:16]
             k = np.maximum(nsum[:, 3:4], 1.0)
             normal = nsum[:, :3]
             normal = normal / np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
-            aux = {"normal": normal.reshape(height, width, 3).astype(np.float32),
-                   "albedo": (asum[:, :3] / k).reshape(height, width, 3).astype(np.float32),
+
+            def img(x):
+                return x.reshape(height, width, -1).astype(np.float32)
+
+            aux = {"normal": img(normal), "albedo": img(asum[:, :3] / k),
                    "depth": (asum[:, 3] / k[:, 0]).reshape(height, width).astype(np.float32),
-                   "emission": (esum[:, :3] / k).reshape(height, width, 3).astype(np.float32)}
+                   "emission": img(esum[:, :3] / k),
+                   "emitter": (esum[:, 3] / k[:, 0]).reshape(height, width).astype(np.float32)}
+            if caustic is not None:  # offline: the caustic buffer
+                aux["caustic"], aux["caustic_var"] = caustic, caustic_var.reshape(height, width)
+            else:  # online: the photon part the kernels summed
+                n = np.maximum(count, 1.0)
+                c_mean = csum[:, :3] / n[:, None]
+                c_lum = (c_mean @ LUMA) * lum_scale
+                c_var = np.maximum(csum[:, 3] / n - c_lum ** 2, 0.0) * (n / np.maximum(n - 1.0, 1.0)) / lum_scale ** 2
+                aux["caustic"], aux["caustic_var"] = img(c_mean), c_var.reshape(height, width)
         return image, var.reshape(height, width), count.reshape(height, width), caustic, aux
 
     def finish(self, width: int, height: int, lum_scale: float = 1.0, **result):
@@ -152,7 +166,7 @@ class Accumulator:
     def from_device(cls, main, caustic=None, aux=None) -> "Accumulator":
         """From what a device holds: main and caustic are (pix_sum, pix_sq) as
         read (n x 4 and n float64, or Kahan pairs n x 8 and n x 2 float32); aux
-        three n x 4 float32 arrays."""
+        four n x 4 float32 arrays."""
         kahan = main[0].shape[1] == 8
         n = len(main[0])
         acc = cls(n, kahan=kahan, aux=aux is not None, caustic=caustic is not None)
@@ -186,7 +200,7 @@ class Accumulator:
 
     def aux_to_device(self):
         a = self.planes["aux"].astype(np.float32)
-        return [np.ascontiguousarray(a[:, 4 * i:4 * i + 4]) for i in range(3)]
+        return [np.ascontiguousarray(a[:, 4 * i:4 * i + 4]) for i in range(4)]
 
     # --- bytes -----------------------------------------------------------------------
     def to_bytes(self) -> bytes:

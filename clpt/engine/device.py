@@ -164,7 +164,7 @@ class DeviceWorker:
             w = width or n_pix
             groups = -(-w // tw) * -(-(n_pix // w) // (lanes // tw))
         self.global_size = -(-groups // self.local) * self.local
-        need = n_pix * 40 * (2 if caustic_buffer else 1) + self.global_size * 16
+        need = n_pix * 40 * (2 if caustic_buffer else 1) + self.global_size * 16 + n_pix * 64 * self.features.aux
         dev = self.dctx.device
         if n_pix * 32 > dev.max_mem_alloc_size or need > dev.global_mem_size:
             raise DeviceError(f"{n_pix} pixels need {need / 2**20:.0f} MiB of accumulation buffers, more than "
@@ -177,7 +177,7 @@ class DeviceWorker:
             self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
             self.list_buf = cl.Buffer(ctx, rw, 4)   # adaptive passes replace these
             self.jobs_buf = cl.Buffer(ctx, rw, 16)
-            self.aux = [cl.Buffer(ctx, rw, n_pix * 16) for _ in range(3)] if self.features.aux else []
+            self.aux = [cl.Buffer(ctx, rw, n_pix * 16) for _ in range(4)] if self.features.aux else []
             self._zero_aux()
             q.finish()
         except cl.Error as e:
@@ -202,6 +202,7 @@ class DeviceWorker:
             rec["cam_o" if k == "origin" else k] = (*getattr(frame, k), 0)
         rec["width"], rec["height"] = job.width, job.height
         rec["max_depth"], rec["rr_depth"] = min(job.max_depth, 2**31), min(job.rr_depth, 2**31)
+        rec["aux_specular"] = int(job.aux_specular == "surface")
         self.record = rec
         self.job = job
         self.pm_iteration = None
@@ -262,7 +263,7 @@ class DeviceWorker:
         sums = self.caustic if prepass else self.main
         buffers = {"scene": self.scene_buf, "pix_sum": sums.pix_sum, "pix_sq": sums.pix_sq, "stats": self.stats_buf,
                    "pix_list": self.list_buf, "pix_jobs": self.jobs_buf}
-        buffers.update(zip(("aux_normal", "aux_albedo", "aux_emit"), self.aux))
+        buffers.update(zip(("aux_normal", "aux_albedo", "aux_emit", "aux_caustic"), self.aux))
         tail = None
         if self.features.photons:
             tail = self.pmap.kernel_args(self.job.photons or PhotonSettings(), PM_PREPASS if prepass else
@@ -315,7 +316,7 @@ class DeviceWorker:
         caustic = self.caustic.read() if self.caustic is not None else None
         aux = None
         if self.aux:
-            aux = [np.empty((self.n_pix, 4), np.float32) for _ in range(3)]
+            aux = [np.empty((self.n_pix, 4), np.float32) for _ in range(4)]
             for h, b in zip(aux, self.aux):
                 cl.enqueue_copy(self.dctx.queue, h, b)
             self.dctx.queue.finish()

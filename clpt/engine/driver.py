@@ -287,12 +287,7 @@ class Driver:
         fset = self.job.filter
         if fset is None or aux is None:
             return None
-        # Emission seen directly (lights, through mirrors and glass too) is
-        # not noise to smooth: filter what the surfaces reflect.
-        mean_var = var / np.maximum(count, 1.0)
-        reflected = image - aux["emission"]
-        return aux["emission"] + self.ex.filter(reflected, mean_var, aux["normal"], aux["albedo"], aux["depth"],
-                                                fset)
+        return self.ex.denoise(image, var, count, aux, fset)
 
     def _update(self, final: bool, sums=None, filtered=None):
         sums = sums if sums is not None else self.total()

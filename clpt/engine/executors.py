@@ -85,9 +85,13 @@ class LocalExecutor:
     def drop(self, slot):
         self.live.discard(slot)
 
-    def filter(self, *args):
-        w = self.workers[min(self.live)] if self.live else self.workers[0]
-        return self._call(self.workers.index(w), lambda: w.filter(*args))
+    def denoise(self, *args):
+        """apply_denoiser(*args) with a live worker's cone filter, on its thread."""
+        from ..denoise import apply_denoiser
+
+        i = min(self.live) if self.live else 0
+        w = self.workers[i]
+        return self._call(i, lambda: apply_denoiser(w.filter, *args))
 
     def close(self):
         for q in self._queues:
@@ -135,10 +139,12 @@ def dask_run_item(job, item, device=None):
         return res
 
 
-def dask_filter(job, args, device=None):
+def dask_denoise(job, args, device=None):
+    from ..denoise import apply_denoiser
+
     with _WORKER_LOCK:
         w = _worker_device(job, device)
-        return w.filter(*args)
+        return apply_denoiser(w.filter, *args)
 
 
 class DaskExecutor:
@@ -190,8 +196,8 @@ class DaskExecutor:
     def drop(self, slot):
         self.live.discard(slot)
 
-    def filter(self, *args):
-        return self.client.submit(dask_filter, self.job, args, self.device, pure=False).result()
+    def denoise(self, *args):
+        return self.client.submit(dask_denoise, self.job, args, self.device, pure=False).result()
 
     def close(self):
         pass

@@ -52,7 +52,8 @@ class RenderJob:
     options: DeviceOptions = field(default_factory=DeviceOptions)
     photons: PhotonSettings | None = None      # None: the kernels have no photon code
     adaptive: AdaptiveSettings | None = None
-    filter: FilterSettings | None = None
+    filter: object | None = None               # FilterSettings or OidnSettings
+    aux_specular: str = "surface"              # what the feature buffers show of mirrors and glass
 
     # --- identity ----------------------------------------------------------------
     def scene_key(self) -> str:

@@ -15,7 +15,7 @@ import pyopencl.cltypes as clt
 TRACE_ARGS = ("scene", "counts", "eps_abs", "lum_scale", "cam_o", "corner", "dx", "dy", "width", "height",
               "group_offset", "sample_begin", "n_samples", "max_depth", "rr_depth", "seed",
               "pix_sum", "pix_sq", "stats", "pix_list", "pix_jobs", "n_list")
-AUX_ARGS = ("aux_normal", "aux_albedo", "aux_emit")
+AUX_ARGS = ("aux_normal", "aux_albedo", "aux_emit", "aux_caustic", "aux_specular")
 PHOTON_ARGS = ("ph_pos", "ph_dir", "ph_pow", "bucket_start", "pm_mask", "pm_max", "pm_budget", "pm_radius",
                "pm_cone_k", "pm_mode", "pm_mis_k", "pm_merge_vertices", "pm_aim", "pm_merge_p", "pm_occ",
                "pm_occ_mask", "pm_inv_cell")  # as PhotonMap.kernel_args gives them
@@ -28,7 +28,7 @@ def launch_dtype(double: bool) -> np.dtype:
     return np.dtype([("counts", u, 8), ("eps_abs", real), ("lum_scale", real), ("cam_o", real, 4),
                      ("corner", real, 4), ("dx", real, 4), ("dy", real, 4), ("width", u), ("height", u),
                      ("group_offset", u), ("sample_begin", u), ("n_samples", u), ("max_depth", u),
-                     ("rr_depth", u), ("seed", u), ("n_list", u)])
+                     ("rr_depth", u), ("seed", u), ("n_list", u), ("aux_specular", u)])
 
 
 def _by_value(rec, name):
