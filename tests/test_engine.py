@@ -68,7 +68,7 @@ def test_accumulator_device_layouts_round_trip_exactly():
     s = rng.random((n, 8)).astype(np.float32)
     s[:, 4:] *= 1e-7  # Kahan compensations are small
     sq = rng.random((n, 2)).astype(np.float32)
-    aux = [rng.random((n, 4)).astype(np.float32) for _ in range(3)]
+    aux = [rng.random((n, 4)).astype(np.float32) for _ in range(4)]
     acc = Accumulator.from_device((s, sq), (s * 2, sq * 2), aux)
     ds, dq = acc.to_device("", kahan=True)
     assert np.array_equal(ds, s) and np.array_equal(dq, sq)
