@@ -2,16 +2,14 @@
 
 Exit codes: 0 done, 1 a device or kernel-build failure, 2 a mistake in the
 command or the scene (reported in one line, never a traceback), 130
-interrupted by Ctrl-C (a render still writes the image it has so far).
+interrupted by Ctrl-C, 143 by SIGTERM, 129 by SIGHUP (a render still writes
+the image it has so far, and a checkpoint to continue it from).
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import signal
 import sys
-import threading
 import time
 import warnings
 from pathlib import Path
@@ -249,93 +247,84 @@ def _warn(msg):
     print(f"clpt: warning: {msg}", file=sys.stderr)
 
 
-class _Signals:
-    """SIGTERM and SIGHUP end a render as Ctrl-C does (the image so far is
-    written); while images are being written, Ctrl-C, SIGTERM and SIGHUP wait
-    for the write to finish instead of cutting it short. Exit codes follow
-    the shell's 128 + signal number (130 for Ctrl-C)."""
+def _dask_client(spec: str):
+    """A distributed.Client for --dask: a scheduler's address, or local:N worker processes."""
+    from .scene import SceneError
 
-    SIGNALS = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n))
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise SceneError("--dask needs Dask: pip install 'clpt[dask]'") from None
+    if spec.startswith("local:"):
+        n = spec[6:]
+        if not n.isdigit() or int(n) < 1:
+            raise SceneError(f"--dask local:N needs a number of workers >= 1 (got {spec!r})")
+        cluster = LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True, dashboard_address=":0")
+        return Client(cluster)
+    return Client(spec)
 
-    def __init__(self):
-        self.received = None
-        self._old = {}
-        self.active = threading.current_thread() is threading.main_thread()
 
-    def _interrupt(self, signum, frame):
-        self.received = signum
-        raise KeyboardInterrupt
-
-    def _note(self, signum, frame):
-        self.received = self.received or signum
-
-    def __enter__(self):
-        if self.active:
-            for sig in self.SIGNALS:
-                self._old[sig] = signal.signal(sig, self._interrupt)
-        return self
-
-    def __exit__(self, *exc):
-        for sig, h in self._old.items():
-            signal.signal(sig, h)
-
-    @contextlib.contextmanager
-    def hold(self):
-        """No signal interrupts what runs inside; one that came is noted."""
-        if not self.active:
-            yield
-            return
-        sigs = (signal.SIGINT,) + self.SIGNALS
-        old = {sig: signal.signal(sig, self._note) for sig in sigs}
-        try:
-            yield
-        finally:
-            for sig, h in old.items():
-                signal.signal(sig, h)
-
-    def exit_code(self) -> int:
-        return 128 + int(self.received) if self.received else 130
+SIGNAL_EXIT = {2: 130, 15: 143, 1: 129}  # SIGINT, SIGTERM, SIGHUP: 128 + the signal
+DASK_PASS_SECONDS = 2.0  # a range's raw sums travel back whole: ranges of seconds keep that a small share
+CHECKPOINT_EVERY = 60.0  # seconds, --checkpoint-every's default
 
 
 def cmd_render(a) -> int:
-    with _Signals() as signals:
-        return _render(a, signals)
+    import threading
 
-
-def _render(a, signals) -> int:
     from . import preflight
+    from .engine.checkpoint import Checkpoint
+    from .engine.driver import interrupt_signals
     from .render import Renderer
-    from .scene import load_scene
+    from .scene import SceneError
 
     # Everything that can be checked is checked before the first sample.
     preflight.check_render_options(a)
-    scene = _load(a)
-    out = preflight.check_output(a.output if a.output is not None else Path(a.scene).stem + ".png")
+    if a.checkpoint_every is not None and not (a.checkpoint_every >= 0 and a.checkpoint_every != float("inf")):
+        raise SceneError(f"--checkpoint-every must be a number of seconds >= 0 (got {a.checkpoint_every})")
+    ck = Checkpoint(a.resume) if a.resume else None
+    if ck is not None:
+        scene = ck.job.scene if a.scene is None else _load(a)
+        default_out = Path(a.resume).with_suffix("") if a.resume.endswith(".ckpt") else \
+            Path(Path(ck.job.scene.source or "render").stem + ".png")
+    else:
+        a.scene = a.scene or "cornell_box"
+        scene = _load(a)
+        default_out = Path(Path(a.scene).stem + ".png")
+    out = preflight.check_output(a.output if a.output is not None else str(default_out))
+    ckpt = Path(a.checkpoint) if a.checkpoint else (Path(a.resume) if a.resume else Path(f"{out}.ckpt"))
     if a.save_sample_map is not None:
         preflight.check_output(a.save_sample_map, "--save-sample-map")
-    width = a.width or scene.camera.width
-    height = a.height or scene.camera.height
+    job0 = ck.job if ck is not None else None
+    width = job0.width if job0 else (a.width or scene.camera.width)
+    height = job0.height if job0 else (a.height or scene.camera.height)
     preflight.check_image_size(out, width, height)
     if a.save_sample_map is not None:
         preflight.check_image_size(a.save_sample_map, width, height, "--save-sample-map")
-    photons = _photon_settings(a) if a.photons != 0 else None
-    adaptive = _adaptive_settings(a)
-    filt = _filter_settings(a)
     show, end = _progress_printer(sys.stderr, not a.quiet and (a.progress or sys.stderr.isatty()))
-    viewer, UPDATE_INTERVAL = None, 0.25
+    viewer, update_interval = None, 0.25
     if a.tev is not None:
         from .tev import UPDATE_INTERVAL, TevViewer
 
-        seed = scene.render.seed if a.seed is None else a.seed
+        update_interval = UPDATE_INTERVAL
+        seed = job0.seed if job0 else (scene.render.seed if a.seed is None else a.seed)
         try:
-            viewer = TevViewer(f"{Path(scene.source).stem} seed {seed}", a.tev, warn=show.note)
+            viewer = TevViewer(f"{Path(scene.source or 'render').stem} seed {seed}", a.tev, warn=show.note)
         except ImportError as e:
             print(f"clpt: error: {e}", file=sys.stderr)
             return 2
-    r = Renderer(scene, aux=filt is not None or a.write_aux, **_renderer_kwargs(a))
+    if ck is not None:
+        r = Renderer(scene, device=a.device, use_cache=not a.no_cache, **ck.job.options.renderer_kwargs())
+        photons, adaptive, filt = job0.photons, job0.adaptive, job0.filter
+    else:
+        photons = _photon_settings(a) if a.photons != 0 else None
+        adaptive = _adaptive_settings(a)
+        filt = _filter_settings(a)
+        r = Renderer(scene, aux=filt is not None or a.write_aux, **_renderer_kwargs(a))
     if viewer is not None:
         viewer.cpu_device = any(st.dctx.is_cpu for st in r.states)
-    preflight.warn_unused_options(a, r.packed.has_caustics, _warn)
+    if ck is None:
+        preflight.warn_unused_options(a, r.packed.has_caustics, _warn)
     preflight.check_memory(width, height, aux=r.features.aux, adaptive=adaptive is not None,
                            photons=photons.resolved(width * height).count if photons and r.features.photons else 0,
                            cpu_device=all(st.dctx.is_cpu for st in r.states))
@@ -357,23 +346,46 @@ def _render(a, signals) -> int:
                 save_image(out, img, exposure=a.exposure)
             except (ImageError, OSError) as e:  # a preview is not worth the render
                 _warn(f"cannot write the preview: {e}")
-    try:
-        res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,
-                       height=a.height, photons=photons, adaptive=adaptive, filter=filt, progress=show,
-                       preview=preview, time_limit=a.time_limit, aux_specular=a.aux_specular or "surface",
-                       on_update=viewer, update_interval=UPDATE_INTERVAL)
-    finally:
-        if viewer is not None:
-            viewer.close()
-    end()
-    if viewer is not None and a.verbose and viewer.updates:
-        print(viewer.summary(), file=sys.stderr)
-    if res.samples == 0:  # stopped before the first sample: leave any existing output alone
-        print(f"clpt: interrupted before the first sample; {out} was not written", file=sys.stderr)
-        return signals.exit_code()
-    with signals.hold():
+    client = _dask_client(a.dask) if a.dask else None
+    stop = threading.Event()
+    every = CHECKPOINT_EVERY if a.checkpoint_every is None else a.checkpoint_every
+    run = dict(progress=show, preview=preview, time_limit=a.time_limit, executor=client, checkpoint=ckpt,
+               checkpoint_every=every or None, stop=stop, on_update=viewer, update_interval=update_interval)
+    if client is not None:
+        run["pass_seconds"] = DASK_PASS_SECONDS
+    # From here on a signal (Ctrl-C, SIGTERM, SIGHUP) ends the render with a
+    # checkpoint and the image so far; a second one cannot cut the writing of
+    # either short.
+    with interrupt_signals(stop) as got:
+        try:
+            if ck is not None:
+                run.pop("checkpoint")
+                res = r.resume(ck, out_checkpoint=ckpt, **run)
+            else:
+                res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,
+                               height=a.height, photons=photons, adaptive=adaptive, filter=filt,
+                               aux_specular=a.aux_specular or "surface", **run)
+        finally:
+            if client is not None:
+                client.close()
+            if viewer is not None:
+                viewer.close()
+        end()
+        if viewer is not None and a.verbose and viewer.updates:
+            print(viewer.summary(), file=sys.stderr)
+        code = SIGNAL_EXIT.get(got["signal"], 130) if res.interrupted else 0
+        if res.samples == 0:  # stopped before the first sample: leave any existing output alone
+            print(f"clpt: interrupted before the first sample; {out} was not written", file=sys.stderr)
+            return code or 130
         fallback = _write_outputs(a, res, out)
-    return _report(a, res, out, fallback, signals)
+        if not res.interrupted and fallback is None:
+            ckpt.unlink(missing_ok=True)  # the image holds it all now
+    _report(a, res, out, fallback)
+    if res.interrupted:
+        print(f"interrupted after {res.spp} spp; the image so far was written to {fallback or out} and the render "
+              f"can be continued with: clpt render --resume {ckpt}", file=sys.stderr)
+        return code
+    return 1 if fallback is not None else 0
 
 
 def _write_outputs(a, res, out):
@@ -402,7 +414,7 @@ def _write_outputs(a, res, out):
     return fallback
 
 
-def _report(a, res, out, fallback, signals) -> int:
+def _report(a, res, out, fallback):
     st = res.stats
     secs = max(st.render_seconds, 1e-9)
     spp_text = (f"{res.sample_count.mean():.1f} spp on average" if res.stats.adaptive_rounds else f"{res.spp} spp")
@@ -412,6 +424,8 @@ def _report(a, res, out, fallback, signals) -> int:
         msg += f", {st.nonfinite} non-finite samples dropped"
     if not a.quiet:
         print(msg, file=sys.stderr)
+    for label, err in st.failures:
+        print(f"clpt: warning: {label} failed mid-render ({err}); the others finished its work", file=sys.stderr)
     if a.verbose:
         print(f"rays: {st.camera_rays} camera, {st.bounce_rays} bounce, {st.shadow_rays} shadow "
               f"({st.rays / secs / 1e6:.2f} Mrays/s); first launch {st.first_launch_seconds:.3f}s", file=sys.stderr)
@@ -424,13 +438,13 @@ def _report(a, res, out, fallback, signals) -> int:
                   f"trace {m['trace_seconds'] * 1e3:.1f} ms, grid {m['grid_seconds'] * 1e3:.1f} ms", file=sys.stderr)
         if len(st.photon_maps) > 3:
             print(f"photon maps: {len(st.photon_maps)} in all", file=sys.stderr)
+        if st.checkpoints:
+            stall, write = sum(c[0] for c in st.checkpoints), sum(c[1] for c in st.checkpoints)
+            print(f"checkpoints: {len(st.checkpoints)}, the render waited {stall:.3f}s for them, writing took "
+                  f"{write:.3f}s in the background, {st.checkpoints[-1][2] / 1e6:.1f} MB", file=sys.stderr)
     if res.stats.adaptive_rounds and not a.quiet:
         print(f"adaptive: {res.stats.adaptive_rounds} rounds, {res.sample_count.min()} to {res.sample_count.max()} "
               f"samples per pixel", file=sys.stderr)
-    if res.interrupted or signals.received:
-        print(f"interrupted after {res.spp} spp; the image so far was written", file=sys.stderr)
-        return signals.exit_code()
-    return 1 if fallback is not None else 0
 
 
 def cmd_devices(a) -> int:
@@ -559,8 +573,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("render", help="render a scene to an image file")
-    p.add_argument("scene", nargs="?", default="cornell_box", help="scene file, or a shipped scene's name "
-                                                                  "(default: cornell_box)")
+    p.add_argument("scene", nargs="?", default=None, help="scene file, or a shipped scene's name "
+                                                         "(default: cornell_box, or the checkpoint's with --resume)")
     p.add_argument("-o", "--output", help="image file: .png, .jpg (8-bit sRGB) or .exr (linear float); "
                                           "default <scene>.png")
     p.add_argument("--spp", type=int, help="samples per pixel (default: the scene's)")
@@ -577,6 +591,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tev", nargs="?", const="127.0.0.1:14158", default=None, type=_tev_address,
                    metavar="HOST:PORT", help="stream the image as it renders to the tev viewer listening there "
                                              "(default 127.0.0.1:14158; needs pip install 'clpt[tev]')")
+    g = p.add_argument_group("checkpoints and clusters")
+    g.add_argument("--checkpoint", metavar="FILE", help="where the render so far is kept (default <output>.ckpt); "
+                                                        "removed when the image is written complete")
+    g.add_argument("--checkpoint-every", type=float, default=None, metavar="SECONDS",
+                   help="write the checkpoint this often (default 60; 0: only when interrupted)")
+    g.add_argument("--resume", metavar="CHECKPOINT", help="continue a checkpointed render (its scene and settings "
+                                                          "are in the checkpoint); -o as before by default")
+    g.add_argument("--dask", metavar="ADDRESS", help="render on a Dask cluster: a scheduler address, or local:N "
+                                                     "for N local worker processes (pip install 'clpt[dask]')")
     _add_render_options(p)
     _add_photon_options(p)
     _add_quality_options(p)

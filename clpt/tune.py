@@ -149,7 +149,7 @@ def measure_candidates(states, trial) -> dict:
         for st in states:
             n = max(1, int(TRIAL_PASS_SECONDS / max(per_spp[st.features.lanes], 1e-6)))
             rates[st.features.lanes].append(trial(st, n, 2 + r)[0] / 1e6)
-    overhead = min(st.run(0, 0)[0] for st in states for _ in range(3))
+    overhead = min(st.launch_seconds() for st in states for _ in range(3))
     # The best round: on a shared machine other load only ever slows a round down.
     return {"msamples_per_s": {k: max(v) for k, v in rates.items()}, "launch_seconds": overhead}
 

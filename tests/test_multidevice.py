@@ -1,0 +1,64 @@
+"""Several devices on one render: PoCL split into two devices gives the
+one-device image, and a device that fails mid-render leaves its work to the
+other without losing a sample."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import clpt
+
+SPLIT = r"""
+import json, sys, numpy as np, clpt
+one = clpt.Renderer("cornell_box_caustics", device="0").render(24, width=24, height=16, seed=9, pass_seconds=0.02)
+r = clpt.Renderer("cornell_box_caustics", device="all")
+two = r.render(24, width=24, height=16, seed=9, pass_seconds=0.02)
+labels = [p[0] for p in two.stats.passes]
+print(json.dumps({"devices": len(r.states), "same_label_passes": [labels.count(l) for l in sorted(set(labels))],
+                  "max_rel": float(np.max(np.abs(one.image - two.image) / np.maximum(np.abs(one.image), 1e-6))),
+                  "counts_equal": bool(np.array_equal(one.sample_count, two.sample_count))}))
+"""
+
+
+def test_pocl_split_in_two_devices_gives_the_one_device_image(tmp_path):
+    # This PoCL names the per-device thread count POCL_MAX_PTHREAD_COUNT (newer ones POCL_CPU_MAX_CU_COUNT).
+    env = dict(os.environ, POCL_DEVICES="pthread pthread", POCL_MAX_PTHREAD_COUNT="1", POCL_CPU_MAX_CU_COUNT="1")
+    env.pop("PYOPENCL_CTX", None)
+    p = subprocess.run([sys.executable, "-c", SPLIT], env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout.strip().splitlines()[-1])
+    if out["devices"] < 2:
+        pytest.skip("this OpenCL platform does not split into two devices")
+    assert out["counts_equal"] and len(out["same_label_passes"]) >= 1
+    # Only the order of the float64 additions differs: equal to float32 rounding.
+    assert out["max_rel"] < 1e-6
+
+
+def test_a_device_failing_mid_render_leaves_its_work_to_the_other(device_spec):
+    dev = clpt.device.select_devices(device_spec)[0]
+    ph = clpt.PhotonSettings(count=20_000, progressive=False)  # one map: ranges of any size
+    one = clpt.Renderer("cornell_box_caustics", device=dev).render(16, width=16, height=16, seed=9, photons=ph)
+    r = clpt.Renderer("cornell_box_caustics", device=[dev, dev])
+    bad = r.states[1]
+    real_run, calls = bad.run, []
+
+    def failing(item):
+        calls.append(item)
+        if len(calls) > 2:
+            raise clpt.DeviceError("device lost (CL_OUT_OF_RESOURCES)")
+        return real_run(item)
+
+    bad.run = failing
+    with pytest.warns(UserWarning, match="device lost"):
+        two = r.render(16, width=16, height=16, seed=9, pass_seconds=1e-9, photons=ph)
+    assert len(calls) == 3 and two.stats.failures and "device lost" in two.stats.failures[0][1]
+    assert (two.sample_count == 16).all()
+    assert np.allclose(one.image, two.image, rtol=1e-5, atol=1e-6)
+    # The next render uses both devices again.
+    bad.run = real_run
+    again = r.render(16, width=16, height=16, seed=9, photons=ph)
+    assert not again.stats.failures and len({p[0] for p in again.stats.passes}) >= 1
