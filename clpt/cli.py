@@ -380,12 +380,12 @@ def cmd_render(a) -> int:
         fallback = _write_outputs(a, res, out)
         if not res.interrupted and fallback is None:
             ckpt.unlink(missing_ok=True)  # the image holds it all now
-    _report(a, res, out, fallback)
-    if res.interrupted:
-        print(f"interrupted after {res.spp} spp; the image so far was written to {fallback or out} and the render "
-              f"can be continued with: clpt render --resume {ckpt}", file=sys.stderr)
-        return code
-    return 1 if fallback is not None else 0
+        _report(a, res, out, fallback)
+        if res.interrupted:
+            print(f"interrupted after {res.spp} spp; the image so far was written to {fallback or out} and the "
+                  f"render can be continued with: clpt render --resume {ckpt}", file=sys.stderr)
+            return code
+        return 1 if fallback is not None else 0
 
 
 def _write_outputs(a, res, out):

@@ -151,9 +151,11 @@ def test_sigterm_leaves_image_and_checkpoint_and_resume_finishes_it(tmp_path, de
                          stderr=subprocess.PIPE, text=True)
     wait_for(p, "spp")
     p.send_signal(signal.SIGTERM)
-    time.sleep(0.05)
-    p.send_signal(signal.SIGINT)  # a second signal while it finishes: the image is still written whole
+    # A second signal while it finishes the pass in flight: the image is still written whole.
+    head = wait_for(p, "finishing the work in flight")
+    p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=120)
+    err = head + err
     assert p.returncode == 143, err
     ck = tmp_path / "t.exr.ckpt"
     assert out.is_file() and ck.is_file() and "--resume" in err and "still writing" in err

@@ -412,4 +412,9 @@ def interrupt_signals(stop: threading.Event, stream=sys.stderr):
         yield got
     finally:
         for s, h in old.items():
-            signal.signal(s, h)
+            # After a signal, later ones are ignored: the process is on its
+            # way out with the first one's status, and must not die of a
+            # second while it reports and exits (Python's own finalization
+            # puts back the default action of signals it handles, not of
+            # ignored ones).
+            signal.signal(s, h if got["signal"] is None else signal.SIG_IGN)
