@@ -14,7 +14,7 @@ from .photons import PhotonSettings
 from .program import KernelBuildError, clear_cache
 from .render import RenderResult, Renderer, RenderStats, RenderUpdate, render, resume as render_resume
 from .resources import shipped_scenes
-from .scene import (Box, Camera, Material, Mesh, Plane, Quad, RenderSettings, Scene, SceneError, Sphere, Triangle,
+from .scene import (Box, Camera, Material, Mesh, Plane, Quad, RenderSettings, Scene, SceneError, SettingsError, Sphere, Triangle,
                     load_scene, parse_scene)
 
 __version__ = "0.1.0"
@@ -22,7 +22,7 @@ __version__ = "0.1.0"
 __all__ = [
     "AdaptiveSettings", "FilterSettings", "OidnSettings", "PhotonSettings",
     "Box", "Camera", "DeviceError", "Features", "KernelBuildError", "Material", "Mesh", "Plane", "Quad", "RenderResult",
-    "RenderSettings", "RenderStats", "RenderUpdate", "Renderer", "Scene", "SceneError", "Sphere", "Triangle", "clear_cache",
+    "RenderSettings", "RenderStats", "RenderUpdate", "Renderer", "Scene", "SceneError", "SettingsError", "Sphere", "Triangle", "clear_cache",
     "list_devices", "load_image", "load_scene", "parse_scene", "render", "render_resume", "save_image", "scene_features",
     "shipped_scenes",
 ]

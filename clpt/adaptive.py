@@ -45,20 +45,20 @@ class AdaptiveSettings:
     paper_mode: str = "reduce"     # paper scheme: "reduce" or "stop" the agreeing pixels
 
     def check(self):
-        from .scene import SceneError
+        from .scene import SettingsError
         if self.scheme not in ("error", "paper"):
-            raise SceneError(f"adaptive: scheme must be 'error' or 'paper' (got {self.scheme!r})")
+            raise SettingsError(f"adaptive: scheme must be 'error' or 'paper' (got {self.scheme!r})")
         for key in ("min_spp", "pass_spp"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v < 2 ** 32:
-                raise SceneError(f"adaptive: {key} must be an integer from 1 to 2^32 - 1 (got {v!r})")
+                raise SettingsError(f"adaptive: {key} must be an integer from 1 to 2^32 - 1 (got {v!r})")
         for key in ("threshold", "disagreement"):
             v = getattr(self, key)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or \
                     not (math.isfinite(v) and v > 0):
-                raise SceneError(f"adaptive: {key} must be a number > 0 (got {v!r})")
+                raise SettingsError(f"adaptive: {key} must be a number > 0 (got {v!r})")
         if self.paper_mode not in ("reduce", "stop"):
-            raise SceneError(f"adaptive: paper_mode must be 'reduce' or 'stop' (got {self.paper_mode!r})")
+            raise SettingsError(f"adaptive: paper_mode must be 'reduce' or 'stop' (got {self.paper_mode!r})")
         return self
 
 

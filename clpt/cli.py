@@ -66,94 +66,55 @@ def _add_render_options(p):
     p.add_argument("--lanes", type=int, default=None, choices=(1, 2, 4, 8, 16),
                    help="paths per work-item (default: tuned per device; see `clpt devices -v`)")
     p.add_argument("--local-size", type=int, default=None, help="work-group size (default: tuned per device)")
-    p.add_argument("--precision", choices=("float", "double"), default="float")
-    p.add_argument("--kernel", choices=("specialized", "generic", "baked"), default="specialized",
-                   help="kernel build: only the scene's features (default), everything, or the scene "
-                        "compiled in as constants")
+    p.add_argument("--precision", choices=("float", "double"), default=None,
+                   help=f"real type of the kernels (default {_renderer_default('precision')})")
+    p.add_argument("--kernel", choices=("specialized", "generic", "baked"), default=None,
+                   help="kernel build: only the scene's features (specialized), everything (generic), or the "
+                        f"scene compiled in as constants (baked) (default {_renderer_default('kernel')})")
     p.add_argument("--no-nee", action="store_true", help="no next event estimation (pure path tracing)")
     p.add_argument("--no-cache", action="store_true", help="do not use the kernel build cache")
 
 
 def _add_photon_options(p):
-    g = p.add_argument_group("caustic photons (scenes with mirror or glass objects)")
-    g.add_argument("--photons", type=int, default=None, metavar="N",
-                   help="photons per photon map (default: 0.25 per camera sample of a progressive iteration, "
-                        "10^6 for a fixed map); 0 turns photon mapping off")
-    g.add_argument("--radius", type=float, default=None, help="gather radius, a fraction of the scene size "
-                                                              "(default 0.004), or absolute with --radius-absolute")
-    g.add_argument("--radius-absolute", action="store_true")
-    g.add_argument("--cone-k", type=float, default=None, help="cone filter constant k >= 1 (default 1.1)")
-    g.add_argument("--max-photons", type=int, default=None,
-                   help="use at most this many photons per gather (the paper's cap; default: no cap)")
-    g.add_argument("--photon-budget", type=int, default=None,
-                   help="photons visited per row of cells before unbiased subsampling (default 128)")
-    g.add_argument("--photon-mode", choices=("merge", "online", "offline"), default=None,
-                   help="merge: photon merging at every non-delta vertex weighted against path tracing by MIS "
-                        "(default); online: the photon map owns the caustic paths at the first diffuse vertex; "
-                        "offline: that, gathered in a pre-pass into a caustic buffer")
-    g.add_argument("--merge-vertices", type=int, default=None,
-                   help="merge at the first N non-delta vertices of a camera path (default: all)")
-    g.add_argument("--merge-probability", type=float, default=None,
-                   help="merge at a vertex with this probability (Russian roulette on the merge; default 1)")
-    g.add_argument("--no-photon-pilot", action="store_true",
-                   help="always use the photon map (no pilot deciding whether it pays)")
-    g.add_argument("--offline-spp", type=int, default=None, help="samples per pixel of the offline pre-pass")
-    g.add_argument("--aim", choices=("solid_angle", "equal"), default=None,
-                   help="share photons among casters by solid angle (default) or equally (the paper)")
-    g.add_argument("--progressive", action="store_true",
-                   help="a fresh photon map every --spp-per-map samples, with a shrinking radius")
-    g.add_argument("--alpha", type=float, default=None, help="progressive radius reduction (default 0.7)")
-    g.add_argument("--spp-per-map", type=int, default=None, help="samples per pixel per photon map (progressive)")
+    from .options import PHOTON_OPTIONS, add_options
+    from .photons import PhotonSettings
+
+    add_options(p.add_argument_group("caustic photons (scenes with mirror or glass objects)"), PhotonSettings,
+                PHOTON_OPTIONS)
 
 
 def _add_quality_options(p):
+    from .adaptive import AdaptiveSettings
+    from .denoise import FilterSettings, OidnSettings
+    from .options import ADAPTIVE_OPTIONS, CONE_FILTER_OPTIONS, DENOISER_OPTIONS, OIDN_OPTIONS, add_options
+
     g = p.add_argument_group("adaptive sampling")
     g.add_argument("--adaptive", choices=("error", "paper"), default=None,
                    help="spend the samples (--spp on average) where the error is: by each pixel's relative "
                         "error (error) or by disagreement with its neighbours (paper)")
-    g.add_argument("--min-spp", type=int, default=None, help="uniform samples before adapting (default 32)")
-    g.add_argument("--noise-threshold", type=float, default=None,
-                   help="error scheme: stop a pixel at this relative error (default 0.02)")
-    g.add_argument("--adaptive-pass-spp", type=int, default=None, help="most samples a pixel gets per pass, or its count so far if more (16)")
-    g.add_argument("--no-depth-reduction", action="store_true",
-                   help="paper scheme: keep full depth for calm pixels (no bias)")
-    g.add_argument("--paper-stop", action="store_true", help="paper scheme: stop calm pixels instead of slowing them")
+    add_options(g, AdaptiveSettings, ADAPTIVE_OPTIONS)
     g.add_argument("--save-sample-map", metavar="FILE", help="write a heat map of samples per pixel")
     g = p.add_argument_group("denoising", DENOISE_HELP)
     g.add_argument("--denoise", choices=("cone", "oidn"), default=None,
                    help="write the denoised image (and the raw one as <out>.unfiltered<ext>): the edge-aware "
                         "cone filter, or Intel Open Image Denoise (pip install 'clpt[oidn]')")
     g.add_argument("--filter", action="store_true", help="the same as --denoise cone")
-    g.add_argument("--oidn-aux", choices=("clean", "noisy", "none"), default=None,
-                   help="OIDN's guides: albedo and normal prefiltered by OIDN (clean, the default), as rendered "
-                        "(noisy), or none (colour only)")
+    add_options(g, OidnSettings, OIDN_OPTIONS)
     g.add_argument("--aux-specular", choices=("surface", "through"), default=None,
                    help="feature buffers of mirrors and glass: the surface itself (default) or what is seen "
                         "through it")
-    g.add_argument("--filter-width", type=int, default=None,
-                   help="cone radius in pixels per pass (default 1, at most 16)")
-    g.add_argument("--filter-iterations", type=int, default=None,
-                   help="a-trous passes (default 3; passes wider than the image are skipped)")
-    g.add_argument("--filter-interval", type=int, default=None,
-                   help="also write the filtered image so far every N passes (a progressive preview)")
+    add_options(g, FilterSettings, CONE_FILTER_OPTIONS + DENOISER_OPTIONS)
     g.add_argument("--write-aux", action="store_true",
                    help="write the feature buffers: <out>.normal.exr, .albedo.exr, .depth.exr, .variance.exr")
 
 
 def _adaptive_settings(a):
     from .adaptive import AdaptiveSettings
+    from .options import ADAPTIVE_OPTIONS, settings_kwargs
 
     if a.adaptive is None:
         return None
-    kw = {"scheme": a.adaptive}
-    for k, v in (("min_spp", a.min_spp), ("threshold", a.noise_threshold), ("pass_spp", a.adaptive_pass_spp)):
-        if v is not None:
-            kw[k] = v
-    if a.no_depth_reduction:
-        kw["reduce_depth"] = False
-    if a.paper_stop:
-        kw["paper_mode"] = "stop"
-    return AdaptiveSettings(**kw).check()
+    return AdaptiveSettings(scheme=a.adaptive, **settings_kwargs(a, ADAPTIVE_OPTIONS)).check()
 
 
 DENOISE_HELP = (
@@ -167,27 +128,20 @@ DENOISE_HELP = (
 
 def _filter_settings(a):
     from .denoise import FilterSettings, OidnSettings
-    from .scene import SceneError
+    from .options import CONE_FILTER_OPTIONS, DENOISER_OPTIONS, OIDN_OPTIONS, given, settings_kwargs
+    from .scene import SettingsError
 
     kind = a.denoise or ("cone" if a.filter else None)
     if a.filter and a.denoise == "oidn":
-        raise SceneError("--filter is the cone filter; use either it or --denoise oidn")
+        raise SettingsError("--filter is the cone filter; use either it or --denoise oidn")
     if kind is None:
         return None
-    if kind == "oidn":
-        if a.filter_width is not None or a.filter_iterations is not None:
-            raise SceneError("--filter-width and --filter-iterations are the cone filter's")
-        kw = {"aux": a.oidn_aux} if a.oidn_aux else {}
-        if a.filter_interval is not None:
-            kw["interval"] = a.filter_interval
-        return OidnSettings(**kw).check()
-    if a.oidn_aux is not None:
-        raise SceneError("--oidn-aux is for --denoise oidn")
-    kw = {}
-    for k, v in (("width", a.filter_width), ("iterations", a.filter_iterations), ("interval", a.filter_interval)):
-        if v is not None:
-            kw[k] = v
-    return FilterSettings(**kw).check()
+    mine, others = ((OIDN_OPTIONS, CONE_FILTER_OPTIONS) if kind == "oidn" else (CONE_FILTER_OPTIONS, OIDN_OPTIONS))
+    wrong = given(a, others)
+    if wrong:
+        raise SettingsError(f"{', '.join(o.flag for o in wrong)}: not options of --denoise {kind}")
+    cls = OidnSettings if kind == "oidn" else FilterSettings
+    return cls(**settings_kwargs(a, mine + DENOISER_OPTIONS)).check()
 
 
 def _sibling(path: Path, tag: str, ext: str | None = None) -> Path:
@@ -195,25 +149,23 @@ def _sibling(path: Path, tag: str, ext: str | None = None) -> Path:
 
 
 def _photon_settings(a):
+    from .options import PHOTON_OPTIONS, settings_kwargs
     from .photons import PhotonSettings
 
-    fields = {"count": a.photons, "radius": a.radius, "cone_k": a.cone_k, "max_photons": a.max_photons,
-              "budget": a.photon_budget, "mode": a.photon_mode, "offline_spp": a.offline_spp, "aim": a.aim,
-              "alpha": a.alpha, "spp_per_map": a.spp_per_map, "merge_vertices": a.merge_vertices,
-              "merge_probability": a.merge_probability}
-    kw = {k: v for k, v in fields.items() if v is not None}
-    if a.radius_absolute:
-        kw["radius_absolute"] = True
-    if a.progressive:
-        kw["progressive"] = True
-    if a.no_photon_pilot:
-        kw["pilot"] = False
-    return PhotonSettings(**kw).check()
+    return PhotonSettings(**settings_kwargs(a, PHOTON_OPTIONS)).check()
+
+
+def _renderer_default(name: str):
+    """A keyword's default, as Renderer's signature has it (the CLI does not restate it)."""
+    import inspect
+
+    from .render import Renderer
+    return inspect.signature(Renderer.__init__).parameters[name].default
 
 
 def _renderer_kwargs(a):
-    kw = dict(device=a.device, lanes=a.lanes, local_size=a.local_size, precision=a.precision, kernel=a.kernel,
-              nee=not a.no_nee, use_cache=not a.no_cache)
+    kw = dict(device=a.device, lanes=a.lanes, local_size=a.local_size, nee=not a.no_nee, use_cache=not a.no_cache)
+    kw.update({k: getattr(a, k) for k in ("precision", "kernel") if getattr(a, k, None) is not None})
     if getattr(a, "photons", None) == 0:
         kw["photons"] = False
     return kw
@@ -266,6 +218,7 @@ def _dask_client(spec: str):
 
 SIGNAL_EXIT = {2: 130, 15: 143, 1: 129}  # SIGINT, SIGTERM, SIGHUP: 128 + the signal
 DASK_PASS_SECONDS = 2.0  # a range's raw sums travel back whole: ranges of seconds keep that a small share
+PROCESS_PASS_SECONDS = 0.5  # the same, between processes of one machine
 CHECKPOINT_EVERY = 60.0  # seconds, --checkpoint-every's default
 
 
@@ -346,13 +299,13 @@ def cmd_render(a) -> int:
                 save_image(out, img, exposure=a.exposure)
             except (ImageError, OSError) as e:  # a preview is not worth the render
                 _warn(f"cannot write the preview: {e}")
-    client = _dask_client(a.dask) if a.dask else None
+    client = _dask_client(a.dask) if a.dask else ("processes" if a.processes else None)
     stop = threading.Event()
     every = CHECKPOINT_EVERY if a.checkpoint_every is None else a.checkpoint_every
     run = dict(progress=show, preview=preview, time_limit=a.time_limit, executor=client, checkpoint=ckpt,
                checkpoint_every=every or None, stop=stop, on_update=viewer, update_interval=update_interval)
-    if client is not None:
-        run["pass_seconds"] = DASK_PASS_SECONDS
+    if client is not None:  # raw sums travel back per range
+        run["pass_seconds"] = DASK_PASS_SECONDS if a.dask else PROCESS_PASS_SECONDS
     # From here on a signal (Ctrl-C, SIGTERM, SIGHUP) ends the render with a
     # checkpoint and the image so far; a second one cannot cut the writing of
     # either short.
@@ -366,7 +319,7 @@ def cmd_render(a) -> int:
                                height=a.height, photons=photons, adaptive=adaptive, filter=filt,
                                aux_specular=a.aux_specular or "surface", **run)
         finally:
-            if client is not None:
+            if client is not None and client != "processes":
                 client.close()
             if viewer is not None:
                 viewer.close()
@@ -598,6 +551,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="write the checkpoint this often (default 60; 0: only when interrupted)")
     g.add_argument("--resume", metavar="CHECKPOINT", help="continue a checkpointed render (its scene and settings "
                                                           "are in the checkpoint); -o as before by default")
+    g.add_argument("--processes", action="store_true",
+                   help="run each device (--device all, or a list) in a process of its own: PoCL's devices in "
+                        "one process share one thread pool")
     g.add_argument("--dask", metavar="ADDRESS", help="render on a Dask cluster: a scheduler address, or local:N "
                                                      "for N local worker processes (pip install 'clpt[dask]')")
     _add_render_options(p)

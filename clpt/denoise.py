@@ -48,21 +48,21 @@ class FilterSettings:
     interval: int = 0            # filter the preview every N passes (0: only the final image)
 
     def check(self):
-        from .scene import SceneError
+        from .scene import SettingsError
         if isinstance(self.width, bool) or not isinstance(self.width, (int, np.integer)) \
                 or not 0 <= self.width <= MAX_WIDTH:
-            raise SceneError(f"filter: width must be an integer from 0 to {MAX_WIDTH} (got {self.width!r})")
+            raise SettingsError(f"filter: width must be an integer from 0 to {MAX_WIDTH} (got {self.width!r})")
         if isinstance(self.iterations, bool) or not isinstance(self.iterations, (int, np.integer)) \
                 or self.iterations < 1:
-            raise SceneError(f"filter: iterations must be an integer >= 1 (got {self.iterations!r})")
+            raise SettingsError(f"filter: iterations must be an integer >= 1 (got {self.iterations!r})")
         if isinstance(self.sigma_normal, bool) or not isinstance(self.sigma_normal, (int, np.integer)) \
                 or not 1 <= self.sigma_normal <= 127:
-            raise SceneError(f"filter: sigma_normal must be an integer from 1 to 127 (got {self.sigma_normal!r})")
+            raise SettingsError(f"filter: sigma_normal must be an integer from 1 to 127 (got {self.sigma_normal!r})")
         for k in ("sigma_depth", "sigma_albedo", "sigma_luminance"):
             if not getattr(self, k) > 0:
-                raise SceneError(f"filter: {k} must be > 0")
+                raise SettingsError(f"filter: {k} must be > 0")
         if not self.firefly_k >= 0:
-            raise SceneError("filter: firefly_k must be >= 0")
+            raise SettingsError("filter: firefly_k must be >= 0")
         return self
 
     def passes(self, width: int, height: int) -> int:
@@ -82,11 +82,11 @@ class OidnSettings:
     interval: int = 0
 
     def check(self):
-        from .scene import SceneError
+        from .scene import SettingsError
         if self.aux not in OIDN_AUX:
-            raise SceneError(f"oidn: aux must be one of {', '.join(OIDN_AUX)} (got {self.aux!r})")
+            raise SettingsError(f"oidn: aux must be one of {', '.join(OIDN_AUX)} (got {self.aux!r})")
         if self.quality not in ("high", "balanced", "fast"):
-            raise SceneError(f"oidn: quality must be high, balanced or fast (got {self.quality!r})")
+            raise SettingsError(f"oidn: quality must be high, balanced or fast (got {self.quality!r})")
         oidn_module()
         return self
 

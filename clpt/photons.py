@@ -70,10 +70,10 @@ class PhotonSettings:
     spp_per_map: int = 8
 
     def check(self):
-        from .scene import SceneError
+        from .scene import SettingsError
 
         def bad(what):
-            raise SceneError(f"photons: {what}")
+            raise SettingsError(f"photons: {what}")
 
         def is_int(v):
             return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
@@ -133,12 +133,12 @@ class PhotonSettings:
         """The gather radius must be representable: its square above the
         smallest normal number of the kernels' real type (a smaller one finds
         nothing and divides by zero)."""
-        from .scene import SceneError
+        from .scene import SettingsError
 
         r = self.radius_for(scene_size)
         tiny = float(np.finfo(np.float64 if double else np.float32).tiny)
         if not r * r > tiny * 4:
-            raise SceneError(f"photons: radius {r:.3g} is too small for {'double' if double else 'float'} "
+            raise SettingsError(f"photons: radius {r:.3g} is too small for {'double' if double else 'float'} "
                              f"precision (its square underflows); use a radius above {math.sqrt(tiny) * 2:.3g}")
 
     def radius_for(self, scene_size: float, iteration: int = 0) -> float:

@@ -119,21 +119,15 @@ def check_render_options(a):
 
 def warn_unused_options(a, scene_has_casters: bool, warn):
     """One line for each given option that will have no effect."""
-    photon_opts = [f"--{k.replace('_', '-')}" for k in ("photons", "radius", "cone_k", "max_photons", "photon_budget",
-                                                        "photon_mode", "offline_spp", "aim", "alpha", "spp_per_map",
-                                                        "merge_vertices", "merge_probability")
-                   if getattr(a, k, None) is not None]
-    photon_opts += [f"--{k.replace('_', '-')}" for k in ("radius_absolute", "progressive", "no_photon_pilot")
-                    if getattr(a, k, False)]
+    from .options import ADAPTIVE_OPTIONS, CONE_FILTER_OPTIONS, DENOISER_OPTIONS, OIDN_OPTIONS, PHOTON_OPTIONS, given
+
+    photon_opts = [o.flag for o in given(a, PHOTON_OPTIONS)]
     if photon_opts and not scene_has_casters:
         warn(f"{', '.join(photon_opts)} ignored: the scene has no mirror or glass objects, so no photon map")
-    filt_opts = [f"--{k.replace('_', '-')}" for k in ("filter_width", "filter_iterations", "filter_interval")
-                 if getattr(a, k, None) is not None]
-    if filt_opts and not a.filter:
-        warn(f"{', '.join(filt_opts)} ignored without --filter")
-    ad_opts = [f"--{k.replace('_', '-')}" for k in ("min_spp", "noise_threshold", "adaptive_pass_spp")
-               if getattr(a, k, None) is not None]
-    ad_opts += [f"--{k.replace('_', '-')}" for k in ("no_depth_reduction", "paper_stop") if getattr(a, k, False)]
+    filt_opts = [o.flag for o in given(a, CONE_FILTER_OPTIONS + OIDN_OPTIONS + DENOISER_OPTIONS)]
+    if filt_opts and not (a.filter or getattr(a, "denoise", None)):
+        warn(f"{', '.join(filt_opts)} ignored without --filter or --denoise")
+    ad_opts = [o.flag for o in given(a, ADAPTIVE_OPTIONS)]
     if ad_opts and a.adaptive is None:
         warn(f"{', '.join(ad_opts)} ignored without --adaptive")
 

@@ -36,7 +36,7 @@ from .engine.schedule import Schedule
 from .features import Features
 from .photons import PhotonSettings, pilot
 from .preview import RenderUpdate  # noqa: F401 - part of the API
-from .scene import Scene, SceneError, load_scene
+from .scene import Scene, SceneError, SettingsError, load_scene
 
 
 @dataclass
@@ -171,14 +171,21 @@ class Renderer:
             raise ValueError(f"local_size must be a positive integer (got {local_size!r})")
         if kernel not in ("specialized", "generic", "baked"):
             raise ValueError(f"kernel must be 'specialized', 'generic' or 'baked' (got {kernel!r})")
+        if photons is not None and not isinstance(photons, (bool, PhotonSettings)):
+            raise TypeError(f"photons must be None, True, False or a PhotonSettings (got {type(photons).__name__})")
+        # A PhotonSettings is render()'s default for this Renderer (and compiles the photon code).
+        self.photon_settings = photons.check() if isinstance(photons, PhotonSettings) else None
+        if self.photon_settings is not None:
+            photons = None
         self.scene = scene
+        self._twins = {}
         self.options = DeviceOptions(lanes=lanes, precision=precision, kernel=kernel, nee=nee, photons=photons,
                                      aux=aux, use_cache=use_cache, accumulate=accumulate, local_size=local_size,
                                      tiles=tiles, bvh=bvh, bvh_method=bvh_method, bvh_walk=bvh_walk)
         t0 = time.perf_counter()
         self.packed = self.options.pack(scene)
         self.pack_seconds = time.perf_counter() - t0
-        self._local = None
+        self._local = self._processes = None
         self.devices = [DeviceContext(d) for d in select_devices(device)]
         self.states = []
         for dctx in self.devices:
@@ -206,7 +213,7 @@ class Renderer:
         one-sample probe, seconds per spp)."""
         shell = Renderer.__new__(Renderer)
         shell.scene, shell.packed, shell.states, shell.features = self.scene, self.packed, [st], st.features
-        shell.options, shell._local = self.options, None
+        shell.options, shell._local, shell._processes = self.options, None, None
         n = tune.TRIAL_SIZE
         res = shell.render(spp, width=n, height=n, seed=seed, pass_seconds=1e9)
         passes = res.stats.passes[1:] or res.stats.passes
@@ -223,6 +230,12 @@ class Renderer:
             photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
             filter=None, aux_specular: str = "surface") -> RenderJob:
         """The RenderJob of render()'s settings (checked; the scene's where not given)."""
+        if photons is None:
+            photons = self.photon_settings
+        elif photons is False:  # path tracing only, with the kernels built for photons
+            photons = PhotonSettings(count=0)
+        elif not isinstance(photons, PhotonSettings):
+            raise SettingsError(f"render: photons must be a PhotonSettings or False (got {photons!r})")
         rs = self.scene.render
         spp = rs.spp if spp is None else spp
         seed = rs.seed if seed is None else seed
@@ -233,18 +246,16 @@ class Renderer:
         for name, v, lo in (("spp", spp, 1), ("seed", seed, 0), ("max_depth", max_depth, 0),
                             ("rr_depth", rr_depth, 0), ("width", width, 1), ("height", height, 1)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
-                raise SceneError(f"render: {name} must be an integer >= {lo} (got {v!r})")
+                raise SettingsError(f"render: {name} must be an integer >= {lo} (got {v!r})")
         if spp >= 2**32 or seed >= 2**32:
-            raise SceneError("render: spp and seed must be below 2^32")
+            raise SettingsError("render: spp and seed must be below 2^32")
         pset = (photons or PhotonSettings()).check().resolved(width * height) if self.features.photons else None
         if pset is not None:
             kernel_photons(pset, self.packed.length_scale).check_radius(self.packed.size, self.features.double)
         aset = adaptive.check() if adaptive is not None else None
         fset = filter.check() if filter is not None else None
-        if fset is not None and not self.features.aux:
-            raise SceneError("render: the filter needs the feature buffers: make the Renderer with aux=True")
         if aux_specular not in ("through", "surface"):
-            raise SceneError(f"render: aux_specular must be 'through' or 'surface' (got {aux_specular!r})")
+            raise SettingsError(f"render: aux_specular must be 'through' or 'surface' (got {aux_specular!r})")
         return RenderJob(self.scene, int(spp), int(seed), int(max_depth), int(rr_depth), int(width), int(height),
                          self.options, pset, aset, fset, aux_specular)
 
@@ -271,12 +282,22 @@ class Renderer:
         the end with update.final True. pass_seconds: how long a pass should
         take (default: the device's tuned choice); time_limit: seconds after
         which no new pass starts (result.time_limited).
-        executor: a dask.distributed Client (or an executor object) to run the
-        passes on instead of this Renderer's devices. checkpoint: a file that
+        executor: "processes" runs each of this Renderer's devices in a
+        process of its own (several PoCL devices in one process share one
+        thread pool); a dask.distributed Client (or an executor object) runs
+        the passes on a cluster instead. checkpoint: a file that
         holds the render so far, written every checkpoint_every seconds and
         when the render is interrupted; resume() continues it. Ctrl-C
         (KeyboardInterrupt) or stop.set() ends the render early with what is
         done (result.interrupted)."""
+        if filter is not None and not self.features.aux:
+            # The filters need the feature buffers: a twin of this Renderer with them renders it.
+            return self._twin(aux=True).render(
+                spp, seed=seed, max_depth=max_depth, rr_depth=rr_depth, width=width, height=height,
+                photons=photons if photons is not None else self.photon_settings, adaptive=adaptive,
+                filter=filter, aux_specular=aux_specular, progress=progress, preview=preview,
+                time_limit=time_limit, pass_seconds=pass_seconds, executor=executor, checkpoint=checkpoint,
+                checkpoint_every=checkpoint_every, on_update=on_update, update_interval=update_interval, stop=stop)
         job = self.job(spp, seed=seed, max_depth=max_depth, rr_depth=rr_depth, width=width, height=height,
                        photons=photons, adaptive=adaptive, filter=filter, aux_specular=aux_specular)
         _check_run_options(on_update, update_interval, time_limit, pass_seconds, checkpoint_every)
@@ -315,6 +336,17 @@ class Renderer:
         return self._run(job, Schedule.from_state(job, ck.schedule), ck.sums, float(ck.meta.get("elapsed", 0.0)),
                          checkpoint=out_checkpoint or ck.path, **kw)
 
+    def _twin(self, **changes) -> "Renderer":
+        """This Renderer with other build options (built once, then kept)."""
+        key = tuple(sorted(changes.items()))
+        if key not in self._twins:
+            kw = {**self.options.renderer_kwargs(), **changes}
+            if kw.get("photons") is None and self.photon_settings is not None:
+                kw["photons"] = self.photon_settings
+            self._twins[key] = Renderer(self.scene, device=[d.device for d in self.devices],
+                                        use_cache=self.options.use_cache, **kw)
+        return self._twins[key]
+
     def _executor(self, executor):
         if executor is None:
             if self._local is None:
@@ -322,6 +354,16 @@ class Renderer:
                 weakref.finalize(self, self._local.close)  # its threads end with the Renderer
             self._local.live = set(range(len(self.states)))
             return self._local
+        if executor == "processes":  # each device in a process of its own, kept for the next render
+            if self._processes is None:
+                from .engine.processes import ProcessExecutor
+                self._processes = ProcessExecutor([d.device for d in self.devices])
+                weakref.finalize(self, self._processes.close)
+            self._processes.live = set(range(len(self._processes.children)))
+            return self._processes
+        if isinstance(executor, str):
+            raise SettingsError(f"render: executor must be None, 'processes', a dask.distributed Client or an "
+                                f"executor object (got {executor!r})")
         if hasattr(executor, "scheduler_info") and hasattr(executor, "submit"):  # a distributed.Client
             return DaskExecutor(executor)
         return executor
@@ -383,23 +425,24 @@ def _check_run_options(on_update, update_interval, time_limit, pass_seconds, che
                     ("checkpoint_every", checkpoint_every)):
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating))
                               or not (math.isfinite(v) and v > 0)):
-            raise SceneError(f"render: {name} must be a finite number of seconds > 0 (got {v!r})")
+            raise SettingsError(f"render: {name} must be a finite number of seconds > 0 (got {v!r})")
 
 
-def render(scene, *, spp: int | None = None, seed: int | None = None, max_depth: int | None = None,
-           width: int | None = None, height: int | None = None, device=None, **kw) -> np.ndarray:
+def render(scene, *, spp: int | None = None, device=None, **kw) -> np.ndarray:
     """Render a scene (a Scene, a path, or a shipped scene's name) and return
-    linear RGB as a float32 H x W x 3 array. Keywords override the scene's
-    settings; other keywords go to Renderer (lanes, precision, kernel, nee,
-    photons: bool) or Renderer.render (rr_depth, progress, time_limit;
-    photon_settings: a PhotonSettings)."""
-    render_kw = {k: kw.pop(k) for k in ("rr_depth", "progress", "time_limit", "pass_seconds", "adaptive",
-                                        "executor", "checkpoint", "checkpoint_every", "on_update",
-                                        "update_interval", "stop") if k in kw}
-    if "photon_settings" in kw:
-        render_kw["photons"] = kw.pop("photon_settings")
-    r = Renderer(scene, device=device, **kw)
-    return r.render(spp, seed=seed, max_depth=max_depth, width=width, height=height, **render_kw).image
+    linear RGB as a float32 H x W x 3 array: clpt.render("cornell_box",
+    spp=64). Every other keyword is Renderer's (device, lanes, precision,
+    photons, ...) or Renderer.render's (seed, width, height, adaptive,
+    filter, time_limit, ...), each with the same name and meaning there."""
+    import inspect
+
+    own = set(inspect.signature(Renderer.__init__).parameters) - {"self", "scene"}
+    runs = set(inspect.signature(Renderer.render).parameters) - {"self", "spp"}
+    unknown = set(kw) - own - runs
+    if unknown:
+        raise TypeError(f"render() got unexpected keyword arguments: {', '.join(sorted(unknown))}")
+    r = Renderer(scene, device=device, **{k: v for k, v in kw.items() if k in own})
+    return r.render(spp, **{k: v for k, v in kw.items() if k in runs}).image
 
 
 def resume(checkpoint, *, device=None, use_cache: bool = True, **kw) -> RenderResult:

@@ -35,6 +35,13 @@ class SceneError(ValueError):
     """A scene is invalid. The message names the source, key path and reason."""
 
 
+class SettingsError(SceneError):
+    """A render setting (PhotonSettings, AdaptiveSettings, FilterSettings,
+    OidnSettings, or a keyword of Renderer.render) is out of range or of the
+    wrong type. A SceneError too, so one except clause catches bad input of
+    either kind."""
+
+
 class SceneWarning(UserWarning):
     """Part of a scene is approximated or left out; the message says which and where."""
 

@@ -61,8 +61,10 @@ def test_feature_buffers_only_with_the_filter(device_spec):
     res = plain.render(2, width=8, height=8)
     assert not plain.features.aux and plain.states[0].aux == [] and plain.states[0].filter is None
     assert res.aux is None and res.filtered is None
-    with pytest.raises(clpt.SceneError, match="aux=True"):
-        plain.render(2, width=8, height=8, filter=clpt.FilterSettings())
+    # A filter asked for at render time renders on a twin with the feature buffers.
+    filtered = plain.render(2, width=8, height=8, filter=clpt.FilterSettings())
+    assert filtered.filtered is not None and filtered.aux is not None and not plain.features.aux
+    assert np.array_equal(filtered.image, res.image)
     aux = clpt.Renderer("cornell_box", device=device_spec, aux=True)
     res2 = aux.render(2, width=8, height=8)
     assert aux.features.aux and "-DCLPT_AUX=1" in aux.features.options()

@@ -1,5 +1,5 @@
 """Several devices on one render: PoCL split into two devices gives the
-one-device image, and a device that fails mid-render leaves its work to the
+one-device image (in one process, and each device in a process of its own), and a device that fails mid-render leaves its work to the
 other without losing a sample."""
 
 import json
@@ -18,9 +18,14 @@ one = clpt.Renderer("cornell_box_caustics", device="0").render(24, width=24, hei
 r = clpt.Renderer("cornell_box_caustics", device="all")
 two = r.render(24, width=24, height=16, seed=9, pass_seconds=0.02)
 labels = [p[0] for p in two.stats.passes]
+procs = r.render(24, width=24, height=16, seed=9, pass_seconds=0.02, executor="processes")
+plabels = {p[0] for p in procs.stats.passes}
 print(json.dumps({"devices": len(r.states), "same_label_passes": [labels.count(l) for l in sorted(set(labels))],
                   "max_rel": float(np.max(np.abs(one.image - two.image) / np.maximum(np.abs(one.image), 1e-6))),
-                  "counts_equal": bool(np.array_equal(one.sample_count, two.sample_count))}))
+                  "counts_equal": bool(np.array_equal(one.sample_count, two.sample_count)),
+                  "proc_rel": float(np.max(np.abs(one.image - procs.image) / np.maximum(np.abs(one.image), 1e-6))),
+                  "proc_counts_equal": bool(np.array_equal(one.sample_count, procs.sample_count)),
+                  "proc_labels": sorted(plabels)}))
 """
 
 
@@ -36,6 +41,9 @@ def test_pocl_split_in_two_devices_gives_the_one_device_image(tmp_path):
     assert out["counts_equal"] and len(out["same_label_passes"]) >= 1
     # Only the order of the float64 additions differs: equal to float32 rounding.
     assert out["max_rel"] < 1e-6
+    # Each device in a process of its own: the same image, and both processes did work.
+    assert out["proc_counts_equal"] and out["proc_rel"] < 1e-6
+    assert len(out["proc_labels"]) == 2 and all("[process" in label for label in out["proc_labels"])
 
 
 def test_a_device_failing_mid_render_leaves_its_work_to_the_other(device_spec):
@@ -62,3 +70,28 @@ def test_a_device_failing_mid_render_leaves_its_work_to_the_other(device_spec):
     bad.run = real_run
     again = r.render(16, width=16, height=16, seed=9, photons=ph)
     assert not again.stats.failures and len({p[0] for p in again.stats.passes}) >= 1
+
+
+def test_a_device_process_that_dies_leaves_its_work_to_the_others(device_spec):
+    """Two worker processes on one device; one is killed mid-render: the
+    render finishes on the other with every sample, and the next render
+    starts a fresh process."""
+    import signal
+    import threading
+
+    dev = clpt.device.select_devices(device_spec)[0]
+    r = clpt.Renderer("cornell_box", device=[dev, dev])
+    one = clpt.Renderer("cornell_box", device=dev).render(12, width=16, height=16, seed=4)
+    killed = threading.Event()
+
+    def kill_one(done, total, elapsed, rate):
+        if done >= 2 and not killed.is_set():
+            killed.set()
+            os.kill(r._processes.children[1].proc.pid, signal.SIGKILL)
+
+    with pytest.warns(UserWarning, match="its work goes to the others"):
+        res = r.render(12, width=16, height=16, seed=4, executor="processes", pass_seconds=1e-9, progress=kill_one)
+    assert killed.is_set() and res.stats.failures
+    assert (res.sample_count == 12).all() and np.allclose(res.image, one.image, rtol=1e-6, atol=1e-7)
+    again = r.render(12, width=16, height=16, seed=4, executor="processes")
+    assert not again.stats.failures and np.allclose(again.image, one.image, rtol=1e-6, atol=1e-7)

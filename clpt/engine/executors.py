@@ -124,7 +124,6 @@ _WORKER_LOCK = threading.Lock()
 def _worker_device(job, device):
     """This process's DeviceWorker for the job's scene and options (built once)."""
     from ..device import DeviceContext, select_devices
-    from ..pack import pack_scene
     from .device import DeviceWorker, device_features
 
     key = (job.scene_key(), job.options, device)
@@ -132,7 +131,7 @@ def _worker_device(job, device):
     if w is None:
         _WORKER_CACHE.clear()
         dctx = DeviceContext(select_devices(device)[0])
-        packed = pack_scene(job.scene)
+        packed = job.options.pack(job.scene)
         w = DeviceWorker(dctx, packed, device_features(dctx, packed, job.options), job.options.use_cache)
         w.started = None
         _WORKER_CACHE[key] = w
