@@ -70,30 +70,36 @@ def bench_checkpoint(rounds=3, size=512, seconds=8.0):
 DEVICE_RUN = r"""
 import json, sys, time, clpt
 dev = sys.argv[1]
+ex = sys.argv[3] if len(sys.argv) > 3 and sys.argv[3] != "-" else None
 r = clpt.Renderer("cornell_box", device=dev)
-r.render(2, width=128, height=128)
+r.render(2, width=256, height=256, executor=ex)
 rates = []
 for i in range(int(sys.argv[2])):
-    res = r.render(64, width=128, height=128, seed=i)
-    rates.append(res.samples / res.stats.render_seconds)
+    t0 = time.perf_counter()
+    res = r.render(128, width=256, height=256, seed=i, executor=ex)
+    rates.append(res.samples / (time.perf_counter() - t0))
 print(json.dumps({"devices": len(r.states), "rates": rates}))
 """
 
 
 def bench_devices(rounds=3):
     out = {}
-    configs = {"one device, 1 thread": ({"POCL_MAX_PTHREAD_COUNT": "1"}, "0"),
-               "two devices, 1 thread each": ({"POCL_DEVICES": "pthread pthread", "POCL_MAX_PTHREAD_COUNT": "1"}, "all"),
-               "one device, 2 threads": ({"POCL_MAX_PTHREAD_COUNT": "2"}, "0"),
-               "two devices, 2 threads each": ({"POCL_DEVICES": "pthread pthread", "POCL_MAX_PTHREAD_COUNT": "2"}, "all")}
+    split = {"POCL_DEVICES": "pthread pthread", "POCL_MAX_PTHREAD_COUNT": "1"}
+    configs = {"one device, 1 thread": ({"POCL_MAX_PTHREAD_COUNT": "1"}, "0", "-"),
+               "two devices, 1 thread each, one process": (split, "all", "-"),
+               "two devices, 1 thread each, a process each": (split, "all", "processes"),
+               "one device, 2 threads": ({"POCL_MAX_PTHREAD_COUNT": "2"}, "0", "-")}
     for _ in range(rounds):  # interleaved
-        for name, (env, dev) in configs.items():
+        for name, (env, dev, ex) in configs.items():
             e = dict(os.environ, **env)
             e.pop("PYOPENCL_CTX", None)
-            p = subprocess.run([sys.executable, "-c", DEVICE_RUN, dev, "2"], env=e, capture_output=True, text=True)
+            p = subprocess.run([sys.executable, "-c", DEVICE_RUN, dev, "2", ex], env=e, capture_output=True,
+                               text=True)
             res = json.loads(p.stdout.strip().splitlines()[-1])
             out.setdefault(name, []).extend(res["rates"])
-    return {k: med(v) for k, v in out.items()}
+    res = {k: med(v) for k, v in out.items()}
+    one = res["one device, 1 thread"]["median"]
+    return {"samples_per_s": res, "speedup_over_one_device": {k: v["median"] / one for k, v in res.items()}}
 
 
 def bench_dask(rounds=3):
