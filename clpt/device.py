@@ -171,10 +171,30 @@ def select_devices(spec=None) -> list:
         return [(gpus or cpus or [found[0][3]])[0]]
     out = []
     for part in str(spec).split(","):
+        part, slash, n = part.partition("/")
         for d in _match(part, found):
-            if d not in out:
-                out.append(d)
+            for sub in (split_device(d, n) if slash else [d]):
+                if sub not in out:
+                    out.append(sub)
     return out
+
+
+def split_device(device, n) -> list:
+    """A device split into n sub-devices of equal compute units (OpenCL
+    device fission, CL_DEVICE_PARTITION_EQUALLY): the selector "SPEC/N"."""
+    if not str(n).isdigit() or int(n) < 1:
+        raise DeviceError(f"a device split needs a number of parts >= 1 (got {n!r})")
+    n = int(n)
+    cu = device.max_compute_units
+    if n > cu or cu % n:
+        raise DeviceError(f"{device.name.strip()} has {cu} compute units: it splits into parts that divide them "
+                          f"(got {n})")
+    if n == 1:
+        return [device]
+    props = getattr(device, "partition_properties", []) or []
+    if cl.device_partition_property.EQUALLY not in props:
+        raise DeviceError(f"{device.name.strip()} ({device.platform.name.strip()}) cannot be split into sub-devices")
+    return device.create_sub_devices([cl.device_partition_property.EQUALLY, cu // n])[:n]
 
 
 class DeviceContext:
@@ -190,10 +210,11 @@ class DeviceContext:
         self.fp64 = device_has_fp64(device)
         self.is_cpu = bool(device.type & cl.device_type.CPU)
         self.is_pocl = "portable computing language" in self.platform.lower() or "pocl" in self.platform.lower()
+        self.part = ""  # " #k" where one render has this device more than once (sub-devices)
 
     @property
     def label(self) -> str:
-        return f"{self.name} ({self.platform})"
+        return f"{self.name} ({self.platform}){self.part}"
 
     def identity(self) -> str:
         d = self.device

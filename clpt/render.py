@@ -187,6 +187,10 @@ class Renderer:
         self.pack_seconds = time.perf_counter() - t0
         self._local = self._processes = None
         self.devices = [DeviceContext(d) for d in select_devices(device)]
+        names = [d.label for d in self.devices]
+        for i, d in enumerate(self.devices):
+            if names.count(names[i]) > 1:  # one device twice, or its sub-devices: told apart in stats
+                d.part = f" #{names[:i].count(names[i]) + 1}"
         self.states = []
         for dctx in self.devices:
             if local_size is not None and local_size > dctx.device.max_work_group_size:

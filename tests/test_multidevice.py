@@ -95,3 +95,25 @@ def test_a_device_process_that_dies_leaves_its_work_to_the_others(device_spec):
     assert (res.sample_count == 12).all() and np.allclose(res.image, one.image, rtol=1e-6, atol=1e-7)
     again = r.render(12, width=16, height=16, seed=4, executor="processes")
     assert not again.stats.failures and np.allclose(again.image, one.image, rtol=1e-6, atol=1e-7)
+
+
+def test_a_device_split_into_sub_devices_renders_one_image(device_spec):
+    """"SPEC/2" splits a device into two sub-devices of half its compute
+    units (device fission); they render one image together, told apart in
+    the stats, equal to the whole device's image to float rounding."""
+    dev = clpt.device.select_devices(device_spec)[0]
+    if dev.max_compute_units < 2 or dev.max_compute_units % 2:
+        pytest.skip(f"{dev.name} has {dev.max_compute_units} compute units")
+    try:
+        subs = clpt.device.split_device(dev, 2)
+    except clpt.DeviceError as e:
+        pytest.skip(str(e))
+    assert len(subs) == 2 and all(s.max_compute_units == dev.max_compute_units // 2 for s in subs)
+    one = clpt.Renderer("cornell_box", device=dev).render(16, width=32, height=16, seed=2)
+    r = clpt.Renderer("cornell_box", device=subs)
+    two = r.render(16, width=32, height=16, seed=2, pass_seconds=1e-9)
+    labels = {p[0] for p in two.stats.passes}
+    assert len(set(two.devices)) == 2 and labels == set(two.devices)
+    assert (two.sample_count == 16).all() and np.allclose(two.image, one.image, rtol=1e-6, atol=1e-7)
+    with pytest.raises(clpt.DeviceError, match="compute units"):
+        clpt.device.split_device(dev, dev.max_compute_units + 1)
