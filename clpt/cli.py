@@ -156,11 +156,10 @@ def _photon_settings(a):
 
 
 def _renderer_default(name: str):
-    """A keyword's default, as Renderer's signature has it (the CLI does not restate it)."""
-    import inspect
-
-    from .render import Renderer
-    return inspect.signature(Renderer.__init__).parameters[name].default
+    """A build option's default, as clpt.engine.job.DeviceOptions has it (the CLI does not restate it)."""
+    from .engine.job import DeviceOptions
+    from .options import field_default
+    return field_default(DeviceOptions, name)
 
 
 def _renderer_kwargs(a):

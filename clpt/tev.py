@@ -141,6 +141,9 @@ class TevViewer:
         if self._sock is None:
             return
         with self._cond:
+            # An earlier render's final image is never replaced before it is taken.
+            while self._pending is not None and self._pending.final and self._sock is not None:
+                self._cond.wait(0.1)
             self._pending = update
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name="clpt-tev", daemon=True)
@@ -203,6 +206,7 @@ class TevViewer:
                 while not due():
                     self._cond.wait(None if self._pending is None else max(ready - time.perf_counter(), 1e-3))
                 update, self._pending = self._pending, None
+                self._cond.notify_all()
             if update is None:
                 return
             t0, c0 = time.perf_counter(), time.thread_time()

@@ -322,7 +322,8 @@ class Driver:
     def run(self):
         """Render; returns (sums, interrupted)."""
         self.t0 = time.perf_counter()
-        self.last_checkpoint = self.last_update = self.t0
+        self.last_checkpoint = self.t0
+        self.last_update = -math.inf  # the first item done is shown at once
         self.in_flight = {}
         self.per_spp = {}
         self.done_items = {}
