@@ -689,6 +689,7 @@ def test_vanishing_photon_radius(caustics_scene, caustics, device_spec):
     assert np.array_equal(res.image, base.image)
 
 
+@pytest.mark.slow  # about 100 s on 2 cores: in the slow tier (pytest -m slow)
 def test_ten_million_photons(caustics, caustics_pt):
     """10^7 photons (about 1.1 GB of photon buffers): the same fraction is
     stored as with 10^6 (within binomial noise: the same photon streams) and
