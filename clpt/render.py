@@ -218,6 +218,7 @@ class Renderer:
         shell = Renderer.__new__(Renderer)
         shell.scene, shell.packed, shell.states, shell.features = self.scene, self.packed, [st], st.features
         shell.options, shell._local, shell._processes = self.options, None, None
+        shell.photon_settings, shell._twins = self.photon_settings, {}
         n = tune.TRIAL_SIZE
         res = shell.render(spp, width=n, height=n, seed=seed, pass_seconds=1e9)
         passes = res.stats.passes[1:] or res.stats.passes
