@@ -102,6 +102,14 @@ def test_a_measured_device_gets_the_fastest_lanes_and_local_size(monkeypatch, tm
     assert not list((tmp_path / "other").glob("tune/*.json"))  # a partial measurement is not cached
 
 
+def test_a_local_size_within_noise_of_the_default_leaves_it(monkeypatch, tmp_path):
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("CLPT_TUNE", "auto")
+    speed = _fake_trial(lambda lanes, local: 1.05 if local == 64 else 1.0)
+    t, _ = tune.choose(_FakeContext(), "src", [], _FakeState, speed)
+    assert t.local_size == 16 and "64 1.05" in t.why
+
+
 def test_measure_local_sizes_restores_the_state():
     st = _FakeState(16)
     st.local = 7
