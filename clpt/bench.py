@@ -14,13 +14,17 @@ against an earlier run's JSON (--compare).
   ranges over the rounds. Rays/s count camera, bounce and shadow rays.
 - kernels: device times of every kernel launch from OpenCL profiling events
   (path pass, photon pass, grid build, filter), the first launch of each
-  (a lazy device compile on PoCL) left out; medians and ranges. The path
+  (a lazy device compile on drivers that compile at a launch) left out;
+  medians and ranges. The path
   pass (trace_paths) is given per sample per pixel of the timed passes.
 - memory: device bytes per buffer after a render.
 - cold build: in a fresh subprocess whose clpt and PoCL caches are empty
   folders (pyopencl's binary cache is not used at all), with the variant's
   resolved lanes and local size (no tuning measurement): the program build
-  and the first launch (PoCL generates machine code lazily then) apart.
+  and the first launch apart (PoCL compiles its kernels into the build's
+  binary, clpt/program.py, so its first launch compiles nothing; the
+  photon program of a caustic scene builds in a child process, whose time
+  is in the build's wall time).
 - warm build: a second Renderer in this process, from the build cache.
 - --mitsuba: Mitsuba 3 (its LLVM variant, if installed; never a
   dependency) renders its own cornell_box() at the same size and depth

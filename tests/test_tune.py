@@ -43,3 +43,75 @@ def test_measured_choice_is_cached_and_changes_no_bit(device_spec, monkeypatch):
     for lanes in {1, tune.register_width(first.states[0].dctx.device)} - {t.lanes}:
         b = clpt.Renderer(scene, device=device_spec, lanes=lanes).render(3, width=20, height=12, seed=5).image
         assert np.array_equal(a, b)
+
+
+class _FakeDevice:
+    native_vector_width_float = 16
+    preferred_vector_width_float = 1
+    max_work_group_size = 64
+
+
+class _FakeContext:
+    """A CPU runtime that is not PoCL: its lanes and local size are measured."""
+    is_cpu, is_pocl, label = True, False, "fake CPU (fake runtime)"
+    device = _FakeDevice()
+
+    def identity(self):
+        return "fake|1|cpu"
+
+
+class _FakeState:
+    def __init__(self, lanes):
+        self.features = type("F", (), {"lanes": lanes})()
+        self.local = 16
+        self.seen_locals = []
+
+    def run(self, s0, n):
+        return 1e-4, None
+
+
+def _fake_trial(speed):
+    """A trial whose samples/s are speed(lanes, local) (and 1 ms per spp)."""
+    def trial(st, spp, seed):
+        st.seen_locals.append(st.local)
+        return speed(st.features.lanes, st.local) * 1e6, 1e-3
+    return trial
+
+
+def test_a_measured_device_gets_the_fastest_lanes_and_local_size(monkeypatch, tmp_path):
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("CLPT_TUNE", "auto")
+    states = {}
+
+    def make(lanes):
+        states[lanes] = _FakeState(lanes)
+        return states[lanes]
+
+    # 1 lane beats 16; with 1 lane, groups of 32 beat the others (128 is above the device's maximum).
+    speed = _fake_trial(lambda lanes, local: (2.0 if lanes == 1 else 1.0) * (1.5 if local == 32 else 1.0))
+    t, st = tune.choose(_FakeContext(), "src", ["-DX=1"], make, speed)
+    assert (t.lanes, t.local_size, t.how) == (1, 32, "measured") and st is states[1]
+    assert set(states[1].seen_locals) == {16, 32, 64} and states[1].local == 16  # tried, then left alone
+    assert "local size 16" in t.why and "32 3.00" in t.why
+    cached = tune.choose(_FakeContext(), "src", ["-DX=1"], make, speed)[0]
+    assert (cached.lanes, cached.local_size, cached.how) == (1, 32, "cached")
+    # An explicit local size is not measured, and wins.
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path / "other"))
+    t2, _ = tune.choose(_FakeContext(), "src", ["-DX=1"], make, speed, local_size=8)
+    assert (t2.lanes, t2.local_size, t2.how) == (1, 8, "explicit")
+    assert not list((tmp_path / "other").glob("tune/*.json"))  # a partial measurement is not cached
+
+
+def test_a_local_size_within_noise_of_the_default_leaves_it(monkeypatch, tmp_path):
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("CLPT_TUNE", "auto")
+    speed = _fake_trial(lambda lanes, local: 1.05 if local == 64 else 1.0)
+    t, _ = tune.choose(_FakeContext(), "src", [], _FakeState, speed)
+    assert t.local_size == 16 and "64 1.05" in t.why
+
+
+def test_measure_local_sizes_restores_the_state():
+    st = _FakeState(16)
+    st.local = 7
+    rates = tune.measure_local_sizes(st, _fake_trial(lambda lanes, local: local / 16), [16, 64])
+    assert rates == {16: 1.0, 64: 4.0} and st.local == 7

@@ -1,0 +1,97 @@
+"""Kernel builds (clpt/program.py): PoCL's one compile per kernel, and
+overlapping PoCL builds that go to child processes."""
+
+import threading
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from clpt import program
+from clpt.device import DeviceContext, select_devices
+
+SRC = """
+__kernel void scale(__global float *a, float k) { size_t i = get_global_id(0); a[i] = sqrt(a[i]) * k + 0.1f; }
+"""
+
+
+@pytest.fixture
+def dctx(device_spec):
+    return DeviceContext(select_devices(device_spec)[0])
+
+
+def _run(dctx, prg):
+    a = np.linspace(0, 3, 64, dtype=np.float32)
+    buf = cl.Buffer(dctx.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=a)
+    prg.scale(dctx.queue, (64,), (16,), buf, np.float32(1.7))
+    cl.enqueue_copy(dctx.queue, a, buf)
+    return a
+
+
+def test_pocl_compiles_each_kernel_once_unless_told_otherwise(monkeypatch):
+    pocl = type("D", (), {"is_pocl": True})()
+    other = type("D", (), {"is_pocl": False})()
+    monkeypatch.delenv("POCL_WORK_GROUP_SPECIALIZATION", raising=False)
+    program.pocl_defaults(other)
+    assert "POCL_WORK_GROUP_SPECIALIZATION" not in program.os.environ
+    program.pocl_defaults(pocl)
+    assert program.os.environ["POCL_WORK_GROUP_SPECIALIZATION"] == "0"
+    monkeypatch.setenv("POCL_WORK_GROUP_SPECIALIZATION", "1")  # the user's choice wins
+    program.pocl_defaults(pocl)
+    assert program.os.environ["POCL_WORK_GROUP_SPECIALIZATION"] == "1"
+
+
+def test_of_overlapping_builds_the_largest_stays(monkeypatch):
+    monkeypatch.setattr(program, "OVERLAP_WINDOW", 0)
+    big, small, twin = [100, 1], [50, 2], [100, 3]
+    monkeypatch.setattr(program, "_overlapping", [big, small, twin])
+    assert program._elsewhere(small) and program._elsewhere(twin) and not program._elsewhere(big)
+    monkeypatch.setattr(program, "_overlapping", [small])
+    assert not program._elsewhere(small)  # alone: built here
+
+
+def test_a_child_build_gives_the_same_program(dctx, tmp_path):
+    if not dctx.is_pocl:
+        pytest.skip("child builds are for PoCL")
+    here = cl.Program(dctx.context, SRC).build(options=["-w"], cache_dir=False)
+    there = program._built_elsewhere(dctx, SRC, ["-w"], tmp_path / "p.bin")
+    assert there is not None and (tmp_path / "p.bin").is_file()
+    assert np.array_equal(_run(dctx, here), _run(dctx, there))
+    assert not program._child_build(dctx, SRC + "syntax error", ["-w"], tmp_path / "bad.bin")
+
+
+def test_concurrent_builds_split_and_agree(dctx, tmp_path, monkeypatch):
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("CLPT_BUILD_PROCESSES", "1")
+    big = SRC + "\n// " + "x" * 1000 + "\n"
+    small = SRC + "\n// small\n"
+    out, children = {}, []
+    real_child = program._child_build
+
+    def child(d, source, options, path):
+        children.append(len(source))
+        return real_child(d, source, options, path)
+
+    monkeypatch.setattr(program, "_child_build", child)
+
+    def one(name, src):
+        out[name] = program.build(dctx, src, [])
+
+    threads = [threading.Thread(target=one, args=(n, s)) for n, s in (("big", big), ("small", small))]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(list(tmp_path.glob("kernels/*.bin"))) == 2  # each cached, wherever it was built
+    if dctx.is_pocl:
+        assert children == [len(small)]  # the smaller went to a child, the larger stayed
+    else:
+        assert children == []
+    assert np.array_equal(_run(dctx, out["big"][0]), _run(dctx, out["small"][0]))
+    again = program.build(dctx, small, [])
+    assert again[1].cache_hit
+    with pytest.raises(program.KernelBuildError):  # a child's failure ends in the usual error
+        threads = [threading.Thread(target=one, args=("big", big + " ")),]
+        threads[0].start()
+        program.build(dctx, small + "syntax error", [])
+    threads[0].join()
