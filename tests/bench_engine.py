@@ -70,13 +70,16 @@ def bench_checkpoint(rounds=3, size=512, seconds=8.0):
 DEVICE_RUN = r"""
 import json, sys, time, clpt
 dev = sys.argv[1]
+if "#" in dev:  # one part of a split device: "intel/2#0"
+    spec, k = dev.split("#")
+    dev = clpt.device.select_devices(spec)[int(k)]
 ex = sys.argv[3] if len(sys.argv) > 3 and sys.argv[3] != "-" else None
 r = clpt.Renderer("cornell_box", device=dev)
 r.render(2, width=256, height=256, executor=ex)
 rates = []
 for i in range(int(sys.argv[2])):
     t0 = time.perf_counter()
-    res = r.render(128, width=256, height=256, seed=i, executor=ex)
+    res = r.render(384, width=256, height=256, seed=i, executor=ex)
     rates.append(res.samples / (time.perf_counter() - t0))
 print(json.dumps({"devices": len(r.states), "rates": rates}))
 """
@@ -89,6 +92,10 @@ def bench_devices(rounds=3):
                "two devices, 1 thread each, one process": (split, "all", "-"),
                "two devices, 1 thread each, a process each": (split, "all", "processes"),
                "one device, 2 threads": ({"POCL_MAX_PTHREAD_COUNT": "2"}, "0", "-")}
+    if os.environ.get("OCL_ICD_VENDORS"):  # Intel's CPU runtime registered: its device split in two by fission
+        configs.update({"intel: one half (1 core)": ({}, "intel/2#0", "-"),
+                        "intel: both halves, one process": ({}, "intel/2", "-"),
+                        "intel: whole device": ({}, "intel", "-")})
     for _ in range(rounds):  # interleaved
         for name, (env, dev, ex) in configs.items():
             e = dict(os.environ, **env)
@@ -99,7 +106,12 @@ def bench_devices(rounds=3):
             out.setdefault(name, []).extend(res["rates"])
     res = {k: med(v) for k, v in out.items()}
     one = res["one device, 1 thread"]["median"]
-    return {"samples_per_s": res, "speedup_over_one_device": {k: v["median"] / one for k, v in res.items()}}
+    out = {"samples_per_s": res, "speedup_over_one_device": {k: v["median"] / one for k, v in res.items()
+                                                              if not k.startswith("intel")}}
+    if "intel: one half (1 core)" in res:
+        half = res["intel: one half (1 core)"]["median"]
+        out["intel_speedup_over_one_half"] = {k: v["median"] / half for k, v in res.items() if k.startswith("intel")}
+    return out
 
 
 def bench_dask(rounds=3):
