@@ -28,7 +28,8 @@ METHODS = ("sah", "lbvh")
 BINS = 16
 SAH_MIN = 64        # smaller nodes take the Morton split (binning them costs more than it gains)
 MAX_LEAF = 8        # a node with more primitives is always split
-MAX_DEPTH = 64       # the kernels' traversal stack (BVH_STACK in kernels/bvh.h)
+MAX_DEPTH = 64       # the binary tree's depth bound
+MAX_STACK = 96       # entries of the kernels' traversal stack (BVH_STACK in kernels/bvh.h)
 SAH_TRAVERSAL = 1.0  # cost of visiting a node, relative to one primitive test
 
 
@@ -234,38 +235,126 @@ def build(lo, hi, method: str = "sah", max_leaf: int = 4) -> Tree:
                 seconds=time.perf_counter() - t0, levels=sum(1 for x in starts if len(x)))
 
 
-def flatten(tree: Tree, node_base: int, item_base: int, item_stride: int, double: bool):
-    """Device records (n_inner, 4, 4) float64 of the tree's inner nodes (a
-    leaf root gets one node with an empty right child). Pointers are
-    absolute real4 indices: nodes from node_base, leaf items from item_base
-    (item_stride records each, in tree.order). Boxes are rounded outwards
-    to the kernel's precision."""
+WIDTH = 8            # children per device node (kernels/bvh.h tests them in one vector)
+LEAF_FIELDS = 14     # SoA rows of a leaf block: p.xyz, n.xyz, wu.xyz, wv.xyz, type, record
+LEAF_TYPES = {"triangle": 0, "quad": 1, "sphere": 2, "empty": 3}
+
+
+@dataclass
+class Wide:
+    """The binary tree collapsed to WIDTH-ary nodes: children[w] are binary
+    node ids (-1: an empty slot); wide node 0 is the root."""
+    children: np.ndarray   # (n_wide, WIDTH) int64
+    levels: int = 1
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.children)
+
+
+def collapse(tree: Tree, width: int = WIDTH) -> Wide:
+    """Greedy collapse (as Embree's and pbrt's wide BVHs): each wide node
+    starts from a binary node's two children and repeatedly opens its
+    largest-area inner child until it has `width` children. All wide nodes
+    of a level are opened together in array operations."""
     left = tree.left
-    inner = np.flatnonzero(left >= 0)
-    if len(inner) == 0:
-        inner_nodes = np.array([0])
-        children = np.array([[0, -1]])
-    else:
-        inner_nodes = inner
-        children = np.stack([left[inner], left[inner] + 1], axis=1)
-    packed_id = np.full(tree.n_nodes, -1, dtype=np.int64)
-    packed_id[inner_nodes] = np.arange(len(inner_nodes))
-    if len(inner) == 0:
-        packed_id[0] = -1  # the root is a leaf: node 0 is its holder
+    if left[0] < 0:
+        ch = np.full((1, width), -1, dtype=np.int64)
+        ch[0, 0] = 0
+        return Wide(ch)
+    area = _area(tree.hi - tree.lo)
+    is_inner = left >= 0
+    frontier = np.array([0])
+    levels = []
+    while len(frontier):
+        m = len(frontier)
+        rows = np.arange(m)
+        ch = np.full((m, width), -1, dtype=np.int64)
+        ch[:, 0], ch[:, 1] = left[frontier], left[frontier] + 1
+        n = np.full(m, 2)
+        for _ in range(width - 2):
+            c = np.maximum(ch, 0)
+            a = np.where((ch >= 0) & is_inner[c], area[c], -1.0)
+            j = np.argmax(a, axis=1)
+            ok = a[rows, j] >= 0
+            if not ok.any():
+                break
+            r, jj = rows[ok], j[ok]
+            opened = ch[r, jj]
+            ch[r, jj] = left[opened]
+            ch[r, n[ok]] = left[opened] + 1
+            n = n + ok
+        levels.append(ch)
+        c = np.maximum(ch, 0)
+        frontier = ch[(ch >= 0) & is_inner[c]]
+    return Wide(np.concatenate(levels), levels=len(levels))
+
+
+def stack_need(wide: Wide) -> int:
+    """Most entries the kernels' walk can have on its stack: every wide
+    level on the way down leaves at most WIDTH - 1 children behind."""
+    return (WIDTH - 1) * wide.levels + 1
+
+
+def flatten(tree: Tree, wide: Wide, node_base: int, leaf_base: int, double: bool):
+    """Device records of the wide nodes, (n_wide, 4 * WIDTH * 2 / 4 ...) as
+    (n_wide, 16, 4) float64 (clpt/layout.py BVH_NODE): rows of WIDTH reals,
+    lo.x, hi.x, lo.y, hi.y, lo.z, hi.z, pointer, count. A child's pointer is
+    an absolute real4 index: of its wide node (count 0) or of its leaf block
+    (count > 0 items); count -1 marks an empty slot. Leaf blocks are
+    numbered in leaf order (tree.start). Boxes are rounded outwards to the
+    kernel's precision."""
+    ch = wide.children
+    n_wide, width = ch.shape
+    left = tree.left
+    leaves = np.flatnonzero(left < 0)
+    leaves = leaves[np.argsort(tree.start[leaves], kind="stable")]
+    leaf_id = np.full(tree.n_nodes, -1, dtype=np.int64)
+    leaf_id[leaves] = np.arange(len(leaves))
+    wide_id = np.full(tree.n_nodes, -1, dtype=np.int64)
+    if left[0] >= 0:
+        inner_children = ch[(ch >= 0) & (left[np.maximum(ch, 0)] >= 0)]
+        wide_id[0] = 0
+        wide_id[inner_children] = 1 + np.arange(len(inner_children))
     lo, hi = _outward(tree.lo, tree.hi, double)
-    out = np.zeros((len(inner_nodes), 4, 4))
-    for side in (0, 1):
-        ch = children[:, side]
-        valid = ch >= 0
-        c = np.where(valid, ch, 0)
-        is_leaf = left[c] < 0
-        ptr = np.where(is_leaf, item_base + item_stride * tree.start[c], node_base + 4 * packed_id[c])
-        cnt = np.where(is_leaf, tree.count[c], 0)
-        out[:, 2 * side, :3] = np.where(valid[:, None], lo[c], 0)
-        out[:, 2 * side, 3] = np.where(valid, ptr, 0)
-        out[:, 2 * side + 1, :3] = np.where(valid[:, None], hi[c], 0)
-        out[:, 2 * side + 1, 3] = np.where(valid, cnt, -1)
-    return out
+    valid = ch >= 0
+    c = np.maximum(ch, 0)
+    is_leaf = left[c] < 0
+    from .layout import BVH_LEAF, BVH_NODE
+    ptr = np.where(is_leaf, leaf_base + BVH_LEAF.stride * leaf_id[c], node_base + BVH_NODE.stride * wide_id[c])
+    cnt = np.where(is_leaf, tree.count[c], 0)
+    out = np.zeros((n_wide, 8, width))
+    for axis in range(3):
+        out[:, 2 * axis] = np.where(valid, lo[c, axis], 0.0)
+        out[:, 2 * axis + 1] = np.where(valid, hi[c, axis], 0.0)
+    out[:, 6] = np.where(valid, ptr, 0)
+    out[:, 7] = np.where(valid, cnt, -1)
+    return out.reshape(n_wide, -1, 4), leaves
+
+
+def leaf_blocks(tree: Tree, leaves, items, item_base: int, item_stride: int, width: int = WIDTH):
+    """SoA leaf blocks (n_leaves, LEAF_FIELDS * width / 4, 4) of the leaves
+    (in the order given) over items, the (N, 4, 4) PLANAR records in tree
+    slot order: rows p.x p.y p.z n.x n.y n.z wu.x wu.y wu.z wv.x wv.y wv.z
+    type record, width reals each (empty slots: type 3, zero geometry)."""
+    from .layout import ITEM_QUAD, ITEM_SPHERE
+    start, count = tree.start[leaves], tree.count[leaves]
+    if len(count) and count.max() > width:
+        raise ValueError(f"a BVH leaf has {count.max()} items, more than {width}")
+    k = np.arange(width)
+    slot = start[:, None] + k[None, :]
+    valid = k[None, :] < count[:, None]
+    s = np.where(valid, slot, 0)
+    out = np.zeros((len(leaves), LEAF_FIELDS, width))
+    for f in range(4):
+        for axis in range(3):
+            out[:, 3 * f + axis] = np.where(valid, items[s, f, axis], 0.0)
+    kind = items[s, 3, 3]
+    typ = np.where(kind == ITEM_QUAD, LEAF_TYPES["quad"], np.where(kind == ITEM_SPHERE, LEAF_TYPES["sphere"],
+                                                                      LEAF_TYPES["triangle"]))
+    out[:, 12] = np.where(valid, typ, LEAF_TYPES["empty"])
+    out[:, 13] = np.where(valid, item_base + item_stride * slot, -1)
+    return out.reshape(len(leaves), -1, 4)
 
 
 def _outward(lo, hi, double):

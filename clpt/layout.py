@@ -112,14 +112,23 @@ LIGHT = Record("LightRec", "LIGHT", _r4("p_kind", "u", "v", "n", "info"),
                "light: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, 0 | area, pick probability, cdf, material; "
                "a mesh light: 0, 0, 0, kind | first triangle record, triangles, 0, 0 | ... | ... | info")
 CAUSTIC = Record("CausticRec", "CAUSTIC", _r4("sphere"), "caustic caster: bounding sphere center.xyz, radius")
-BVH_NODE = Record("BvhNode", "BVH", _r4("lo_l", "hi_l", "lo_r", "hi_r"),
-                  "BVH node: both children's boxes, lo.xyz, pointer | hi.xyz, count (count > 0: a leaf of "
-                  "count items at record pointer; 0: an inner node at record pointer; -1: no child)")
+# Wide BVH nodes and SoA leaf blocks (clpt/bvh.py WIDTH = 8 children, 8 items
+# a leaf): rows of 8 reals, each row two real4 records, read as one real8.
+_ROWS8 = lambda *rows: _r4(*[f"{r}_{h}" for r in rows for h in ("a", "b")])
+BVH_NODE = Record("BvhNode", "BVH", _ROWS8("lo_x", "hi_x", "lo_y", "hi_y", "lo_z", "hi_z", "ptr", "count"),
+                  "wide BVH node: 8 children's boxes as rows of 8 reals lo.x | hi.x | lo.y | hi.y | lo.z | hi.z, "
+                  "then their pointers | counts (count > 0: a leaf block of count items at record pointer; "
+                  "0: a node at record pointer; -1: an empty slot)")
+BVH_LEAF = Record("BvhLeaf", "BVHL", _ROWS8("px", "py", "pz", "nx", "ny", "nz", "ux", "uy", "uz", "vx", "vy", "vz",
+                                            "type", "rec"),
+                  "BVH leaf block: up to 8 items as rows of 8 reals, corner p.xyz | normal n.xyz | dual wu.xyz | "
+                  "dual wv.xyz (a sphere: centre in p, radius in n.x) | type (0 triangle, 1 quad, 2 sphere, "
+                  "3 empty) | record index of the item's PlanarRec")
 NORMALS = Record("NormalsRec", "NORMALS", _r4("n0", "n1", "n2"), "vertex normals of a smooth triangle")
 LIGHT_TRI = Record("LightTriRec", "LTRI", _r4("p_alias", "u_prob", "v"),
                    "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
 
-SCENE_RECORDS = (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, NORMALS, LIGHT_TRI)
+SCENE_RECORDS = (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI)
 
 # Light kinds in LIGHT.p_kind.
 KIND_QUAD, KIND_TRIANGLE, KIND_SPHERE, KIND_MESH = 0, 1, 2, 3

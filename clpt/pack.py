@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import bvh as bvh_mod
-from .layout import (BVH_NODE, CAUSTIC, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_QUAD,
+from .layout import (BVH_LEAF, BVH_NODE, CAUSTIC, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_QUAD,
                      KIND_SPHERE, KIND_TRIANGLE, LIGHT, LIGHT_TRI, MATERIAL, NORMALS, PLANAR, PLANE, SPHERE)
 from .scene import Camera, Material, Scene, SceneError, Sphere, length_scale
 
@@ -314,13 +314,17 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
         lo = np.concatenate([x for x, _ in b.bounds])
         hi = np.concatenate([y for _, y in b.bounds])
         tree = bvh_mod.build(lo, hi, method=bvh_method)
-        if tree.depth() >= bvh_mod.MAX_DEPTH:  # the kernels' traversal stack
-            raise SceneError(f"{scene.source}: the BVH is {tree.depth()} levels deep, more than the kernels' "
-                             f"{bvh_mod.MAX_DEPTH}; try bvh_method='lbvh'")
-        n_inner = max(1, int((tree.left >= 0).sum()))
-        item_base = head + BVH_NODE.stride * n_inner
-        nodes = bvh_mod.flatten(tree, head, item_base, PLANAR_STRIDE, double=False).reshape(-1, 4)
+        wide = bvh_mod.collapse(tree)
+        if bvh_mod.stack_need(wide) > bvh_mod.MAX_STACK:  # the kernels' traversal stack
+            raise SceneError(f"{scene.source}: the BVH is {wide.levels} wide levels deep, more than the kernels' "
+                             f"traversal stack holds; try bvh_method='lbvh'")
+        leaf_base = head + BVH_NODE.stride * wide.n_nodes
+        n_leaves = tree.n_leaves
+        item_base = leaf_base + BVH_LEAF.stride * n_leaves
+        nodes, leaves = bvh_mod.flatten(tree, wide, head, leaf_base, double=False)
         items = items[tree.order]
+        leaf_recs = bvh_mod.leaf_blocks(tree, leaves, items, item_base, PLANAR_STRIDE)
+        nodes = np.concatenate([nodes.reshape(-1, 4), leaf_recs.reshape(-1, 4)])
         geo_sections = [items]
     else:
         item_base = None
@@ -362,7 +366,7 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     plain = [] if use_bvh else [sphere_plain.reshape(-1, 4), quads.reshape(-1, 4), tris.reshape(-1, 4)]
     records = np.concatenate([mat_recs, *plain, planes, light_recs, caustics, nodes,
                               *[g.reshape(-1, 4) for g in geo_sections], normal_recs, ltri_recs])
-    n_nodes = len(nodes) // BVH_NODE.stride
+    n_nodes = wide.n_nodes if use_bvh else 0
     counts = (n_mat, 0 if use_bvh else len(sphere_plain), 0 if use_bvh else len(quads),
               0 if use_bvh else len(tris), len(planes) // PLANE_STRIDE, len(lights), len(caustics), n_nodes)
     kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere",

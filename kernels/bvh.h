@@ -1,23 +1,56 @@
 // bvh.h: closest-hit and shadow queries through the scene's BVH.
 //
-// Layout (clpt/layout.py BvhNode, built by clpt/bvh.py, packed by
-// clpt/pack.py): a node holds both children's boxes, lo.xyz | hi.xyz, with a
-// pointer in lo.w and a count in hi.w: count > 0 is a leaf of that many
-// items (PlanarRec each, spheres among them) from record pointer, 0 an inner
-// node at record pointer, -1 no child (a root that is a single leaf). The
-// root is the node at OFF_BVH.
+// Layout (clpt/layout.py BvhNode and BvhLeaf, built by clpt/bvh.py, packed
+// by clpt/pack.py): a wide node holds its 8 children's boxes as rows of 8
+// reals (lo.x, hi.x, lo.y, hi.y, lo.z, hi.z), then their pointers and
+// counts: count > 0 is a leaf block of that many items at the pointer, 0 a
+// node at the pointer, -1 an empty slot. A leaf block holds up to 8 items
+// (triangles, quads, spheres) in rows of 8 reals (structure of arrays),
+// and for each the record of its PlanarRec, which gives the hit's
+// attributes. The root is the node at OFF_BVH.
 //
 // Two walks (CLPT_BVH_LANE_WALK chooses; README "BVH" has the measurements):
-//   packet (0)  all CLPT_LANES rays of the work-item walk the tree together:
-//               each node's two boxes are tested against every lane at once,
-//               a child is entered if any lane enters it, the nearer first
-//               (by the smallest entry distance among the lanes); a leaf's
-//               items get the lanes' vector tests of the plain loops.
-//   per lane (1) each lane's ray walks alone in scalar code with its own
-//               stack, nearer child first; tests mirror the vector ones.
-// The stack holds at most the tree's depth, which the host bounds.
+//   packet (0)  all CLPT_LANES rays of the work-item walk the tree together
+//               where they are coherent (one origin: camera rays), each
+//               child's box tested against every lane at once, a child
+//               entered if any lane enters it, the nearest first; other
+//               rays take the per-lane walk.
+//   per lane (1) each lane's ray walks alone with its own stack: a node's
+//               8 boxes are tested against the one ray in one vector
+//               operation, and a leaf's 8 items likewise (Embree's way);
+//               the nearest child is entered first, the others pushed with
+//               their entry distance and skipped when popped beyond the
+//               nearest hit found by then.
+// The stack bound (clpt/bvh.py MAX_STACK) is checked by the host.
 
-#define BVH_STACK 64
+#define BVH_STACK 96
+#define BVH_LEAF_BIT 0x80000000u
+
+#if CLPT_DOUBLE
+typedef double8 breal8;
+typedef long8 bmask8;
+#else
+typedef float8 breal8;
+typedef int8 bmask8;
+#endif
+#define BVH_EL(v, k) (((private real *)&(v))[k])
+
+// Row `row` (8 reals) of the node or leaf block at record rec.
+inline breal8 bvh_row(const Scene *sc, uint rec, int row)
+{
+#if CLPT_DOUBLE
+    return vload8(row, (SCENE_SPACE const double *)(sc->rec + rec));
+#else
+    return vload8(row, (SCENE_SPACE const float *)(sc->rec + rec));
+#endif
+}
+
+inline real bvh_min8(breal8 v)
+{
+    __typeof__(v.lo) a = fmin(v.lo, v.hi);
+    __typeof__(a.lo) b = fmin(a.lo, a.hi);
+    return fmin(b.x, b.y);
+}
 
 // Entry distance into the box lo..hi for lanes that enter it before tmax
 // (+inf for the others). The exit distance is widened by a few ulps so that
@@ -95,93 +128,67 @@ inline vmask bvh_leaf_occluded(const Scene *sc, uint first, uint count, V3 o, V3
     return occ;
 }
 
-// The walk shared by both queries. LEAF(first, count) tests a leaf; TMAX is
-// the per-lane distance beyond which boxes are not entered (lanes with
-// nothing left to find have it at -1); DONE ends the walk early.
-#define BVH_WALK(TMAX, LEAF, DONE)                                                                  \
-    V3 inv = v3(R(1) / d.x, R(1) / d.y, R(1) / d.z);                                                \
-    uint stack[BVH_STACK];                                                                          \
-    int sp = 0;                                                                                     \
-    uint node = OFF_BVH;                                                                            \
-    for (;;) {                                                                                      \
-        real4 l0 = scene_rec(sc, node), l1 = scene_rec(sc, node + 1);                               \
-        real4 r0 = scene_rec(sc, node + 2), r1 = scene_rec(sc, node + 3);                           \
-        vreal tl = bvh_enter(l0, l1, o, inv, TMAX);                                                 \
-        vreal tr = r1.w >= R(0) ? bvh_enter(r0, r1, o, inv, TMAX) : (vreal)R(INFINITY);            \
-        int hl = VANY(tl < R(INFINITY)), hr = VANY(tr < R(INFINITY));                               \
-        if (hl && l1.w > R(0)) { LEAF((uint)l0.w, (uint)l1.w); hl = 0; if (DONE) break; }          \
-        if (hr && r1.w > R(0)) { LEAF((uint)r0.w, (uint)r1.w); hr = 0; if (DONE) break; }          \
-        if (hl && hr) {                                                                             \
-            int right_first = bvh_min_lane(tr) < bvh_min_lane(tl);                                  \
-            stack[sp++] = right_first ? (uint)l0.w : (uint)r0.w;                                    \
-            node = right_first ? (uint)r0.w : (uint)l0.w;                                           \
-        } else if (hl) {                                                                            \
-            node = (uint)l0.w;                                                                      \
-        } else if (hr) {                                                                            \
-            node = (uint)r0.w;                                                                      \
-        } else {                                                                                    \
-            if (sp == 0) break;                                                                     \
-            node = stack[--sp];                                                                     \
-        }                                                                                           \
+
+// --- one ray against a wide node and a leaf block, in vectors of 8 ---------
+// The box and item tests mirror bvh_enter and the plain loops' tests
+// operation for operation, so every walk finds the same hits.
+
+// Entry distances of the ray into the node's 8 boxes (+inf: missed or empty).
+inline breal8 bvh_node_enter1(const Scene *sc, uint node, real3 o, real3 inv, real tmax)
+{
+    breal8 x0 = (bvh_row(sc, node, 0) - o.x) * inv.x, x1 = (bvh_row(sc, node, 1) - o.x) * inv.x;
+    breal8 y0 = (bvh_row(sc, node, 2) - o.y) * inv.y, y1 = (bvh_row(sc, node, 3) - o.y) * inv.y;
+    breal8 z0 = (bvh_row(sc, node, 4) - o.z) * inv.z, z1 = (bvh_row(sc, node, 5) - o.z) * inv.z;
+    breal8 tn = fmax(fmax(fmin(x0, x1), fmin(y0, y1)), fmax(fmin(z0, z1), (breal8)R(0)));
+    breal8 tf = fmin(fmin(fmax(x0, x1), fmax(y0, y1)), fmax(z0, z1)) * R(1 + 4 * REAL_EPS);
+    bmask8 hit = tn <= fmin(tf, (breal8)tmax) && bvh_row(sc, node, 7) >= R(0);
+    return select((breal8)R(INFINITY), tn, hit);
+}
+
+// The leaf block's items against the ray: where one is hit before *tmax,
+// *tmax, *best (its PlanarRec) and its coordinates a, b take the nearest.
+// Returns whether one was.
+inline int bvh_leaf1(const Scene *sc, uint blk, real3 o, real3 d, real *tmax, int *best, real *a_out, real *b_out)
+{
+    breal8 px = bvh_row(sc, blk, 0), py = bvh_row(sc, blk, 1), pz = bvh_row(sc, blk, 2);
+    breal8 nx = bvh_row(sc, blk, 3), ny = bvh_row(sc, blk, 4), nz = bvh_row(sc, blk, 5);
+    breal8 typ = bvh_row(sc, blk, 12);
+    breal8 opx = o.x - px, opy = o.y - py, opz = o.z - pz;
+    breal8 t = -(opx * nx + opy * ny + opz * nz) / (d.x * nx + d.y * ny + d.z * nz);
+    breal8 qx = mad((breal8)d.x, t, opx), qy = mad((breal8)d.y, t, opy), qz = mad((breal8)d.z, t, opz);
+    breal8 a = qx * bvh_row(sc, blk, 6) + qy * bvh_row(sc, blk, 7) + qz * bvh_row(sc, blk, 8);
+    breal8 b = qx * bvh_row(sc, blk, 9) + qy * bvh_row(sc, blk, 10) + qz * bvh_row(sc, blk, 11);
+    bmask8 in = a >= R(0) && b >= R(0) && ((typ == R(0) && a + b <= R(1)) || (typ == R(1) && a <= R(1) && b <= R(1)));
+    breal8 tt = select((breal8)R(INFINITY), t, in && t > R(0));
+    bmask8 sph = typ == R(2);
+    if (any(sph)) {
+        breal8 bb = opx * d.x + opy * d.y + opz * d.z;
+        breal8 fx = mad((breal8)d.x, -bb, opx), fy = mad((breal8)d.y, -bb, opy), fz = mad((breal8)d.z, -bb, opz);
+        breal8 r2 = nx * nx;
+        breal8 disc = r2 - (fx * fx + fy * fy + fz * fz);
+        breal8 c = (opx * opx + opy * opy + opz * opz) - r2;
+        breal8 q = -bb - copysign(sqrt(fmax(disc, R(0))), bb);
+        breal8 t0 = c / q, t1 = q;
+        breal8 tn = fmin(t0, t1), tf = fmax(t0, t1);
+        breal8 ts = select(tf, tn, tn > R(0));
+        tt = select(tt, select((breal8)R(INFINITY), ts, disc >= R(0) && ts > R(0)), sph);
+        a = select(a, (breal8)R(0), sph);
+        b = select(b, (breal8)R(0), sph);
     }
-
-#if !CLPT_BVH_LANE_WALK
-void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h)
-{
-#define BVH_LEAF_CLOSEST(first, count) bvh_leaf_closest(sc, first, count, o, d, h)
-    BVH_WALK(h->t, BVH_LEAF_CLOSEST, 0)
-#undef BVH_LEAF_CLOSEST
-}
-
-vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
-{
-    vreal tm = VSEL(tmax, (vreal)R(-1), occ);
-#define BVH_LEAF_OCCLUDED(first, count) \
-    do { occ = bvh_leaf_occluded(sc, first, count, o, d, tmax, occ); tm = VSEL(tmax, (vreal)R(-1), occ); } while (0)
-    BVH_WALK(tm, BVH_LEAF_OCCLUDED, VALL(occ))
-#undef BVH_LEAF_OCCLUDED
-    return occ;
-}
-
-#else
-// --- per-lane walk: each lane's ray in scalar code with its own stack ----------
-// The scalar tests mirror the vector ones operation for operation, so both
-// walks find the same hits.
-inline real bvh_enter1(real4 lo, real4 hi, real3 o, real3 inv, real tmax)
-{
-    real x0 = (lo.x - o.x) * inv.x, x1 = (hi.x - o.x) * inv.x;
-    real y0 = (lo.y - o.y) * inv.y, y1 = (hi.y - o.y) * inv.y;
-    real z0 = (lo.z - o.z) * inv.z, z1 = (hi.z - o.z) * inv.z;
-    real tn = fmax(fmax(fmin(x0, x1), fmin(y0, y1)), fmax(fmin(z0, z1), R(0)));
-    real tf = fmin(fmin(fmax(x0, x1), fmax(y0, y1)), fmax(z0, z1)) * R(1 + 4 * REAL_EPS);
-    return tn <= fmin(tf, tmax) ? tn : R(INFINITY);
-}
-
-inline real intersect_item1(real4 p, real4 n, real4 wu, real4 wv, real3 o, real3 d, real *a_out, real *b_out)
-{
-    *a_out = *b_out = R(0);
-    if (wv.w == (real)ITEM_SPHERE) {
-        real3 oc = (real3)(o.x - p.x, o.y - p.y, o.z - p.z);
-        real b = oc.x * d.x + oc.y * d.y + oc.z * d.z;
-        real3 f = (real3)(mad(d.x, -b, oc.x), mad(d.y, -b, oc.y), mad(d.z, -b, oc.z));
-        real r2 = n.x * n.x;
-        real disc = r2 - (f.x * f.x + f.y * f.y + f.z * f.z);
-        real c = (oc.x * oc.x + oc.y * oc.y + oc.z * oc.z) - r2;
-        real q = -b - copysign(sqrt(fmax(disc, R(0))), b);
-        real t0 = c / q, t1 = q;
-        real tn = fmin(t0, t1), tf = fmax(t0, t1);
-        real t = tn > R(0) ? tn : tf;
-        return disc >= R(0) && t > R(0) ? t : R(INFINITY);
-    }
-    real3 op = (real3)(o.x - p.x, o.y - p.y, o.z - p.z);
-    real t = -(op.x * n.x + op.y * n.y + op.z * n.z) / (d.x * n.x + d.y * n.y + d.z * n.z);
-    real3 q = (real3)(mad(d.x, t, op.x), mad(d.y, t, op.y), mad(d.z, t, op.z));
-    real a = q.x * wu.x + q.y * wu.y + q.z * wu.z, b = q.x * wv.x + q.y * wv.y + q.z * wv.z;
-    int in = wv.w != (real)ITEM_QUAD ? (a >= R(0) && b >= R(0) && a + b <= R(1))
-                                     : (a >= R(0) && b >= R(0) && a <= R(1) && b <= R(1));
-    *a_out = a;
-    *b_out = b;
-    return in && t > R(0) ? t : R(INFINITY);
+    tt = select((breal8)R(INFINITY), tt, tt < *tmax);
+    real tmin = bvh_min8(tt);
+    if (!(tmin < *tmax))
+        return 0;
+    int k = 7;
+#pragma unroll
+    for (int j = 6; j >= 0; j--)
+        k = BVH_EL(tt, j) == tmin ? j : k;
+    breal8 rec = bvh_row(sc, blk, 13);
+    *tmax = tmin;
+    *best = (int)BVH_EL(rec, k);
+    *a_out = BVH_EL(a, k);
+    *b_out = BVH_EL(b, k);
+    return 1;
 }
 
 // One lane's walk: the nearest item before tmax (its record, or -1) and
@@ -190,75 +197,79 @@ inline int bvh_walk1(const Scene *sc, real3 o, real3 d, real tmax, int any, real
 {
     real3 inv = (real3)(R(1) / d.x, R(1) / d.y, R(1) / d.z);
     uint stack[BVH_STACK];
+    real stack_t[BVH_STACK];
     int sp = 0, best = -1;
-    uint node = OFF_BVH;
+    uint cur = OFF_BVH;
     for (;;) {
-        real4 l0 = scene_rec(sc, node), l1 = scene_rec(sc, node + 1);
-        real4 r0 = scene_rec(sc, node + 2), r1 = scene_rec(sc, node + 3);
-        real tl = bvh_enter1(l0, l1, o, inv, tmax);
-        real tr = r1.w >= R(0) ? bvh_enter1(r0, r1, o, inv, tmax) : R(INFINITY);
-        int hl = tl < R(INFINITY), hr = tr < R(INFINITY);
-        for (int side = 0; side < 2; side++) {
-            real4 c0 = side ? r0 : l0, c1 = side ? r1 : l1;
-            if (!(side ? hr : hl) || c1.w <= R(0))
-                continue;
-            for (uint k = 0; k < (uint)c1.w; k++) {
-                uint r = (uint)c0.w + PLANAR_STRIDE * k;
-                real a, b;
-                real t = intersect_item1(scene_rec(sc, r), scene_rec(sc, r + 1), scene_rec(sc, r + 2),
-                                         scene_rec(sc, r + 3), o, d, &a, &b);
-                if (t < tmax) {
-                    tmax = t; best = (int)r; *a_out = a; *b_out = b;
-                    if (any) { *t_out = t; return best; }
-                }
-            }
-            if (side) hr = 0; else hl = 0;
-        }
-        if (hl && hr) {
-            int right_first = tr < tl;
-            stack[sp++] = right_first ? (uint)l0.w : (uint)r0.w;
-            node = right_first ? (uint)r0.w : (uint)l0.w;
-        } else if (hl) {
-            node = (uint)l0.w;
-        } else if (hr) {
-            node = (uint)r0.w;
+        if (cur & BVH_LEAF_BIT) {
+            if (bvh_leaf1(sc, cur & ~BVH_LEAF_BIT, o, d, &tmax, &best, a_out, b_out) && any)
+                break;
         } else {
-            if (sp == 0) break;
-            node = stack[--sp];
+            breal8 tn = bvh_node_enter1(sc, cur, o, inv, tmax);
+            real tmin = bvh_min8(tn);
+            if (tmin < R(INFINITY)) {
+                breal8 ptr = bvh_row(sc, cur, 6), cnt = bvh_row(sc, cur, 7);
+                int taken = 0;
+                uint next = 0;
+#pragma unroll
+                for (int k = 0; k < 8; k++) {
+                    real tk = BVH_EL(tn, k);
+                    uint p = (uint)BVH_EL(ptr, k) | (BVH_EL(cnt, k) > R(0) ? BVH_LEAF_BIT : 0u);
+                    int near = !taken && tk == tmin;
+                    next = near ? p : next;
+                    taken |= near;
+                    stack[sp] = p;
+                    stack_t[sp] = tk;
+                    sp += !near && tk < R(INFINITY);
+                }
+                cur = next;
+                continue;
+            }
         }
+        // Pop the next child still nearer than the nearest hit.
+        for (;;) {
+            if (sp == 0) {
+                *t_out = tmax;
+                return best;
+            }
+            sp--;
+            if (stack_t[sp] <= tmax)
+                break;
+        }
+        cur = stack[sp];
     }
     *t_out = tmax;
     return best;
 }
 
-void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h)
+// Lane l's ray, and its hit written into h.
+inline void bvh_lane_closest(const Scene *sc, V3 o, V3 d, Hit *h, int l)
 {
-    for (int l = 0; l < CLPT_LANES; l++) {
-        real3 ol = (real3)(VLANE_R(o.x, l), VLANE_R(o.y, l), VLANE_R(o.z, l));
-        real3 dl = (real3)(VLANE_R(d.x, l), VLANE_R(d.y, l), VLANE_R(d.z, l));
-        real t, a, b;
-        int best = bvh_walk1(sc, ol, dl, VLANE_R(h->t, l), 0, &t, &a, &b);
-        if (best < 0)
-            continue;
-        uint r = (uint)best;
-        real4 p = scene_rec(sc, r), n = scene_rec(sc, r + 1), wu = scene_rec(sc, r + 2), wv = scene_rec(sc, r + 3);
-        real3 ng = n.xyz;
-        if (wv.w == (real)ITEM_SPHERE) {
-            real k = R(1) / n.x;
-            ng = (real3)(mad(dl.x, t, ol.x - p.x) * k, mad(dl.y, t, ol.y - p.y) * k, mad(dl.z, t, ol.z - p.z) * k);
-        }
-        VLANE_R(h->t, l) = t;
-        VLANE_R(h->ng.x, l) = ng.x; VLANE_R(h->ng.y, l) = ng.y; VLANE_R(h->ng.z, l) = ng.z;
-        VLANE_R(h->mat, l) = p.w;
-        VLANE_R(h->light, l) = n.w;
-        VLANE_R(h->prim, l) = wu.w;
-        VLANE_R(h->bu, l) = a;
-        VLANE_R(h->bv, l) = b;
-        VLANE_R(h->nrm, l) = wv.w;
+    real3 ol = (real3)(VLANE_R(o.x, l), VLANE_R(o.y, l), VLANE_R(o.z, l));
+    real3 dl = (real3)(VLANE_R(d.x, l), VLANE_R(d.y, l), VLANE_R(d.z, l));
+    real t, a, b;
+    int best = bvh_walk1(sc, ol, dl, VLANE_R(h->t, l), 0, &t, &a, &b);
+    if (best < 0)
+        return;
+    uint r = (uint)best;
+    real4 p = scene_rec(sc, r), n = scene_rec(sc, r + 1), wu = scene_rec(sc, r + 2), wv = scene_rec(sc, r + 3);
+    real3 ng = n.xyz;
+    if (wv.w == (real)ITEM_SPHERE) {
+        real k = R(1) / n.x;
+        ng = (real3)(mad(dl.x, t, ol.x - p.x) * k, mad(dl.y, t, ol.y - p.y) * k, mad(dl.z, t, ol.z - p.z) * k);
     }
+    VLANE_R(h->t, l) = t;
+    VLANE_R(h->ng.x, l) = ng.x; VLANE_R(h->ng.y, l) = ng.y; VLANE_R(h->ng.z, l) = ng.z;
+    VLANE_R(h->mat, l) = p.w;
+    VLANE_R(h->light, l) = n.w;
+    VLANE_R(h->prim, l) = wu.w;
+    VLANE_R(h->bu, l) = a;
+    VLANE_R(h->bv, l) = b;
+    VLANE_R(h->nrm, l) = wv.w;
+    VLANE_R(h->err, l) = wv.w == (real)ITEM_SPHERE ? max_abs4(p) + n.x : max_abs4(p);
 }
 
-vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
+inline vmask bvh_lanes_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
 {
     for (int l = 0; l < CLPT_LANES; l++) {
         if (VLANE_M(occ, l) != 0)
@@ -270,5 +281,103 @@ vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
             VLANE_M(occ, l) = CLPT_LANES == 1 ? 1 : -1;  // a true mask lane
     }
     return occ;
+}
+
+// --- the packet walk: every lane against each child box ----------------------
+// LEAF(first, count) tests a leaf's PlanarRecs with the lanes' vector tests;
+// TMAX is the per-lane distance beyond which boxes are not entered (lanes
+// with nothing left to find have it at -1); DONE ends the walk early.
+#define BVH_PACKET_WALK(TMAX, LEAF, DONE)                                                           \
+    V3 inv = v3(R(1) / d.x, R(1) / d.y, R(1) / d.z);                                                \
+    uint stack[BVH_STACK];                                                                          \
+    real stack_t[BVH_STACK];                                                                        \
+    int sp = 0;                                                                                     \
+    uint cur = OFF_BVH;                                                                             \
+    for (;;) {                                                                                      \
+        int go = 0;                                                                                 \
+        if (cur & BVH_LEAF_BIT) {                                                                   \
+            uint blk = cur & ~BVH_LEAF_BIT;                                                         \
+            real4 rc = scene_rec(sc, blk + 26), tc = scene_rec(sc, blk + 24);                        \
+            uint n_items = (uint)(tc.x < R(3)) + (uint)(tc.y < R(3)) + (uint)(tc.z < R(3)) +       \
+                           (uint)(tc.w < R(3));                                                     \
+            real4 tc2 = scene_rec(sc, blk + 25);                                                    \
+            n_items += (uint)(tc2.x < R(3)) + (uint)(tc2.y < R(3)) + (uint)(tc2.z < R(3)) +          \
+                       (uint)(tc2.w < R(3));                                                        \
+            LEAF((uint)rc.x, n_items);                                                              \
+            if (DONE) break;                                                                        \
+        } else {                                                                                    \
+            breal8 lx = bvh_row(sc, cur, 0), hx = bvh_row(sc, cur, 1), ly = bvh_row(sc, cur, 2);    \
+            breal8 hy = bvh_row(sc, cur, 3), lz = bvh_row(sc, cur, 4), hz = bvh_row(sc, cur, 5);    \
+            breal8 ptr = bvh_row(sc, cur, 6), cnt = bvh_row(sc, cur, 7);                            \
+            breal8 tk8;                                                                             \
+            _Pragma("unroll")                                                                       \
+            for (int k = 0; k < 8; k++) {                                                           \
+                real4 lo = (real4)(BVH_EL(lx, k), BVH_EL(ly, k), BVH_EL(lz, k), R(0));              \
+                real4 hi = (real4)(BVH_EL(hx, k), BVH_EL(hy, k), BVH_EL(hz, k), R(0));              \
+                vreal tk = bvh_enter(lo, hi, o, inv, TMAX);                                         \
+                BVH_EL(tk8, k) = BVH_EL(cnt, k) >= R(0) ? bvh_min_lane(tk) : R(INFINITY);           \
+            }                                                                                       \
+            real tmin = bvh_min8(tk8);                                                              \
+            if (tmin < R(INFINITY)) {                                                               \
+                int taken = 0;                                                                      \
+                uint next = 0;                                                                      \
+                _Pragma("unroll")                                                                   \
+                for (int k = 0; k < 8; k++) {                                                       \
+                    real tk = BVH_EL(tk8, k);                                                       \
+                    uint p = (uint)BVH_EL(ptr, k) | (BVH_EL(cnt, k) > R(0) ? BVH_LEAF_BIT : 0u);   \
+                    int near = !taken && tk == tmin;                                                \
+                    next = near ? p : next;                                                         \
+                    taken |= near;                                                                  \
+                    stack[sp] = p;                                                                  \
+                    stack_t[sp] = tk;                                                               \
+                    sp += !near && tk < R(INFINITY);                                                \
+                }                                                                                   \
+                cur = next;                                                                         \
+                go = 1;                                                                             \
+            }                                                                                       \
+        }                                                                                           \
+        if (!go) {                                                                                  \
+            if (sp == 0) break;                                                                     \
+            cur = stack[--sp];                                                                      \
+        }                                                                                           \
+    }
+
+inline void bvh_packet_closest(const Scene *sc, V3 o, V3 d, Hit *h)
+{
+#define BVH_LEAF_CLOSEST(first, count) bvh_leaf_closest(sc, first, count, o, d, h)
+    BVH_PACKET_WALK(h->t, BVH_LEAF_CLOSEST, 0)
+#undef BVH_LEAF_CLOSEST
+}
+
+inline vmask bvh_packet_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
+{
+    vreal tm = VSEL(tmax, (vreal)R(-1), occ);
+#define BVH_LEAF_OCCLUDED(first, count) \
+    do { occ = bvh_leaf_occluded(sc, first, count, o, d, tmax, occ); tm = VSEL(tmax, (vreal)R(-1), occ); } while (0)
+    BVH_PACKET_WALK(tm, BVH_LEAF_OCCLUDED, VALL(occ))
+#undef BVH_LEAF_OCCLUDED
+    return occ;
+}
+
+#if !CLPT_BVH_LANE_WALK
+void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h)
+{
+    bvh_packet_closest(sc, o, d, h);
+}
+
+vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
+{
+    return bvh_packet_occluded(sc, o, d, tmax, occ);
+}
+#else
+void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h)
+{
+    for (int l = 0; l < CLPT_LANES; l++)
+        bvh_lane_closest(sc, o, d, h, l);
+}
+
+vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
+{
+    return bvh_lanes_occluded(sc, o, d, tmax, occ);
 }
 #endif
