@@ -27,7 +27,8 @@ import numpy as np
 METHODS = ("sah", "lbvh")
 BINS = 16
 SAH_MIN = 64        # smaller nodes take the Morton split (binning them costs more than it gains)
-MAX_LEAF = 8        # a node with more primitives is always split
+MAX_LEAF = 8        # a node with more primitives is always split (a leaf block holds 8)
+LEAF_SIZE = 4       # the default leaf bound
 MAX_DEPTH = 64       # the binary tree's depth bound
 MAX_STACK = 96       # entries of the kernels' traversal stack (BVH_STACK in kernels/bvh.h)
 SAH_TRAVERSAL = 1.0  # cost of visiting a node, relative to one primitive test
@@ -144,8 +145,10 @@ def _sah_splits(cen, lo, hi, starts, counts, node_lo, node_hi):
     return cost, side, sl, nid
 
 
-def build(lo, hi, method: str = "sah", max_leaf: int = 4) -> Tree:
-    """BVH over the boxes lo[i]..hi[i] (float64 (N, 3))."""
+def build(lo, hi, method: str = "sah", max_leaf: int | None = None) -> Tree:
+    """BVH over the boxes lo[i]..hi[i] (float64 (N, 3)); leaves of at most
+    max_leaf (default LEAF_SIZE) primitives."""
+    max_leaf = LEAF_SIZE if max_leaf is None else max_leaf
     if method not in METHODS:
         raise ValueError(f"BVH method must be one of {', '.join(METHODS)} (got {method!r})")
     t0 = time.perf_counter()
