@@ -45,11 +45,12 @@ inline breal8 bvh_row(const Scene *sc, uint rec, int row)
 #endif
 }
 
+// Smallest of 8 (no NaNs).
 inline real bvh_min8(breal8 v)
 {
-    __typeof__(v.lo) a = fmin(v.lo, v.hi);
-    __typeof__(a.lo) b = fmin(a.lo, a.hi);
-    return fmin(b.x, b.y);
+    __typeof__(v.lo) a = min(v.lo, v.hi);
+    __typeof__(a.lo) b = min(a.lo, a.hi);
+    return min(b.x, b.y);
 }
 
 // Entry distance into the box lo..hi for lanes that enter it before tmax
@@ -139,10 +140,20 @@ inline breal8 bvh_node_enter1(const Scene *sc, uint node, real3 o, real3 inv, re
     breal8 x0 = (bvh_row(sc, node, 0) - o.x) * inv.x, x1 = (bvh_row(sc, node, 1) - o.x) * inv.x;
     breal8 y0 = (bvh_row(sc, node, 2) - o.y) * inv.y, y1 = (bvh_row(sc, node, 3) - o.y) * inv.y;
     breal8 z0 = (bvh_row(sc, node, 4) - o.z) * inv.z, z1 = (bvh_row(sc, node, 5) - o.z) * inv.z;
-    breal8 tn = fmax(fmax(fmin(x0, x1), fmin(y0, y1)), fmax(fmin(z0, z1), (breal8)R(0)));
-    breal8 tf = fmin(fmin(fmax(x0, x1), fmax(y0, y1)), fmax(z0, z1)) * R(1 + 4 * REAL_EPS);
-    bmask8 hit = tn <= fmin(tf, (breal8)tmax) && bvh_row(sc, node, 7) >= R(0);
+    // No NaNs here (bvh_safe_inv), so min and max need not order them.
+    breal8 tn = max(max(min(x0, x1), min(y0, y1)), max(min(z0, z1), (breal8)R(0)));
+    breal8 tf = min(min(max(x0, x1), max(y0, y1)), max(z0, z1)) * R(1 + 4 * REAL_EPS);
+    bmask8 hit = tn <= min(tf, (breal8)tmax) && bvh_row(sc, node, 7) >= R(0);
     return select((breal8)R(INFINITY), tn, hit);
+}
+
+// 1 / d with zero and tiny components replaced by +-BVH_TINY first, so that
+// (box plane - origin) * inverse is never 0 * inf (NaN): a ray in a box's
+// face plane counts as inside that slab's side it moves towards.
+#define BVH_TINY R(1e-18)
+inline real bvh_safe_inv(real x)
+{
+    return R(1) / (fabs(x) < BVH_TINY ? copysign(BVH_TINY, x) : x);
 }
 
 // The leaf block's items against the ray: where one is hit before *tmax,
@@ -195,7 +206,7 @@ inline int bvh_leaf1(const Scene *sc, uint blk, real3 o, real3 d, real *tmax, in
 // its t and coordinates; any = 1 stops at the first item hit (shadow rays).
 inline int bvh_walk1(const Scene *sc, real3 o, real3 d, real tmax, int any, real *t_out, real *a_out, real *b_out)
 {
-    real3 inv = (real3)(R(1) / d.x, R(1) / d.y, R(1) / d.z);
+    real3 inv = (real3)(bvh_safe_inv(d.x), bvh_safe_inv(d.y), bvh_safe_inv(d.z));
     uint stack[BVH_STACK];
     real stack_t[BVH_STACK];
     int sp = 0, best = -1;
