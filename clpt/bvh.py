@@ -27,7 +27,7 @@ import numpy as np
 METHODS = ("sah", "lbvh")
 BINS = 16
 SAH_MIN = 64        # smaller nodes take the Morton split (binning them costs more than it gains)
-MAX_LEAF = 8        # a node with more primitives is always split (a leaf block holds 8)
+MAX_LEAF = 4        # a node with more primitives is always split (a device leaf block holds 4)
 LEAF_SIZE = 4       # the default leaf bound
 MAX_DEPTH = 64       # the binary tree's depth bound
 MAX_STACK = 96       # entries of the kernels' traversal stack (BVH_STACK in kernels/bvh.h)
@@ -335,7 +335,7 @@ def flatten(tree: Tree, wide: Wide, node_base: int, leaf_base: int, double: bool
     return out.reshape(n_wide, -1, 4), leaves
 
 
-def leaf_blocks(tree: Tree, leaves, items, item_base: int, item_stride: int, width: int = WIDTH):
+def leaf_blocks(tree: Tree, leaves, items, item_base: int, item_stride: int, width: int = MAX_LEAF):
     """SoA leaf blocks (n_leaves, LEAF_FIELDS * width / 4, 4) of the leaves
     (in the order given) over items, the (N, 4, 4) PLANAR records in tree
     slot order: rows p.x p.y p.z n.x n.y n.z wu.x wu.y wu.z wv.x wv.y wv.z

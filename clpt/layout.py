@@ -112,16 +112,18 @@ LIGHT = Record("LightRec", "LIGHT", _r4("p_kind", "u", "v", "n", "info"),
                "light: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, 0 | area, pick probability, cdf, material; "
                "a mesh light: 0, 0, 0, kind | first triangle record, triangles, 0, 0 | ... | ... | info")
 CAUSTIC = Record("CausticRec", "CAUSTIC", _r4("sphere"), "caustic caster: bounding sphere center.xyz, radius")
-# Wide BVH nodes and SoA leaf blocks (clpt/bvh.py WIDTH = 8 children, 8 items
-# a leaf): rows of 8 reals, each row two real4 records, read as one real8.
+# Wide BVH nodes (clpt/bvh.py WIDTH = 8 children): rows of 8 reals, each two
+# real4 records, read as one real8; SoA leaf blocks of up to 4 items: rows
+# of 4 reals, one real4 each.
 _ROWS8 = lambda *rows: _r4(*[f"{r}_{h}" for r in rows for h in ("a", "b")])
 BVH_NODE = Record("BvhNode", "BVH", _ROWS8("lo_x", "hi_x", "lo_y", "hi_y", "lo_z", "hi_z", "ptr", "count"),
                   "wide BVH node: 8 children's boxes as rows of 8 reals lo.x | hi.x | lo.y | hi.y | lo.z | hi.z, "
                   "then their pointers | counts (count > 0: a leaf block of count items at record pointer; "
                   "0: a node at record pointer; -1: an empty slot)")
-BVH_LEAF = Record("BvhLeaf", "BVHL", _ROWS8("px", "py", "pz", "nx", "ny", "nz", "ux", "uy", "uz", "vx", "vy", "vz",
-                                            "type", "rec"),
-                  "BVH leaf block: up to 8 items as rows of 8 reals, corner p.xyz | normal n.xyz | dual wu.xyz | "
+BVH_LEAF_WIDTH = 4   # items a leaf block holds (clpt/bvh.py LEAF_WIDTH): one real4 a row
+BVH_LEAF = Record("BvhLeaf", "BVHL", _r4("px", "py", "pz", "nx", "ny", "nz", "ux", "uy", "uz", "vx", "vy", "vz",
+                                         "type", "rec"),
+                  "BVH leaf block: up to BVHL_WIDTH (4) items as rows of 4 reals, corner p.xyz | normal n.xyz | dual wu.xyz | "
                   "dual wv.xyz (a sphere: centre in p, radius in n.x) | type (0 triangle, 1 quad, 2 sphere, "
                   "3 empty) | record index of the item's PlanarRec")
 NORMALS = Record("NormalsRec", "NORMALS", _r4("n0", "n1", "n2"), "vertex normals of a smooth triangle")
@@ -143,5 +145,5 @@ def c_source() -> str:
     parts += [f"#define KIND_QUAD {KIND_QUAD}", f"#define KIND_TRIANGLE {KIND_TRIANGLE}",
               f"#define KIND_SPHERE {KIND_SPHERE}", f"#define KIND_MESH {KIND_MESH}",
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
-              f"#define ITEM_SPHERE {ITEM_SPHERE}"]
+              f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}"]
     return "\n".join(parts) + "\n"

@@ -4,7 +4,7 @@
 // by clpt/pack.py): a wide node holds its 8 children's boxes as rows of 8
 // reals (lo.x, hi.x, lo.y, hi.y, lo.z, hi.z), then their pointers and
 // counts: count > 0 is a leaf block of that many items at the pointer, 0 a
-// node at the pointer, -1 an empty slot. A leaf block holds up to 8 items
+// node at the pointer, -1 an empty slot. A leaf block holds up to 4 items
 // (triangles, quads, spheres) in rows of 8 reals (structure of arrays),
 // and for each the record of its PlanarRec, which gives the hit's
 // attributes. The root is the node at OFF_BVH.
@@ -17,7 +17,7 @@
 //               rays take the per-lane walk.
 //   per lane (1) each lane's ray walks alone with its own stack: a node's
 //               8 boxes are tested against the one ray in one vector
-//               operation, and a leaf's 8 items likewise (Embree's way);
+//               operation, and a leaf's 4 items likewise (Embree's way);
 //               the nearest child is entered first, the others pushed with
 //               their entry distance and skipped when popped beyond the
 //               nearest hit found by then.
@@ -33,6 +33,17 @@ typedef long8 bmask8;
 typedef float8 breal8;
 typedef int8 bmask8;
 #endif
+#if BVHL_WIDTH == 4
+typedef real4 lreal;
+#if CLPT_DOUBLE
+typedef long4 lmask;
+#else
+typedef int4 lmask;
+#endif
+#define LEAF_MIN(v) bvh_min4(v)
+#else
+#error "leaf blocks of 4 items"
+#endif
 #define BVH_EL(v, k) (((private real *)&(v))[k])
 
 // Row `row` (8 reals) of the node or leaf block at record rec.
@@ -43,6 +54,18 @@ inline breal8 bvh_row(const Scene *sc, uint rec, int row)
 #else
     return vload8(row, (SCENE_SPACE const float *)(sc->rec + rec));
 #endif
+}
+
+// Row `row` (BVHL_WIDTH reals) of a leaf block.
+inline lreal bvh_lrow(const Scene *sc, uint blk, int row)
+{
+    return scene_rec(sc, blk + row);
+}
+
+inline real bvh_min4(real4 v)
+{
+    __typeof__(v.lo) a = min(v.lo, v.hi);
+    return min(a.x, a.y);
 }
 
 // Smallest of 8 (no NaNs).
@@ -156,45 +179,45 @@ inline real bvh_safe_inv(real x)
     return R(1) / (fabs(x) < BVH_TINY ? copysign(BVH_TINY, x) : x);
 }
 
-// The leaf block's items against the ray: where one is hit before *tmax,
+// The leaf block's items against the ray (in rows of BVHL_WIDTH): where one is hit before *tmax,
 // *tmax, *best (its PlanarRec) and its coordinates a, b take the nearest.
 // Returns whether one was.
 inline int bvh_leaf1(const Scene *sc, uint blk, real3 o, real3 d, real *tmax, int *best, real *a_out, real *b_out)
 {
-    breal8 px = bvh_row(sc, blk, 0), py = bvh_row(sc, blk, 1), pz = bvh_row(sc, blk, 2);
-    breal8 nx = bvh_row(sc, blk, 3), ny = bvh_row(sc, blk, 4), nz = bvh_row(sc, blk, 5);
-    breal8 typ = bvh_row(sc, blk, 12);
-    breal8 opx = o.x - px, opy = o.y - py, opz = o.z - pz;
-    breal8 t = -(opx * nx + opy * ny + opz * nz) / (d.x * nx + d.y * ny + d.z * nz);
-    breal8 qx = mad((breal8)d.x, t, opx), qy = mad((breal8)d.y, t, opy), qz = mad((breal8)d.z, t, opz);
-    breal8 a = qx * bvh_row(sc, blk, 6) + qy * bvh_row(sc, blk, 7) + qz * bvh_row(sc, blk, 8);
-    breal8 b = qx * bvh_row(sc, blk, 9) + qy * bvh_row(sc, blk, 10) + qz * bvh_row(sc, blk, 11);
-    bmask8 in = a >= R(0) && b >= R(0) && ((typ == R(0) && a + b <= R(1)) || (typ == R(1) && a <= R(1) && b <= R(1)));
-    breal8 tt = select((breal8)R(INFINITY), t, in && t > R(0));
-    bmask8 sph = typ == R(2);
+    lreal px = bvh_lrow(sc, blk, 0), py = bvh_lrow(sc, blk, 1), pz = bvh_lrow(sc, blk, 2);
+    lreal nx = bvh_lrow(sc, blk, 3), ny = bvh_lrow(sc, blk, 4), nz = bvh_lrow(sc, blk, 5);
+    lreal typ = bvh_lrow(sc, blk, 12);
+    lreal opx = o.x - px, opy = o.y - py, opz = o.z - pz;
+    lreal t = -(opx * nx + opy * ny + opz * nz) / (d.x * nx + d.y * ny + d.z * nz);
+    lreal qx = mad((lreal)d.x, t, opx), qy = mad((lreal)d.y, t, opy), qz = mad((lreal)d.z, t, opz);
+    lreal a = qx * bvh_lrow(sc, blk, 6) + qy * bvh_lrow(sc, blk, 7) + qz * bvh_lrow(sc, blk, 8);
+    lreal b = qx * bvh_lrow(sc, blk, 9) + qy * bvh_lrow(sc, blk, 10) + qz * bvh_lrow(sc, blk, 11);
+    lmask in = a >= R(0) && b >= R(0) && ((typ == R(0) && a + b <= R(1)) || (typ == R(1) && a <= R(1) && b <= R(1)));
+    lreal tt = select((lreal)R(INFINITY), t, in && t > R(0));
+    lmask sph = typ == R(2);
     if (any(sph)) {
-        breal8 bb = opx * d.x + opy * d.y + opz * d.z;
-        breal8 fx = mad((breal8)d.x, -bb, opx), fy = mad((breal8)d.y, -bb, opy), fz = mad((breal8)d.z, -bb, opz);
-        breal8 r2 = nx * nx;
-        breal8 disc = r2 - (fx * fx + fy * fy + fz * fz);
-        breal8 c = (opx * opx + opy * opy + opz * opz) - r2;
-        breal8 q = -bb - copysign(sqrt(fmax(disc, R(0))), bb);
-        breal8 t0 = c / q, t1 = q;
-        breal8 tn = fmin(t0, t1), tf = fmax(t0, t1);
-        breal8 ts = select(tf, tn, tn > R(0));
-        tt = select(tt, select((breal8)R(INFINITY), ts, disc >= R(0) && ts > R(0)), sph);
-        a = select(a, (breal8)R(0), sph);
-        b = select(b, (breal8)R(0), sph);
+        lreal bb = opx * d.x + opy * d.y + opz * d.z;
+        lreal fx = mad((lreal)d.x, -bb, opx), fy = mad((lreal)d.y, -bb, opy), fz = mad((lreal)d.z, -bb, opz);
+        lreal r2 = nx * nx;
+        lreal disc = r2 - (fx * fx + fy * fy + fz * fz);
+        lreal c = (opx * opx + opy * opy + opz * opz) - r2;
+        lreal q = -bb - copysign(sqrt(fmax(disc, R(0))), bb);
+        lreal t0 = c / q, t1 = q;
+        lreal tn = fmin(t0, t1), tf = fmax(t0, t1);
+        lreal ts = select(tf, tn, tn > R(0));
+        tt = select(tt, select((lreal)R(INFINITY), ts, disc >= R(0) && ts > R(0)), sph);
+        a = select(a, (lreal)R(0), sph);
+        b = select(b, (lreal)R(0), sph);
     }
-    tt = select((breal8)R(INFINITY), tt, tt < *tmax);
-    real tmin = bvh_min8(tt);
+    tt = select((lreal)R(INFINITY), tt, tt < *tmax);
+    real tmin = LEAF_MIN(tt);
     if (!(tmin < *tmax))
         return 0;
-    int k = 7;
+    int k = BVHL_WIDTH - 1;
 #pragma unroll
-    for (int j = 6; j >= 0; j--)
+    for (int j = BVHL_WIDTH - 2; j >= 0; j--)
         k = BVH_EL(tt, j) == tmin ? j : k;
-    breal8 rec = bvh_row(sc, blk, 13);
+    lreal rec = bvh_lrow(sc, blk, 13);
     *tmax = tmin;
     *best = (int)BVH_EL(rec, k);
     *a_out = BVH_EL(a, k);
@@ -308,12 +331,9 @@ inline vmask bvh_lanes_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask o
         int go = 0;                                                                                 \
         if (cur & BVH_LEAF_BIT) {                                                                   \
             uint blk = cur & ~BVH_LEAF_BIT;                                                         \
-            real4 rc = scene_rec(sc, blk + 26), tc = scene_rec(sc, blk + 24);                        \
+            real4 rc = scene_rec(sc, blk + BVHL_REC), tc = scene_rec(sc, blk + BVHL_TYPE);          \
             uint n_items = (uint)(tc.x < R(3)) + (uint)(tc.y < R(3)) + (uint)(tc.z < R(3)) +       \
                            (uint)(tc.w < R(3));                                                     \
-            real4 tc2 = scene_rec(sc, blk + 25);                                                    \
-            n_items += (uint)(tc2.x < R(3)) + (uint)(tc2.y < R(3)) + (uint)(tc2.z < R(3)) +          \
-                       (uint)(tc2.w < R(3));                                                        \
             LEAF((uint)rc.x, n_items);                                                              \
             if (DONE) break;                                                                        \
         } else {                                                                                    \
