@@ -11,10 +11,10 @@
 //
 // Two walks (CLPT_BVH_LANE_WALK chooses; README "BVH" has the measurements):
 //   packet (0)  all CLPT_LANES rays of the work-item walk the tree together
-//               where they are coherent (one origin: camera rays), each
-//               child's box tested against every lane at once, a child
-//               entered if any lane enters it, the nearest first; other
-//               rays take the per-lane walk.
+//               where they are coherent (all active, one origin: camera
+//               rays), each child's box tested against every lane at once,
+//               a child entered if any lane enters it, the nearest first;
+//               other rays take the per-lane walk.
 //   per lane (1) each lane's ray walks alone with its own stack: a node's
 //               8 boxes are tested against the one ray in one vector
 //               operation, and a leaf's 4 items likewise (Embree's way);
@@ -390,25 +390,37 @@ inline vmask bvh_packet_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask 
     return occ;
 }
 
-#if !CLPT_BVH_LANE_WALK
-void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h)
+// Whether every lane is active and starts at one point (camera rays after
+// all lanes restarted together): then the packet walk pays.
+inline int bvh_coherent(V3 o, vmask active)
 {
-    bvh_packet_closest(sc, o, d, h);
-}
-
-vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
-{
-    return bvh_packet_occluded(sc, o, d, tmax, occ);
-}
+#if CLPT_LANES == 1
+    return 0;
 #else
-void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h)
+    vmask same = o.x == (vreal)VLANE_R(o.x, 0) && o.y == (vreal)VLANE_R(o.y, 0) && o.z == (vreal)VLANE_R(o.z, 0);
+    return VALL(active && same);
+#endif
+}
+
+// Closest hits of the active lanes (the others' h is left as it is).
+void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h, vmask active)
 {
+#if !CLPT_BVH_LANE_WALK
+    if (bvh_coherent(o, active)) {
+        bvh_packet_closest(sc, o, d, h);
+        return;
+    }
+#endif
     for (int l = 0; l < CLPT_LANES; l++)
-        bvh_lane_closest(sc, o, d, h, l);
+        if (VLANE_M(active, l) != 0)
+            bvh_lane_closest(sc, o, d, h, l);
 }
 
 vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
 {
+#if !CLPT_BVH_LANE_WALK
+    if (bvh_coherent(o, !occ))
+        return bvh_packet_occluded(sc, o, d, tmax, occ);
+#endif
     return bvh_lanes_occluded(sc, o, d, tmax, occ);
 }
-#endif

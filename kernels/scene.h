@@ -250,11 +250,13 @@ inline void closest_planar(const Scene *sc, uint off, uint count, int tri, V3 o,
 // The BVH (bvh.h, after this file): closest hit and shadow queries over
 // every sphere, quad and triangle of scenes large enough to have one.
 #if CLPT_HAS_BVH
-void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h);
+void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h, vmask active);
 vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ);
 #endif
 
-inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
+// Closest hits; lanes outside `active` may be left without one (the BVH
+// does not walk them).
+inline Hit scene_intersect_active(const Scene *sc, V3 o, V3 d, vmask active)
 {
     Hit h = hit_none();
 #if CLPT_HAS_SPHERES
@@ -273,7 +275,7 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
 #endif
 #if CLPT_HAS_BVH
     if (NUM_NODES > 0)
-        bvh_closest(sc, o, d, &h);
+        bvh_closest(sc, o, d, &h, active);
 #endif
 #if CLPT_HAS_PLANES
     for (uint i = 0; i < NUM_PLANES; i++) {
@@ -294,6 +296,11 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
 #endif
     h.err = h.err + max_abs3(o);
     return h;
+}
+
+inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
+{
+    return scene_intersect_active(sc, o, d, (vreal)R(0) == (vreal)R(0));
 }
 
 // --- shading normals -----------------------------------------------------------
