@@ -45,6 +45,12 @@ typedef int4 lmask;
 #error "leaf blocks of 4 items"
 #endif
 #define BVH_EL(v, k) (((private real *)&(v))[k])
+// An 8-lane comparison's mask as int8 (-1: true).
+#if CLPT_DOUBLE
+#define BVH_I8(m) convert_int8(m)
+#else
+#define BVH_I8(m) (m)
+#endif
 
 // Row `row` (8 reals) of the node or leaf block at record rec.
 inline breal8 bvh_row(const Scene *sc, uint rec, int row)
@@ -157,15 +163,19 @@ inline vmask bvh_leaf_occluded(const Scene *sc, uint first, uint count, V3 o, V3
 // The box and item tests mirror bvh_enter and the plain loops' tests
 // operation for operation, so every walk finds the same hits.
 
-// Entry distances of the ray into the node's 8 boxes (+inf: missed or empty).
-inline breal8 bvh_node_enter1(const Scene *sc, uint node, real3 o, real3 inv, real tmax)
+// Entry distances of the ray into the node's 8 boxes (+inf: missed or
+// empty). Each axis is entered by the lo plane for a positive direction
+// and the hi plane for a negative one (neg): with no zero directions (bvh_safe_inv) the slab ends need no min/max to order them.
+inline breal8 bvh_node_enter1(const Scene *sc, uint node, real3 o, real3 inv, int3 neg, real tmax)
 {
-    breal8 x0 = (bvh_row(sc, node, 0) - o.x) * inv.x, x1 = (bvh_row(sc, node, 1) - o.x) * inv.x;
-    breal8 y0 = (bvh_row(sc, node, 2) - o.y) * inv.y, y1 = (bvh_row(sc, node, 3) - o.y) * inv.y;
-    breal8 z0 = (bvh_row(sc, node, 4) - o.z) * inv.z, z1 = (bvh_row(sc, node, 5) - o.z) * inv.z;
-    // No NaNs here (bvh_safe_inv), so min and max need not order them.
-    breal8 tn = max(max(min(x0, x1), min(y0, y1)), max(min(z0, z1), (breal8)R(0)));
-    breal8 tf = min(min(max(x0, x1), max(y0, y1)), max(z0, z1)) * R(1 + 4 * REAL_EPS);
+    breal8 lx = bvh_row(sc, node, 0), hx = bvh_row(sc, node, 1);
+    breal8 ly = bvh_row(sc, node, 2), hy = bvh_row(sc, node, 3);
+    breal8 lz = bvh_row(sc, node, 4), hz = bvh_row(sc, node, 5);
+    breal8 nx = ((neg.x ? hx : lx) - o.x) * inv.x, fx = ((neg.x ? lx : hx) - o.x) * inv.x;
+    breal8 ny = ((neg.y ? hy : ly) - o.y) * inv.y, fy = ((neg.y ? ly : hy) - o.y) * inv.y;
+    breal8 nz = ((neg.z ? hz : lz) - o.z) * inv.z, fz = ((neg.z ? lz : hz) - o.z) * inv.z;
+    breal8 tn = max(max(nx, ny), max(nz, (breal8)R(0)));
+    breal8 tf = min(min(fx, fy), fz) * R(1 + 4 * REAL_EPS);
     bmask8 hit = tn <= min(tf, (breal8)tmax) && bvh_row(sc, node, 7) >= R(0);
     return select((breal8)R(INFINITY), tn, hit);
 }
@@ -230,6 +240,7 @@ inline int bvh_leaf1(const Scene *sc, uint blk, real3 o, real3 d, real *tmax, in
 inline int bvh_walk1(const Scene *sc, real3 o, real3 d, real tmax, int any, real *t_out, real *a_out, real *b_out)
 {
     real3 inv = (real3)(bvh_safe_inv(d.x), bvh_safe_inv(d.y), bvh_safe_inv(d.z));
+    int3 neg = (int3)(inv.x < R(0), inv.y < R(0), inv.z < R(0));
     uint stack[BVH_STACK];
     real stack_t[BVH_STACK];
     int sp = 0, best = -1;
@@ -239,24 +250,28 @@ inline int bvh_walk1(const Scene *sc, real3 o, real3 d, real tmax, int any, real
             if (bvh_leaf1(sc, cur & ~BVH_LEAF_BIT, o, d, &tmax, &best, a_out, b_out) && any)
                 break;
         } else {
-            breal8 tn = bvh_node_enter1(sc, cur, o, inv, tmax);
+            breal8 tn = bvh_node_enter1(sc, cur, o, inv, neg, tmax);
             real tmin = bvh_min8(tn);
             if (tmin < R(INFINITY)) {
+                // Enter the nearest child; push the others hit (rarely more than a few).
                 breal8 ptr = bvh_row(sc, cur, 6), cnt = bvh_row(sc, cur, 7);
-                int taken = 0;
-                uint next = 0;
+                uint8 pk = convert_uint8(ptr) | (as_uint8(BVH_I8(cnt > R(0))) & (uint8)BVH_LEAF_BIT);
+                int8 hits = -BVH_I8(tn < R(INFINITY));
+                int8 cand = select((int8)8, (int8)(0, 1, 2, 3, 4, 5, 6, 7), BVH_I8(tn == tmin));
+                int4 c4 = min(cand.lo, cand.hi);
+                int2 c2 = min(c4.lo, c4.hi);
+                int kn = min(c2.x, c2.y);
+                int4 h4 = hits.lo + hits.hi;
+                int2 h2 = h4.lo + h4.hi;
+                cur = ((private uint *)&pk)[kn];
+                if (h2.x + h2.y > 1) {
 #pragma unroll
-                for (int k = 0; k < 8; k++) {
-                    real tk = BVH_EL(tn, k);
-                    uint p = (uint)BVH_EL(ptr, k) | (BVH_EL(cnt, k) > R(0) ? BVH_LEAF_BIT : 0u);
-                    int near = !taken && tk == tmin;
-                    next = near ? p : next;
-                    taken |= near;
-                    stack[sp] = p;
-                    stack_t[sp] = tk;
-                    sp += !near && tk < R(INFINITY);
+                    for (int k = 0; k < 8; k++) {
+                        stack[sp] = ((private uint *)&pk)[k];
+                        stack_t[sp] = BVH_EL(tn, k);
+                        sp += ((private int *)&hits)[k] & (k != kn);
+                    }
                 }
-                cur = next;
                 continue;
             }
         }
