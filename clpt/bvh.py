@@ -224,16 +224,22 @@ def build(lo, hi, method: str = "sah", max_leaf: int | None = None) -> Tree:
     start = np.concatenate(starts)
     count = np.concatenate(counts)
     left_all = np.concatenate(lefts)
-    # Boxes, level by level (ranges within a level are disjoint and increasing).
+    # Boxes bottom-up: the leaves' from their primitives in one pass (leaves
+    # tile the slots), then each level's inner nodes from their children.
     nlo = np.empty((len(start), 3))
     nhi = np.empty((len(start), 3))
-    k = 0
-    for s in starts:
-        if len(s):
-            c = count[k:k + len(s)]
-            nlo[k:k + len(s)] = _segments(lo, s, c, np.minimum)
-            nhi[k:k + len(s)] = _segments(hi, s, c, np.maximum)
-        k += len(s)
+    leaf = np.flatnonzero(left_all < 0)
+    leaf = leaf[np.argsort(start[leaf], kind="stable")]
+    nlo[leaf] = np.minimum.reduceat(lo, start[leaf], axis=0)
+    nhi[leaf] = np.maximum.reduceat(hi, start[leaf], axis=0)
+    ends = np.cumsum([len(x) for x in starts])
+    for k in range(len(starts) - 1, -1, -1):
+        ids = np.arange(ends[k] - len(starts[k]), ends[k])
+        ids = ids[left_all[ids] >= 0]
+        if len(ids):
+            lc = left_all[ids]
+            nlo[ids] = np.minimum(nlo[lc], nlo[lc + 1])
+            nhi[ids] = np.maximum(nhi[lc], nhi[lc + 1])
     return Tree(order=order, start=start, count=count, left=left_all, lo=nlo, hi=nhi,
                 seconds=time.perf_counter() - t0, levels=sum(1 for x in starts if len(x)))
 
@@ -347,12 +353,11 @@ def leaf_blocks(tree: Tree, leaves, items, item_base: int, item_stride: int, wid
     k = np.arange(width)
     slot = start[:, None] + k[None, :]
     valid = k[None, :] < count[:, None]
-    s = np.where(valid, slot, 0)
-    out = np.zeros((len(leaves), LEAF_FIELDS, width))
-    for f in range(4):
-        for axis in range(3):
-            out[:, 3 * f + axis] = np.where(valid, items[s, f, axis], 0.0)
-    kind = items[s, 3, 3]
+    g = items[np.where(valid, slot, 0)]          # (leaves, width, 4 rows, 4)
+    out = np.empty((len(leaves), LEAF_FIELDS, width))
+    out[:, :12] = g[:, :, :, :3].transpose(0, 2, 3, 1).reshape(len(leaves), 12, width)
+    out[:, :12] *= valid[:, None, :]
+    kind = g[:, :, 3, 3]
     typ = np.where(kind == ITEM_QUAD, LEAF_TYPES["quad"], np.where(kind == ITEM_SPHERE, LEAF_TYPES["sphere"],
                                                                       LEAF_TYPES["triangle"]))
     out[:, 12] = np.where(valid, typ, LEAF_TYPES["empty"])
