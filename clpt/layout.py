@@ -109,8 +109,10 @@ PLANAR = Record("PlanarRec", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "
                 "0, 0, 0, KIND_SPHERE")
 PLANE = Record("PlaneRec", "PLANE", _r4("point_mat", "n"), "plane: point.xyz, material | n.xyz, prim id")
 LIGHT = Record("LightRec", "LIGHT", _r4("p_kind", "u", "v", "n", "info"),
-               "light: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, 0 | area, pick probability, cdf, material; "
-               "a mesh light: 0, 0, 0, kind | first triangle record, triangles, 0, 0 | ... | ... | info")
+               "light: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, alias | area, pick probability, alias "
+               "probability, material; a mesh light: 0, 0, 0, kind | first triangle record, triangles, 0, 0 | ... | "
+               "0, 0, 0, alias | info. Slot j of the lights' alias table (by power) keeps light j with its alias "
+               "probability, else gives light alias")
 CAUSTIC = Record("CausticRec", "CAUSTIC", _r4("sphere"), "caustic caster: bounding sphere center.xyz, radius")
 # Wide BVH nodes (clpt/bvh.py WIDTH = 8 children): rows of 8 reals, each two
 # real4 records, read as one real8; SoA leaf blocks of up to 4 items: rows

@@ -305,8 +305,9 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     lights = b.lights
     powers = np.array([sides * math.pi * area * float(np.mean(m.emission)) for sides, area, m, *_ in lights])
     probs = powers / powers.sum()
-    cdf = np.cumsum(probs)
-    cdf[-1] = 1.0
+    # Walker's alias table over them: light j's record keeps slot j's
+    # probability (info.z) and its alias (n.w), for an O(1) pick.
+    keep, alias = alias_table(powers) if len(lights) else (np.zeros(0), np.zeros(0, dtype=np.int64))
     caustics = np.array(_caustic_objects(scene), dtype=np.float64).reshape(-1, 4)
 
     n_mat = len(surfaces)
@@ -364,12 +365,13 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     normal_recs = np.concatenate(normal_recs) if normal_recs else np.zeros((0, 4))
     ltri_base = normals_base + len(normal_recs)
     light_recs, ltri_recs = [], []
-    for (sides, area, m, recs, mid, ltris), pr, cd in zip(lights, probs, cdf):
+    for (sides, area, m, recs, mid, ltris), pr, kp, al in zip(lights, probs, keep, alias):
         recs = [list(r) for r in recs]
         if ltris is not None:
             recs[1][0] = ltri_base + sum(len(x) for x in ltri_recs)
             ltri_recs.append(ltris.reshape(-1, 4))
-        light_recs += recs + [(area, pr, cd, mid)]
+        recs[3][3] = float(al)
+        light_recs += recs + [(area, pr, kp, mid)]
     light_recs = np.array(light_recs, dtype=np.float64).reshape(-1, 4)
     ltri_recs = np.concatenate(ltri_recs) if ltri_recs else np.zeros((0, 4))
 
