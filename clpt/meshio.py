@@ -1,9 +1,10 @@
 """Triangle meshes from OBJ and PLY files, and their transforms.
 
 Files are parsed by trimesh's format readers (trimesh.exchange.obj and
-trimesh.exchange.ply), which return plain arrays: positions, faces
-(polygons already fanned into triangles) and, where the file has them,
-per-vertex normals. Nothing is merged, reordered or repaired on the way
+trimesh.exchange.ply), which return plain arrays: positions, faces and,
+where the file has them, per-vertex normals. Polygons are fanned into
+triangles from their first vertex (the readers do so for files of mixed
+polygon sizes, fan_triangulate for files of quads or other k-gons only). Nothing is merged, reordered or repaired on the way
 (trimesh's ``process`` step is not run), so triangle i of the file is
 triangle i here, less the degenerate ones, which are dropped with one
 warning giving their count.
@@ -47,6 +48,22 @@ def _parts(kw):
     return [(kw["vertices"], kw["faces"], kw.get("vertex_normals"))]
 
 
+def fan_triangulate(faces):
+    """(M, k) polygons, k >= 3, as (M (k - 2), 3) triangles fanned from each
+    polygon's first vertex, in order: (f0, f1, f2), (f0, f2, f3), ... (the
+    readers fan mixed polygon sizes themselves, as here, but hand back
+    files of quads or other k-gons only as (M, k))."""
+    f = np.asarray(faces)
+    k = f.shape[1]
+    if k == 3:
+        return f
+    tri = np.empty((len(f), k - 2, 3), dtype=f.dtype)
+    tri[:, :, 0] = f[:, :1]
+    tri[:, :, 1] = f[:, 1:-1]
+    tri[:, :, 2] = f[:, 2:]
+    return tri.reshape(-1, 3)
+
+
 def read_mesh(path):
     """(vertices float64 (N,3), triangles int64 (M,3), normals float64 (N,3) or None).
 
@@ -75,8 +92,9 @@ def read_mesh(path):
     for v, f, n in parts:
         v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
         f = np.asarray(f)
-        if f.ndim != 2 or f.shape[1] != 3:
+        if f.ndim != 2 or f.shape[1] < 3:
             raise MeshError(f"{path}: faces must be triangles or polygons (got shape {f.shape})")
+        f = fan_triangulate(f)
         vs.append(v)
         fs.append(f.astype(np.int64) + base)
         ns.append(None if n is None else np.asarray(n, dtype=np.float64).reshape(-1, 3))
