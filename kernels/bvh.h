@@ -45,6 +45,22 @@ typedef int4 lmask;
 #error "leaf blocks of 4 items"
 #endif
 #define BVH_EL(v, k) (((private real *)&(v))[k])
+// Sort keys of 8 non-negative reals: their bits as unsigned integers.
+#if CLPT_DOUBLE
+typedef ulong8 bkey8;
+typedef ulong bkeyel;
+#define BVH_AS_KEY8(v) as_ulong8(v)
+#define BVH_KEY_INF 0x7ff0000000000000ul
+#define BVH_KEY_MASK 0x7ffffffffffffff8ul
+#define BVH_IOTA8 ((ulong8)(0, 1, 2, 3, 4, 5, 6, 7))
+#else
+typedef uint8 bkey8;
+typedef uint bkeyel;
+#define BVH_AS_KEY8(v) as_uint8(v)
+#define BVH_KEY_INF 0x7f800000u
+#define BVH_KEY_MASK 0x7ffffff8u
+#define BVH_IOTA8 ((uint8)(0, 1, 2, 3, 4, 5, 6, 7))
+#endif
 // An 8-lane comparison's mask as int8 (-1: true).
 #if CLPT_DOUBLE
 #define BVH_I8(m) convert_int8(m)
@@ -251,16 +267,21 @@ inline int bvh_walk1(const Scene *sc, real3 o, real3 d, real tmax, int any, real
                 break;
         } else {
             breal8 tn = bvh_node_enter1(sc, cur, o, inv, neg, tmax);
-            real tmin = bvh_min8(tn);
-            if (tmin < R(INFINITY)) {
-                // Enter the nearest child; push the others hit (rarely more than a few).
+            // The nearest child and whether any was hit in one reduction: the
+            // entry distances' bits (>= 0, so ordered as integers) with the
+            // child's index in their lowest three (ties and near-ties go to
+            // the lower index; a missed child's +inf stays above every hit;
+            // the sign bit is dropped, for a -0 entry distance).
+            bkey8 key = (BVH_AS_KEY8(tn) & (bkey8)BVH_KEY_MASK) | BVH_IOTA8;
+            __typeof__(key.lo) k4 = min(key.lo, key.hi);
+            __typeof__(k4.lo) k2 = min(k4.lo, k4.hi);
+            bkeyel kmin = min(k2.x, k2.y);
+            if (kmin < BVH_KEY_INF) {
+                // Enter the nearest child; push the others hit.
                 breal8 ptr = bvh_row(sc, cur, 6), cnt = bvh_row(sc, cur, 7);
                 uint8 pk = convert_uint8(ptr) | (as_uint8(BVH_I8(cnt > R(0))) & (uint8)BVH_LEAF_BIT);
                 int8 hits = -BVH_I8(tn < R(INFINITY));
-                int8 cand = select((int8)8, (int8)(0, 1, 2, 3, 4, 5, 6, 7), BVH_I8(tn == tmin));
-                int4 c4 = min(cand.lo, cand.hi);
-                int2 c2 = min(c4.lo, c4.hi);
-                int kn = min(c2.x, c2.y);
+                int kn = (int)(kmin & 7);
                 int4 h4 = hits.lo + hits.hi;
                 int2 h2 = h4.lo + h4.hi;
                 cur = ((private uint *)&pk)[kn];
