@@ -314,6 +314,10 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     mat_recs = np.array([r for m in surfaces for r in _material_records(m)], dtype=np.float64).reshape(-1, 4)
     head = (len(mat_recs) + (0 if use_bvh else len(sphere_plain) * SPHERE_STRIDE + PLANAR_STRIDE * (len(quads) + len(tris)))
             + len(planes) + LIGHT_STRIDE * len(lights) + len(caustics))
+    # The BVH starts on a 64-byte boundary (4 real4 records; scene.h OFF_BVH),
+    # so that a node's rows of 8 floats never straddle cache lines.
+    pad = (-head) % 4 if use_bvh else 0
+    head += pad
     tree = None
     nodes = np.zeros((0, 4))
     if use_bvh:
@@ -376,7 +380,7 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     ltri_recs = np.concatenate(ltri_recs) if ltri_recs else np.zeros((0, 4))
 
     plain = [] if use_bvh else [sphere_plain.reshape(-1, 4), quads.reshape(-1, 4), tris.reshape(-1, 4)]
-    records = np.concatenate([mat_recs, *plain, planes, light_recs, caustics, nodes,
+    records = np.concatenate([mat_recs, *plain, planes, light_recs, caustics, np.zeros((pad, 4)), nodes,
                               *[g.reshape(-1, 4) for g in geo_sections], normal_recs, ltri_recs])
     n_nodes = wide.n_nodes if use_bvh else 0
     counts = (n_mat, 0 if use_bvh else len(sphere_plain), 0 if use_bvh else len(quads),

@@ -57,7 +57,8 @@ typedef struct {
 #define OFF_PLANES (OFF_TRIANGLES + PLANAR_STRIDE * NUM_TRIANGLES)
 #define OFF_LIGHTS (OFF_PLANES + PLANE_STRIDE * NUM_PLANES)
 #define OFF_CAUSTICS (OFF_LIGHTS + LIGHT_STRIDE * NUM_LIGHTS)
-#define OFF_BVH (OFF_CAUSTICS + CAUSTIC_STRIDE * NUM_CAUSTICS)
+// The BVH starts at the next multiple of 4 records (64 bytes in float builds).
+#define OFF_BVH ((OFF_CAUSTICS + CAUSTIC_STRIDE * NUM_CAUSTICS + 3u) & ~3u)
 
 inline real4 scene_rec(const Scene *sc, uint i) { return sc->rec[i]; }
 
