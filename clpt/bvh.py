@@ -245,8 +245,7 @@ def build(lo, hi, method: str = "sah", max_leaf: int | None = None) -> Tree:
 
 
 WIDTH = 8            # children per device node (kernels/bvh.h tests them in one vector)
-LEAF_FIELDS = 14     # SoA rows of a leaf block: p.xyz, n.xyz, wu.xyz, wv.xyz, type, record
-LEAF_TYPES = {"triangle": 0, "quad": 1, "sphere": 2, "empty": 3}
+LEAF_FIELDS = 16     # SoA rows of a leaf block: p.xyz, n.xyz, wu.xyz, wv.xyz, kind, material, light, prim
 
 
 @dataclass
@@ -341,12 +340,14 @@ def flatten(tree: Tree, wide: Wide, node_base: int, leaf_base: int, double: bool
     return out.reshape(n_wide, -1, 4), leaves
 
 
-def leaf_blocks(tree: Tree, leaves, items, item_base: int, item_stride: int, width: int = MAX_LEAF):
+def leaf_blocks(tree: Tree, leaves, items, width: int = MAX_LEAF):
     """SoA leaf blocks (n_leaves, LEAF_FIELDS * width / 4, 4) of the leaves
     (in the order given) over items, the (N, 4, 4) PLANAR records in tree
     slot order: rows p.x p.y p.z n.x n.y n.z wu.x wu.y wu.z wv.x wv.y wv.z
-    type record, width reals each (empty slots: type 3, zero geometry)."""
-    from .layout import ITEM_QUAD, ITEM_SPHERE
+    (the records' xyz), kind (wv.w), material (p.w), light + 1 (n.w),
+    primitive id (wu.w), width reals each; empty slots have kind ITEM_EMPTY
+    and zeros elsewhere."""
+    from .layout import ITEM_EMPTY
     start, count = tree.start[leaves], tree.count[leaves]
     if len(count) and count.max() > width:
         raise ValueError(f"a BVH leaf has {count.max()} items, more than {width}")
@@ -354,14 +355,12 @@ def leaf_blocks(tree: Tree, leaves, items, item_base: int, item_stride: int, wid
     slot = start[:, None] + k[None, :]
     valid = k[None, :] < count[:, None]
     g = items[np.where(valid, slot, 0)]          # (leaves, width, 4 rows, 4)
+    g = g.transpose(0, 2, 3, 1)                   # (leaves, row, component, width)
     out = np.empty((len(leaves), LEAF_FIELDS, width))
-    out[:, :12] = g[:, :, :, :3].transpose(0, 2, 3, 1).reshape(len(leaves), 12, width)
-    out[:, :12] *= valid[:, None, :]
-    kind = g[:, :, 3, 3]
-    typ = np.where(kind == ITEM_QUAD, LEAF_TYPES["quad"], np.where(kind == ITEM_SPHERE, LEAF_TYPES["sphere"],
-                                                                      LEAF_TYPES["triangle"]))
-    out[:, 12] = np.where(valid, typ, LEAF_TYPES["empty"])
-    out[:, 13] = np.where(valid, item_base + item_stride * slot, -1)
+    out[:, :12] = g[:, :, :3].reshape(len(leaves), 12, width)
+    out[:, 12], out[:, 13], out[:, 14], out[:, 15] = g[:, 3, 3], g[:, 0, 3], g[:, 1, 3], g[:, 2, 3]
+    out *= valid[:, None, :]
+    out[:, 12] = np.where(valid, out[:, 12], ITEM_EMPTY)
     return out.reshape(len(leaves), -1, 4)
 
 

@@ -124,10 +124,10 @@ BVH_NODE = Record("BvhNode", "BVH", _ROWS8("lo_x", "hi_x", "lo_y", "hi_y", "lo_z
                   "0: a node at record pointer; -1: an empty slot)")
 BVH_LEAF_WIDTH = 4   # items a leaf block holds (clpt/bvh.py LEAF_WIDTH): one real4 a row
 BVH_LEAF = Record("BvhLeaf", "BVHL", _r4("px", "py", "pz", "nx", "ny", "nz", "ux", "uy", "uz", "vx", "vy", "vz",
-                                         "type", "rec"),
-                  "BVH leaf block: up to BVHL_WIDTH (4) items as rows of 4 reals, corner p.xyz | normal n.xyz | dual wu.xyz | "
-                  "dual wv.xyz (a sphere: centre in p, radius in n.x) | type (0 triangle, 1 quad, 2 sphere, "
-                  "3 empty) | record index of the item's PlanarRec")
+                                         "kind", "mat", "light", "prim"),
+                  "BVH leaf block: up to BVHL_WIDTH (4) items as rows of 4 reals, their PlanarRec fields: corner "
+                  "p.xyz | normal n.xyz | dual wu.xyz | dual wv.xyz (a sphere: centre in p, radius in n.x) | kind "
+                  "(PlanarRec wv.w; ITEM_EMPTY for an empty slot) | material | light + 1 | primitive id")
 NORMALS = Record("NormalsRec", "NORMALS", _r4("n0", "n1", "n2"), "vertex normals of a smooth triangle")
 LIGHT_TRI = Record("LightTriRec", "LTRI", _r4("p_alias", "u_prob", "v"),
                    "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
@@ -138,6 +138,7 @@ SCENE_RECORDS = (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_
 KIND_QUAD, KIND_TRIANGLE, KIND_SPHERE, KIND_MESH = 0, 1, 2, 3
 # Primitive kinds in PLANAR.wv_kind.w (a smooth triangle has its normals' record index there instead).
 ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE = -1, -2, -3
+ITEM_EMPTY = -4  # an empty slot of a BVH leaf block
 
 
 def c_source() -> str:
@@ -147,5 +148,6 @@ def c_source() -> str:
     parts += [f"#define KIND_QUAD {KIND_QUAD}", f"#define KIND_TRIANGLE {KIND_TRIANGLE}",
               f"#define KIND_SPHERE {KIND_SPHERE}", f"#define KIND_MESH {KIND_MESH}",
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
-              f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}"]
+              f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define ITEM_EMPTY {ITEM_EMPTY}",
+              f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}"]
     return "\n".join(parts) + "\n"

@@ -5,7 +5,8 @@ this module fills them. Records are 4-vectors of the kernel's real type
 (float32, or float64 for double-precision builds), in sections:
 
   materials, spheres, quads, triangles, planes, lights, caustic casters,
-  then BVH nodes, BVH items, vertex normals and mesh-light triangles.
+  then BVH nodes and leaf blocks (which hold their items' records), vertex
+  normals and mesh-light triangles.
 
 Scenes with fewer than BVH_MIN_PRIMS bounded primitives keep them in the
 plain sections, which the kernels loop over; larger ones put every sphere,
@@ -333,25 +334,22 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
         if bvh_mod.stack_need(wide) > bvh_mod.MAX_STACK:  # the kernels' traversal stack
             raise SceneError(f"{scene.source}: the BVH is {wide.levels} wide levels deep, more than the kernels' "
                              f"traversal stack holds; try bvh_method='lbvh'")
+        # Nodes, then leaf blocks, which hold their items' records whole.
         leaf_base = head + BVH_NODE.stride * wide.n_nodes
-        n_leaves = tree.n_leaves
-        item_base = leaf_base + BVH_LEAF.stride * n_leaves
         nodes, leaves = bvh_mod.flatten(tree, wide, head, leaf_base, double=False)
+        nodes = nodes.reshape(-1, 4)
         items = items[tree.order if perm is None else perm[tree.order]]
-        leaf_recs = bvh_mod.leaf_blocks(tree, leaves, items, item_base, PLANAR_STRIDE)
-        nodes = np.concatenate([nodes.reshape(-1, 4), leaf_recs.reshape(-1, 4)])
-        geo_sections = [items]
+        bvh_end = leaf_base + BVH_LEAF.stride * len(leaves)
     else:
-        item_base = None
-        geo_sections = []
+        bvh_end = head
     # Vertex normals: one NORMALS record per smooth triangle, pointed to by
     # the w of its planar record's last row (which the blocks above share).
-    normals_base = head + len(nodes) + sum(PLANAR_STRIDE * len(g) for g in geo_sections)
+    normals_base = bvh_end
     smooth = bool(b.normals)
     normal_recs = []
     if smooth:
         if use_bvh:
-            slot_prims = geo_sections[0][:, 2, 3].astype(np.int64)
+            slot_prims = items[:, 2, 3].astype(np.int64)
             prim_to_slot = np.full(b.n_prims, -1, dtype=np.int64)
             prim_to_slot[slot_prims] = np.arange(len(slot_prims))
         k = 0
@@ -359,7 +357,7 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
             idx = normals_base + NORMALS.stride * (k + np.arange(len(recs)))
             prims = recs[:, 2, 3].astype(np.int64)
             if use_bvh:
-                geo_sections[0][prim_to_slot[prims], 3, 3] = idx
+                items[prim_to_slot[prims], 3, 3] = idx
             else:
                 tris[np.searchsorted(tris[:, 2, 3], recs[:, 2, 3]), 3, 3] = idx
             block = np.zeros((len(recs), NORMALS.stride, 4))
@@ -367,6 +365,8 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
             normal_recs.append(block.reshape(-1, 4))
             k += len(recs)
     normal_recs = np.concatenate(normal_recs) if normal_recs else np.zeros((0, 4))
+    if use_bvh:  # the items' records (smooth ones now pointing to their normals) into the leaf blocks
+        nodes = np.concatenate([nodes, bvh_mod.leaf_blocks(tree, leaves, items).reshape(-1, 4)])
     ltri_base = normals_base + len(normal_recs)
     light_recs, ltri_recs = [], []
     for (sides, area, m, recs, mid, ltris), pr, kp, al in zip(lights, probs, keep, alias):
@@ -381,7 +381,7 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
 
     plain = [] if use_bvh else [sphere_plain.reshape(-1, 4), quads.reshape(-1, 4), tris.reshape(-1, 4)]
     records = np.concatenate([mat_recs, *plain, planes, light_recs, caustics, np.zeros((pad, 4)), nodes,
-                              *[g.reshape(-1, 4) for g in geo_sections], normal_recs, ltri_recs])
+                              normal_recs, ltri_recs])
     n_nodes = wide.n_nodes if use_bvh else 0
     counts = (n_mat, 0 if use_bvh else len(sphere_plain), 0 if use_bvh else len(quads),
               0 if use_bvh else len(tris), len(planes) // PLANE_STRIDE, len(lights), len(caustics), n_nodes)

@@ -5,9 +5,11 @@
 // reals (lo.x, hi.x, lo.y, hi.y, lo.z, hi.z), then their pointers and
 // counts: count > 0 is a leaf block of that many items at the pointer, 0 a
 // node at the pointer, -1 an empty slot. A leaf block holds up to 4 items
-// (triangles, quads, spheres) in rows of 8 reals (structure of arrays),
-// and for each the record of its PlanarRec, which gives the hit's
-// attributes. The root is the node at OFF_BVH.
+// (triangles, quads, spheres) in rows of 4 reals (structure of arrays):
+// their PlanarRec fields, geometry and the hit's attributes (material,
+// light, primitive id, kind), 256 bytes. The root is the node at OFF_BVH,
+// on a 64-byte boundary, so no node or leaf straddles more cache lines
+// than it fills.
 //
 // Two walks (CLPT_BVH_LANE_WALK chooses; README "BVH" has the measurements):
 //   packet (0)  all CLPT_LANES rays of the work-item walk the tree together
@@ -138,12 +140,28 @@ inline real bvh_min_lane(vreal v)
 #endif
 }
 
-// Closest hits among a leaf's items, into h.
-inline void bvh_leaf_closest(const Scene *sc, uint first, uint count, V3 o, V3 d, Hit *h)
+// Item k of the leaf block at blk as the PlanarRec rows p, n, wu, wv.
+inline void bvh_leaf_item(const Scene *sc, uint blk, int k, real4 *p, real4 *n, real4 *wu, real4 *wv)
 {
-    for (uint k = 0; k < count; k++) {
-        uint r = first + PLANAR_STRIDE * k;
-        real4 p = scene_rec(sc, r), n = scene_rec(sc, r + 1), wu = scene_rec(sc, r + 2), wv = scene_rec(sc, r + 3);
+    real4 r[16];
+#pragma unroll
+    for (int i = 0; i < 16; i++)
+        r[i] = bvh_lrow(sc, blk, i);
+    *p = (real4)(BVH_EL(r[0], k), BVH_EL(r[1], k), BVH_EL(r[2], k), BVH_EL(r[13], k));
+    *n = (real4)(BVH_EL(r[3], k), BVH_EL(r[4], k), BVH_EL(r[5], k), BVH_EL(r[14], k));
+    *wu = (real4)(BVH_EL(r[6], k), BVH_EL(r[7], k), BVH_EL(r[8], k), BVH_EL(r[15], k));
+    *wv = (real4)(BVH_EL(r[9], k), BVH_EL(r[10], k), BVH_EL(r[11], k), BVH_EL(r[12], k));
+}
+
+// Closest hits among a leaf's items, into h (every lane against each item).
+inline void bvh_leaf_closest(const Scene *sc, uint blk, V3 o, V3 d, Hit *h)
+{
+    real4 kind = bvh_lrow(sc, blk, BVHL_KIND);
+    for (int k = 0; k < BVHL_WIDTH; k++) {
+        if (BVH_EL(kind, k) == (real)ITEM_EMPTY)
+            break;
+        real4 p, n, wu, wv;
+        bvh_leaf_item(sc, blk, k, &p, &n, &wu, &wv);
         if (wv.w == (real)ITEM_SPHERE) {
             real4 cr = (real4)(p.x, p.y, p.z, n.x);
             vreal t = intersect_sphere(cr, o, d);
@@ -157,11 +175,14 @@ inline void bvh_leaf_closest(const Scene *sc, uint first, uint count, V3 o, V3 d
 }
 
 // Lanes among !occ that a leaf's items block before tmax, or'ed into occ.
-inline vmask bvh_leaf_occluded(const Scene *sc, uint first, uint count, V3 o, V3 d, vreal tmax, vmask occ)
+inline vmask bvh_leaf_occluded(const Scene *sc, uint blk, V3 o, V3 d, vreal tmax, vmask occ)
 {
-    for (uint k = 0; k < count; k++) {
-        uint r = first + PLANAR_STRIDE * k;
-        real4 p = scene_rec(sc, r), n = scene_rec(sc, r + 1), wu = scene_rec(sc, r + 2), wv = scene_rec(sc, r + 3);
+    real4 kind = bvh_lrow(sc, blk, BVHL_KIND);
+    for (int k = 0; k < BVHL_WIDTH; k++) {
+        if (BVH_EL(kind, k) == (real)ITEM_EMPTY)
+            break;
+        real4 p, n, wu, wv;
+        bvh_leaf_item(sc, blk, k, &p, &n, &wu, &wv);
         vreal t;
         if (wv.w == (real)ITEM_SPHERE) {
             t = intersect_sphere((real4)(p.x, p.y, p.z, n.x), o, d);
@@ -173,7 +194,6 @@ inline vmask bvh_leaf_occluded(const Scene *sc, uint first, uint count, V3 o, V3
     }
     return occ;
 }
-
 
 // --- one ray against a wide node and a leaf block, in vectors of 8 ---------
 // The box and item tests mirror bvh_enter and the plain loops' tests
@@ -212,15 +232,16 @@ inline int bvh_leaf1(const Scene *sc, uint blk, real3 o, real3 d, real *tmax, in
 {
     lreal px = bvh_lrow(sc, blk, 0), py = bvh_lrow(sc, blk, 1), pz = bvh_lrow(sc, blk, 2);
     lreal nx = bvh_lrow(sc, blk, 3), ny = bvh_lrow(sc, blk, 4), nz = bvh_lrow(sc, blk, 5);
-    lreal typ = bvh_lrow(sc, blk, 12);
+    lreal kind = bvh_lrow(sc, blk, BVHL_KIND);
     lreal opx = o.x - px, opy = o.y - py, opz = o.z - pz;
     lreal t = -(opx * nx + opy * ny + opz * nz) / (d.x * nx + d.y * ny + d.z * nz);
     lreal qx = mad((lreal)d.x, t, opx), qy = mad((lreal)d.y, t, opy), qz = mad((lreal)d.z, t, opz);
     lreal a = qx * bvh_lrow(sc, blk, 6) + qy * bvh_lrow(sc, blk, 7) + qz * bvh_lrow(sc, blk, 8);
     lreal b = qx * bvh_lrow(sc, blk, 9) + qy * bvh_lrow(sc, blk, 10) + qz * bvh_lrow(sc, blk, 11);
-    lmask in = a >= R(0) && b >= R(0) && ((typ == R(0) && a + b <= R(1)) || (typ == R(1) && a <= R(1) && b <= R(1)));
+    lmask tri = kind >= R(0) || kind == (real)ITEM_FLAT_TRIANGLE;  // >= 0: a smooth triangle
+    lmask in = a >= R(0) && b >= R(0) && ((tri && a + b <= R(1)) || (kind == (real)ITEM_QUAD && a <= R(1) && b <= R(1)));
     lreal tt = select((lreal)R(INFINITY), t, in && t > R(0));
-    lmask sph = typ == R(2);
+    lmask sph = kind == (real)ITEM_SPHERE;
     if (any(sph)) {
         lreal bb = opx * d.x + opy * d.y + opz * d.z;
         lreal fx = mad((lreal)d.x, -bb, opx), fy = mad((lreal)d.y, -bb, opy), fz = mad((lreal)d.z, -bb, opz);
@@ -243,9 +264,8 @@ inline int bvh_leaf1(const Scene *sc, uint blk, real3 o, real3 d, real *tmax, in
 #pragma unroll
     for (int j = BVHL_WIDTH - 2; j >= 0; j--)
         k = BVH_EL(tt, j) == tmin ? j : k;
-    lreal rec = bvh_lrow(sc, blk, 13);
     *tmax = tmin;
-    *best = (int)BVH_EL(rec, k);
+    *best = (int)(blk << 2) | k;  // the block and slot (blocks are below 2^24 records)
     *a_out = BVH_EL(a, k);
     *b_out = BVH_EL(b, k);
     return 1;
@@ -321,8 +341,8 @@ inline void bvh_lane_closest(const Scene *sc, V3 o, V3 d, Hit *h, int l)
     int best = bvh_walk1(sc, ol, dl, VLANE_R(h->t, l), 0, &t, &a, &b);
     if (best < 0)
         return;
-    uint r = (uint)best;
-    real4 p = scene_rec(sc, r), n = scene_rec(sc, r + 1), wu = scene_rec(sc, r + 2), wv = scene_rec(sc, r + 3);
+    real4 p, n, wu, wv;
+    bvh_leaf_item(sc, (uint)best >> 2, best & 3, &p, &n, &wu, &wv);
     real3 ng = n.xyz;
     if (wv.w == (real)ITEM_SPHERE) {
         real k = R(1) / n.x;
@@ -354,7 +374,7 @@ inline vmask bvh_lanes_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask o
 }
 
 // --- the packet walk: every lane against each child box ----------------------
-// LEAF(first, count) tests a leaf's PlanarRecs with the lanes' vector tests;
+// LEAF(blk) tests a leaf block's items with the lanes' vector tests;
 // TMAX is the per-lane distance beyond which boxes are not entered (lanes
 // with nothing left to find have it at -1); DONE ends the walk early.
 #define BVH_PACKET_WALK(TMAX, LEAF, DONE)                                                           \
@@ -366,11 +386,7 @@ inline vmask bvh_lanes_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask o
     for (;;) {                                                                                      \
         int go = 0;                                                                                 \
         if (cur & BVH_LEAF_BIT) {                                                                   \
-            uint blk = cur & ~BVH_LEAF_BIT;                                                         \
-            real4 rc = scene_rec(sc, blk + BVHL_REC), tc = scene_rec(sc, blk + BVHL_TYPE);          \
-            uint n_items = (uint)(tc.x < R(3)) + (uint)(tc.y < R(3)) + (uint)(tc.z < R(3)) +       \
-                           (uint)(tc.w < R(3));                                                     \
-            LEAF((uint)rc.x, n_items);                                                              \
+            LEAF(cur & ~BVH_LEAF_BIT);                                                              \
             if (DONE) break;                                                                        \
         } else {                                                                                    \
             breal8 lx = bvh_row(sc, cur, 0), hx = bvh_row(sc, cur, 1), ly = bvh_row(sc, cur, 2);    \
@@ -411,7 +427,7 @@ inline vmask bvh_lanes_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask o
 
 inline void bvh_packet_closest(const Scene *sc, V3 o, V3 d, Hit *h)
 {
-#define BVH_LEAF_CLOSEST(first, count) bvh_leaf_closest(sc, first, count, o, d, h)
+#define BVH_LEAF_CLOSEST(blk) bvh_leaf_closest(sc, blk, o, d, h)
     BVH_PACKET_WALK(h->t, BVH_LEAF_CLOSEST, 0)
 #undef BVH_LEAF_CLOSEST
 }
@@ -419,8 +435,8 @@ inline void bvh_packet_closest(const Scene *sc, V3 o, V3 d, Hit *h)
 inline vmask bvh_packet_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
 {
     vreal tm = VSEL(tmax, (vreal)R(-1), occ);
-#define BVH_LEAF_OCCLUDED(first, count) \
-    do { occ = bvh_leaf_occluded(sc, first, count, o, d, tmax, occ); tm = VSEL(tmax, (vreal)R(-1), occ); } while (0)
+#define BVH_LEAF_OCCLUDED(blk) \
+    do { occ = bvh_leaf_occluded(sc, blk, o, d, tmax, occ); tm = VSEL(tmax, (vreal)R(-1), occ); } while (0)
     BVH_PACKET_WALK(tm, BVH_LEAF_OCCLUDED, VALL(occ))
 #undef BVH_LEAF_OCCLUDED
     return occ;

@@ -7,7 +7,8 @@
 //   materials  MaterialRec     spheres  SphereRec    quads, triangles  PlanarRec
 //   planes     PlaneRec        lights   LightRec     caustics  CausticRec
 //   then, when the scene has a BVH (NUM_NODES > 0): BVH nodes (BvhNode),
-//   BVH items (PlanarRec, spheres among them), vertex normals (NormalsRec)
+//   leaf blocks (BvhLeaf: their items' PlanarRec fields, spheres among them),
+//   vertex normals (NormalsRec)
 //   and mesh-light triangles (LightTriRec); pointers into these are absolute
 //   record indices stored as reals.
 // Caustics are bounding spheres (centre.xyz, radius; radius < 0 if
