@@ -12,9 +12,13 @@ level, not once per node):
           differing bit changes (Karras 2012's hierarchy, built top-down).
 
 ``build`` returns a ``Tree``: nodes in breadth-first order, each a range of
-``order`` (the primitive permutation), with its box and children. ``flatten``
-turns it into the device records of clpt/layout.py's BVH_NODE: every node
-stores its two children's boxes, so one visit tests both.
+``order`` (the primitive permutation), with its box and children, leaves
+of at most LEAF_SIZE (4) primitives. ``collapse`` turns the binary tree
+into WIDTH-ary (8) nodes, opening the largest child first (as Embree's and
+pbrt's wide BVHs do), and ``flatten`` and ``leaf_blocks`` into the device
+records of clpt/layout.py's BVH_NODE (8 children's boxes as rows of 8
+reals, which kernels/bvh.h tests against one ray in one vector operation)
+and BVH_LEAF (up to 4 items' records as rows of 4 reals, tested likewise).
 """
 
 from __future__ import annotations
@@ -305,8 +309,8 @@ def stack_need(wide: Wide) -> int:
 
 
 def flatten(tree: Tree, wide: Wide, node_base: int, leaf_base: int, double: bool):
-    """Device records of the wide nodes, (n_wide, 4 * WIDTH * 2 / 4 ...) as
-    (n_wide, 16, 4) float64 (clpt/layout.py BVH_NODE): rows of WIDTH reals,
+    """Device records of the wide nodes, (n_wide, 16, 4) float64
+    (clpt/layout.py BVH_NODE), and the leaves in block order: rows of WIDTH reals,
     lo.x, hi.x, lo.y, hi.y, lo.z, hi.z, pointer, count. A child's pointer is
     an absolute real4 index: of its wide node (count 0) or of its leaf block
     (count > 0 items); count -1 marks an empty slot. Leaf blocks are
