@@ -207,9 +207,11 @@ inline breal8 bvh_node_enter1(const Scene *sc, uint node, real3 o, real3 inv, in
     breal8 lx = bvh_row(sc, node, 0), hx = bvh_row(sc, node, 1);
     breal8 ly = bvh_row(sc, node, 2), hy = bvh_row(sc, node, 3);
     breal8 lz = bvh_row(sc, node, 4), hz = bvh_row(sc, node, 5);
-    breal8 nx = ((neg.x ? hx : lx) - o.x) * inv.x, fx = ((neg.x ? lx : hx) - o.x) * inv.x;
-    breal8 ny = ((neg.y ? hy : ly) - o.y) * inv.y, fy = ((neg.y ? ly : hy) - o.y) * inv.y;
-    breal8 nz = ((neg.z ? hz : lz) - o.z) * inv.z, fz = ((neg.z ? lz : hz) - o.z) * inv.z;
+    // Vector blends on the ray's (fixed) signs, not branches.
+    bmask8 mx = (bmask8)(-neg.x), my = (bmask8)(-neg.y), mz = (bmask8)(-neg.z);
+    breal8 nx = (select(lx, hx, mx) - o.x) * inv.x, fx = (select(hx, lx, mx) - o.x) * inv.x;
+    breal8 ny = (select(ly, hy, my) - o.y) * inv.y, fy = (select(hy, ly, my) - o.y) * inv.y;
+    breal8 nz = (select(lz, hz, mz) - o.z) * inv.z, fz = (select(hz, lz, mz) - o.z) * inv.z;
     breal8 tn = max(max(nx, ny), max(nz, (breal8)R(0)));
     breal8 tf = min(min(fx, fy), fz) * R(1 + 4 * REAL_EPS);
     bmask8 hit = tn <= min(tf, (breal8)tmax) && bvh_row(sc, node, 7) >= R(0);
