@@ -280,6 +280,25 @@ def _sphere_records(spheres):
     return plain, items
 
 
+# Primitives whose box has at least this share of the scene's box surface
+# area stay in the plain loops when there is a BVH, at most BIG_MAX of them.
+BIG_SHARE = 0.05
+BIG_MAX = 16
+
+
+def _big_primitives(lo, hi, exclude):
+    """Mask of the (at most BIG_MAX) primitives, boxes lo..hi, not excluded,
+    whose box surface is at least BIG_SHARE of the whole's; at least one
+    primitive is left out of it."""
+    area = bvh_mod._area(hi - lo)
+    whole = float(bvh_mod._area(hi.max(0) - lo.min(0)))
+    cand = np.flatnonzero((area >= BIG_SHARE * whole) & ~exclude)
+    cand = cand[np.argsort(-area[cand], kind="stable")][:min(BIG_MAX, len(lo) - 1)]
+    big = np.zeros(len(lo), dtype=bool)
+    big[cand] = True
+    return big
+
+
 def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh") -> PackedScene:
     """bvh: "auto" (a BVH from BVH_MIN_PRIMS bounded primitives), True/"on"
     (always), False/"off" (never: plain loops)."""
@@ -313,7 +332,26 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
 
     n_mat = len(surfaces)
     mat_recs = np.array([r for m in surfaces for r in _material_records(m)], dtype=np.float64).reshape(-1, 4)
-    head = (len(mat_recs) + (0 if use_bvh else len(sphere_plain) * SPHERE_STRIDE + PLANAR_STRIDE * (len(quads) + len(tris)))
+    if use_bvh:
+        # Items in prim order, as the bounds are (spheres, quads and
+        # triangles are interleaved in scene order).
+        items = np.concatenate([sphere_items, quads, tris]) if len(sphere_items) or len(quads) else tris
+        prim = items[:, 2, 3]
+        if not (np.diff(prim) > 0).all():
+            items = items[np.argsort(prim, kind="stable")]
+        lo = np.concatenate([x for x, _ in b.bounds])
+        hi = np.concatenate([y for _, y in b.bounds])
+        # The few primitives as big as the scene (a room's walls) stay in the
+        # plain loops, which test them against all lanes at once and give the
+        # walk a near tmax; in the tree their boxes would overlap everything.
+        smooth_prims = np.concatenate([r[:, 2, 3] for r, _ in b.normals]) if b.normals else np.zeros(0)
+        big = _big_primitives(lo, hi, np.isin(items[:, 2, 3], smooth_prims))
+        big_ids = items[big, 2, 3]
+        sphere_plain = sphere_plain[np.isin(sphere_plain[:, 1, 2], big_ids)]
+        quads = quads[np.isin(quads[:, 2, 3], big_ids)]
+        tris = tris[np.isin(tris[:, 2, 3], big_ids)]
+        items, lo, hi = items[~big], lo[~big], hi[~big]
+    head = (len(mat_recs) + len(sphere_plain) * SPHERE_STRIDE + PLANAR_STRIDE * (len(quads) + len(tris))
             + len(planes) + LIGHT_STRIDE * len(lights) + len(caustics))
     # The BVH starts on a 64-byte boundary (4 real4 records; scene.h OFF_BVH),
     # so that a node's rows of 8 floats never straddle cache lines.
@@ -322,13 +360,6 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     tree = None
     nodes = np.zeros((0, 4))
     if use_bvh:
-        # Items in prim order, as the bounds are (spheres, quads and
-        # triangles are interleaved in scene order).
-        items = np.concatenate([sphere_items, quads, tris]) if len(sphere_items) or len(quads) else tris
-        prim = items[:, 2, 3]
-        perm = None if (np.diff(prim) > 0).all() else np.argsort(prim, kind="stable")
-        lo = np.concatenate([x for x, _ in b.bounds])
-        hi = np.concatenate([y for _, y in b.bounds])
         tree = bvh_mod.build(lo, hi, method=bvh_method)
         wide = bvh_mod.collapse(tree)
         if bvh_mod.stack_need(wide) > bvh_mod.MAX_STACK:  # the kernels' traversal stack
@@ -338,7 +369,7 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
         leaf_base = head + BVH_NODE.stride * wide.n_nodes
         nodes, leaves = bvh_mod.flatten(tree, wide, head, leaf_base, double=False)
         nodes = nodes.reshape(-1, 4)
-        items = items[tree.order if perm is None else perm[tree.order]]
+        items = items[tree.order]
         bvh_end = leaf_base + BVH_LEAF.stride * len(leaves)
     else:
         bvh_end = head
@@ -379,12 +410,11 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     light_recs = np.array(light_recs, dtype=np.float64).reshape(-1, 4)
     ltri_recs = np.concatenate(ltri_recs) if ltri_recs else np.zeros((0, 4))
 
-    plain = [] if use_bvh else [sphere_plain.reshape(-1, 4), quads.reshape(-1, 4), tris.reshape(-1, 4)]
+    plain = [sphere_plain.reshape(-1, 4), quads.reshape(-1, 4), tris.reshape(-1, 4)]
     records = np.concatenate([mat_recs, *plain, planes, light_recs, caustics, np.zeros((pad, 4)), nodes,
                               normal_recs, ltri_recs])
     n_nodes = wide.n_nodes if use_bvh else 0
-    counts = (n_mat, 0 if use_bvh else len(sphere_plain), 0 if use_bvh else len(quads),
-              0 if use_bvh else len(tris), len(planes) // PLANE_STRIDE, len(lights), len(caustics), n_nodes)
+    counts = (n_mat, len(sphere_plain), len(quads), len(tris), len(planes) // PLANE_STRIDE, len(lights), len(caustics), n_nodes)
     kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere",
              LIGHT_KIND_MESH: "mesh"}
     lo, hi = scene.bounds(camera=False)

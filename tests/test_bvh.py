@@ -196,3 +196,23 @@ def test_collapse_keeps_every_leaf_once(method):
     rows = recs.reshape(-1, 8, 8)
     cnt = rows[:, 7]
     assert ((cnt > 0).sum()) == len(leaves) and ((cnt == 0).sum()) == wide.n_nodes - 1
+
+
+def test_scene_sized_primitives_stay_in_the_plain_loops():
+    """A room's walls (quads as big as the scene) are kept out of the BVH, in
+    the plain loops, and the mesh goes in it; the hits are the brute force's
+    (test_bvh_equals_brute_force covers a scene with such a quad)."""
+    s = clpt.load_scene("cornell_box")
+    v, t, n = uv_sphere(center=(0.0, -0.5, 0.0), radius=0.3, n_theta=10, n_phi=20)
+    s.shapes.append(clpt.Mesh(vertices=v, triangles=t, normals=n, material="white", name="ball"))
+    p = pack_scene(s, bvh="on")
+    n_quads = sum(len(sh.primitives()) for sh in s.shapes if not isinstance(sh, clpt.Mesh))
+    assert 0 < p.count("quads") < n_quads  # the walls, not the blocks' small faces or the light
+    assert p.count("triangles") == 0 and p.count("nodes") > 0  # smooth triangles stay in the tree
+    # Every primitive somewhere, once.
+    from clpt.pack import _big_primitives
+    lo = np.array([[0.0, 0, 0], [0, 0, 0], [0.4, 0.4, 0.4]])
+    hi = np.array([[1.0, 1, 1], [1, 1, 1], [0.5, 0.5, 0.5]])
+    assert _big_primitives(lo, hi, np.zeros(3, bool)).tolist() == [True, True, False]
+    assert _big_primitives(lo[:2], hi[:2], np.zeros(2, bool)).sum() == 1  # one stays in the tree
+    assert not _big_primitives(lo, hi, np.array([True, True, False])).any()
