@@ -37,16 +37,30 @@ inline vreal light_pick_index(const Scene *sc, vreal u_pick)
     return li;
 }
 
-// Smallest lane of v.
+// Smallest lane of v, by halving the vector.
+#if CLPT_DOUBLE
+#define LIGHTS_RN(n) CLPT_CAT(double, n)
+#else
+#define LIGHTS_RN(n) CLPT_CAT(float, n)
+#endif
 inline real lights_min_lane(vreal v)
 {
 #if CLPT_LANES == 1
     return v;
+#elif CLPT_LANES == 2
+    return fmin(v.x, v.y);
+#elif CLPT_LANES == 4
+    LIGHTS_RN(2) a = fmin(v.lo, v.hi);
+    return fmin(a.x, a.y);
+#elif CLPT_LANES == 8
+    LIGHTS_RN(4) a = fmin(v.lo, v.hi);
+    LIGHTS_RN(2) b = fmin(a.lo, a.hi);
+    return fmin(b.x, b.y);
 #else
-    real m = VLANE_R(v, 0);
-    for (int l = 1; l < CLPT_LANES; l++)
-        m = fmin(m, VLANE_R(v, l));
-    return m;
+    LIGHTS_RN(8) a = fmin(v.lo, v.hi);
+    LIGHTS_RN(4) b = fmin(a.lo, a.hi);
+    LIGHTS_RN(2) c = fmin(b.lo, b.hi);
+    return fmin(c.x, c.y);
 #endif
 }
 
@@ -57,6 +71,15 @@ inline real lights_min_lane(vreal v)
 // of the scene's lights.
 inline int light_next(const Scene *sc, vreal *li, uint *i, vmask *pick, uint *r)
 {
+    if (NUM_LIGHTS == 1) {  // one light: no search (a constant in specialized builds)
+        *pick = *li == R(0);
+        if (!VANY(*pick))
+            return 0;
+        *li = (vreal)R(INFINITY);
+        *i = 0;
+        *r = OFF_LIGHTS;
+        return 1;
+    }
     real m = lights_min_lane(*li);
     if (!(m < R(INFINITY)))
         return 0;
