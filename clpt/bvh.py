@@ -12,9 +12,13 @@ level, not once per node):
           differing bit changes (Karras 2012's hierarchy, built top-down).
 
 ``build`` returns a ``Tree``: nodes in breadth-first order, each a range of
-``order`` (the primitive permutation), with its box and children. ``flatten``
-turns it into the device records of clpt/layout.py's BVH_NODE: every node
-stores its two children's boxes, so one visit tests both.
+``order`` (the primitive permutation), with its box and children, leaves
+of at most LEAF_SIZE (4) primitives. ``collapse`` turns the binary tree
+into WIDTH-ary (8) nodes, opening the largest child first (as Embree's and
+pbrt's wide BVHs do), and ``flatten`` and ``leaf_blocks`` into the device
+records of clpt/layout.py's BVH_NODE (8 children's boxes as rows of 8
+reals, which kernels/bvh.h tests against one ray in one vector operation)
+and BVH_LEAF (up to 4 items' records as rows of 4 reals, tested likewise).
 """
 
 from __future__ import annotations
@@ -27,8 +31,10 @@ import numpy as np
 METHODS = ("sah", "lbvh")
 BINS = 16
 SAH_MIN = 64        # smaller nodes take the Morton split (binning them costs more than it gains)
-MAX_LEAF = 8        # a node with more primitives is always split
-MAX_DEPTH = 64       # the kernels' traversal stack (BVH_STACK in kernels/bvh.h)
+MAX_LEAF = 4        # a node with more primitives is always split (a device leaf block holds 4)
+LEAF_SIZE = 4       # the default leaf bound
+MAX_DEPTH = 64       # the binary tree's depth bound
+MAX_STACK = 96       # entries of the kernels' traversal stack (BVH_STACK in kernels/bvh.h)
 SAH_TRAVERSAL = 1.0  # cost of visiting a node, relative to one primitive test
 
 
@@ -143,8 +149,10 @@ def _sah_splits(cen, lo, hi, starts, counts, node_lo, node_hi):
     return cost, side, sl, nid
 
 
-def build(lo, hi, method: str = "sah", max_leaf: int = 4) -> Tree:
-    """BVH over the boxes lo[i]..hi[i] (float64 (N, 3))."""
+def build(lo, hi, method: str = "sah", max_leaf: int | None = None) -> Tree:
+    """BVH over the boxes lo[i]..hi[i] (float64 (N, 3)); leaves of at most
+    max_leaf (default LEAF_SIZE) primitives."""
+    max_leaf = LEAF_SIZE if max_leaf is None else max_leaf
     if method not in METHODS:
         raise ValueError(f"BVH method must be one of {', '.join(METHODS)} (got {method!r})")
     t0 = time.perf_counter()
@@ -220,52 +228,144 @@ def build(lo, hi, method: str = "sah", max_leaf: int = 4) -> Tree:
     start = np.concatenate(starts)
     count = np.concatenate(counts)
     left_all = np.concatenate(lefts)
-    # Boxes, level by level (ranges within a level are disjoint and increasing).
+    # Boxes bottom-up: the leaves' from their primitives in one pass (leaves
+    # tile the slots), then each level's inner nodes from their children.
     nlo = np.empty((len(start), 3))
     nhi = np.empty((len(start), 3))
-    k = 0
-    for s in starts:
-        if len(s):
-            c = count[k:k + len(s)]
-            nlo[k:k + len(s)] = _segments(lo, s, c, np.minimum)
-            nhi[k:k + len(s)] = _segments(hi, s, c, np.maximum)
-        k += len(s)
+    leaf = np.flatnonzero(left_all < 0)
+    leaf = leaf[np.argsort(start[leaf], kind="stable")]
+    nlo[leaf] = np.minimum.reduceat(lo, start[leaf], axis=0)
+    nhi[leaf] = np.maximum.reduceat(hi, start[leaf], axis=0)
+    ends = np.cumsum([len(x) for x in starts])
+    for k in range(len(starts) - 1, -1, -1):
+        ids = np.arange(ends[k] - len(starts[k]), ends[k])
+        ids = ids[left_all[ids] >= 0]
+        if len(ids):
+            lc = left_all[ids]
+            nlo[ids] = np.minimum(nlo[lc], nlo[lc + 1])
+            nhi[ids] = np.maximum(nhi[lc], nhi[lc + 1])
     return Tree(order=order, start=start, count=count, left=left_all, lo=nlo, hi=nhi,
                 seconds=time.perf_counter() - t0, levels=sum(1 for x in starts if len(x)))
 
 
-def flatten(tree: Tree, node_base: int, item_base: int, item_stride: int, double: bool):
-    """Device records (n_inner, 4, 4) float64 of the tree's inner nodes (a
-    leaf root gets one node with an empty right child). Pointers are
-    absolute real4 indices: nodes from node_base, leaf items from item_base
-    (item_stride records each, in tree.order). Boxes are rounded outwards
-    to the kernel's precision."""
+WIDTH = 8            # children per device node (kernels/bvh.h tests them in one vector)
+LEAF_FIELDS = 16     # SoA rows of a leaf block: p.xyz, n.xyz, wu.xyz, wv.xyz, kind, material, light, prim
+
+
+@dataclass
+class Wide:
+    """The binary tree collapsed to WIDTH-ary nodes: children[w] are binary
+    node ids (-1: an empty slot); wide node 0 is the root."""
+    children: np.ndarray   # (n_wide, WIDTH) int64
+    levels: int = 1
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.children)
+
+
+def collapse(tree: Tree, width: int = WIDTH) -> Wide:
+    """Greedy collapse (as Embree's and pbrt's wide BVHs): each wide node
+    starts from a binary node's two children and repeatedly opens its
+    largest-area inner child until it has `width` children. All wide nodes
+    of a level are opened together in array operations."""
     left = tree.left
-    inner = np.flatnonzero(left >= 0)
-    if len(inner) == 0:
-        inner_nodes = np.array([0])
-        children = np.array([[0, -1]])
-    else:
-        inner_nodes = inner
-        children = np.stack([left[inner], left[inner] + 1], axis=1)
-    packed_id = np.full(tree.n_nodes, -1, dtype=np.int64)
-    packed_id[inner_nodes] = np.arange(len(inner_nodes))
-    if len(inner) == 0:
-        packed_id[0] = -1  # the root is a leaf: node 0 is its holder
+    if left[0] < 0:
+        ch = np.full((1, width), -1, dtype=np.int64)
+        ch[0, 0] = 0
+        return Wide(ch)
+    area = _area(tree.hi - tree.lo)
+    is_inner = left >= 0
+    frontier = np.array([0])
+    levels = []
+    while len(frontier):
+        m = len(frontier)
+        rows = np.arange(m)
+        ch = np.full((m, width), -1, dtype=np.int64)
+        ch[:, 0], ch[:, 1] = left[frontier], left[frontier] + 1
+        n = np.full(m, 2)
+        for _ in range(width - 2):
+            c = np.maximum(ch, 0)
+            a = np.where((ch >= 0) & is_inner[c], area[c], -1.0)
+            j = np.argmax(a, axis=1)
+            ok = a[rows, j] >= 0
+            if not ok.any():
+                break
+            r, jj = rows[ok], j[ok]
+            opened = ch[r, jj]
+            ch[r, jj] = left[opened]
+            ch[r, n[ok]] = left[opened] + 1
+            n = n + ok
+        levels.append(ch)
+        c = np.maximum(ch, 0)
+        frontier = ch[(ch >= 0) & is_inner[c]]
+    return Wide(np.concatenate(levels), levels=len(levels))
+
+
+def stack_need(wide: Wide) -> int:
+    """Most entries the kernels' walk can have on its stack: every wide
+    level on the way down leaves at most WIDTH - 1 children behind."""
+    return (WIDTH - 1) * wide.levels + 1
+
+
+def flatten(tree: Tree, wide: Wide, node_base: int, leaf_base: int, double: bool):
+    """Device records of the wide nodes, (n_wide, 16, 4) float64
+    (clpt/layout.py BVH_NODE), and the leaves in block order: rows of WIDTH reals,
+    lo.x, hi.x, lo.y, hi.y, lo.z, hi.z, pointer, count. A child's pointer is
+    an absolute real4 index: of its wide node (count 0) or of its leaf block
+    (count > 0 items); count -1 marks an empty slot. Leaf blocks are
+    numbered in leaf order (tree.start). Boxes are rounded outwards to the
+    kernel's precision."""
+    ch = wide.children
+    n_wide, width = ch.shape
+    left = tree.left
+    leaves = np.flatnonzero(left < 0)
+    leaves = leaves[np.argsort(tree.start[leaves], kind="stable")]
+    leaf_id = np.full(tree.n_nodes, -1, dtype=np.int64)
+    leaf_id[leaves] = np.arange(len(leaves))
+    wide_id = np.full(tree.n_nodes, -1, dtype=np.int64)
+    if left[0] >= 0:
+        inner_children = ch[(ch >= 0) & (left[np.maximum(ch, 0)] >= 0)]
+        wide_id[0] = 0
+        wide_id[inner_children] = 1 + np.arange(len(inner_children))
     lo, hi = _outward(tree.lo, tree.hi, double)
-    out = np.zeros((len(inner_nodes), 4, 4))
-    for side in (0, 1):
-        ch = children[:, side]
-        valid = ch >= 0
-        c = np.where(valid, ch, 0)
-        is_leaf = left[c] < 0
-        ptr = np.where(is_leaf, item_base + item_stride * tree.start[c], node_base + 4 * packed_id[c])
-        cnt = np.where(is_leaf, tree.count[c], 0)
-        out[:, 2 * side, :3] = np.where(valid[:, None], lo[c], 0)
-        out[:, 2 * side, 3] = np.where(valid, ptr, 0)
-        out[:, 2 * side + 1, :3] = np.where(valid[:, None], hi[c], 0)
-        out[:, 2 * side + 1, 3] = np.where(valid, cnt, -1)
-    return out
+    valid = ch >= 0
+    c = np.maximum(ch, 0)
+    is_leaf = left[c] < 0
+    from .layout import BVH_LEAF, BVH_NODE
+    ptr = np.where(is_leaf, leaf_base + BVH_LEAF.stride * leaf_id[c], node_base + BVH_NODE.stride * wide_id[c])
+    cnt = np.where(is_leaf, tree.count[c], 0)
+    out = np.zeros((n_wide, 8, width))
+    for axis in range(3):
+        out[:, 2 * axis] = np.where(valid, lo[c, axis], 0.0)
+        out[:, 2 * axis + 1] = np.where(valid, hi[c, axis], 0.0)
+    out[:, 6] = np.where(valid, ptr, 0)
+    out[:, 7] = np.where(valid, cnt, -1)
+    return out.reshape(n_wide, -1, 4), leaves
+
+
+def leaf_blocks(tree: Tree, leaves, items, width: int = MAX_LEAF):
+    """SoA leaf blocks (n_leaves, LEAF_FIELDS * width / 4, 4) of the leaves
+    (in the order given) over items, the (N, 4, 4) PLANAR records in tree
+    slot order: rows p.x p.y p.z n.x n.y n.z wu.x wu.y wu.z wv.x wv.y wv.z
+    (the records' xyz), kind (wv.w), material (p.w), light + 1 (n.w),
+    primitive id (wu.w), width reals each; empty slots have kind ITEM_EMPTY
+    and zeros elsewhere."""
+    from .layout import ITEM_EMPTY
+    start, count = tree.start[leaves], tree.count[leaves]
+    if len(count) and count.max() > width:
+        raise ValueError(f"a BVH leaf has {count.max()} items, more than {width}")
+    k = np.arange(width)
+    slot = start[:, None] + k[None, :]
+    valid = k[None, :] < count[:, None]
+    g = items[np.where(valid, slot, 0)]          # (leaves, width, 4 rows, 4)
+    g = g.transpose(0, 2, 3, 1)                   # (leaves, row, component, width)
+    out = np.empty((len(leaves), LEAF_FIELDS, width))
+    out[:, :12] = g[:, :, :3].reshape(len(leaves), 12, width)
+    out[:, 12], out[:, 13], out[:, 14], out[:, 15] = g[:, 3, 3], g[:, 0, 3], g[:, 1, 3], g[:, 2, 3]
+    out *= valid[:, None, :]
+    out[:, 12] = np.where(valid, out[:, 12], ITEM_EMPTY)
+    return out.reshape(len(leaves), -1, 4)
 
 
 def _outward(lo, hi, double):

@@ -109,22 +109,36 @@ PLANAR = Record("PlanarRec", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "
                 "0, 0, 0, KIND_SPHERE")
 PLANE = Record("PlaneRec", "PLANE", _r4("point_mat", "n"), "plane: point.xyz, material | n.xyz, prim id")
 LIGHT = Record("LightRec", "LIGHT", _r4("p_kind", "u", "v", "n", "info"),
-               "light: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, 0 | area, pick probability, cdf, material; "
-               "a mesh light: 0, 0, 0, kind | first triangle record, triangles, 0, 0 | ... | ... | info")
+               "light: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, alias | area, pick probability, alias "
+               "probability, material; a mesh light: 0, 0, 0, kind | first triangle record, triangles, 0, 0 | ... | "
+               "0, 0, 0, alias | info. Slot j of the lights' alias table (by power) keeps light j with its alias "
+               "probability, else gives light alias")
 CAUSTIC = Record("CausticRec", "CAUSTIC", _r4("sphere"), "caustic caster: bounding sphere center.xyz, radius")
-BVH_NODE = Record("BvhNode", "BVH", _r4("lo_l", "hi_l", "lo_r", "hi_r"),
-                  "BVH node: both children's boxes, lo.xyz, pointer | hi.xyz, count (count > 0: a leaf of "
-                  "count items at record pointer; 0: an inner node at record pointer; -1: no child)")
+# Wide BVH nodes (clpt/bvh.py WIDTH = 8 children): rows of 8 reals, each two
+# real4 records, read as one real8; SoA leaf blocks of up to 4 items: rows
+# of 4 reals, one real4 each.
+_ROWS8 = lambda *rows: _r4(*[f"{r}_{h}" for r in rows for h in ("a", "b")])
+BVH_NODE = Record("BvhNode", "BVH", _ROWS8("lo_x", "hi_x", "lo_y", "hi_y", "lo_z", "hi_z", "ptr", "count"),
+                  "wide BVH node: 8 children's boxes as rows of 8 reals lo.x | hi.x | lo.y | hi.y | lo.z | hi.z, "
+                  "then their pointers | counts (count > 0: a leaf block of count items at record pointer; "
+                  "0: a node at record pointer; -1: an empty slot)")
+BVH_LEAF_WIDTH = 4   # items a leaf block holds (clpt/bvh.py LEAF_WIDTH): one real4 a row
+BVH_LEAF = Record("BvhLeaf", "BVHL", _r4("px", "py", "pz", "nx", "ny", "nz", "ux", "uy", "uz", "vx", "vy", "vz",
+                                         "kind", "mat", "light", "prim"),
+                  "BVH leaf block: up to BVHL_WIDTH (4) items as rows of 4 reals, their PlanarRec fields: corner "
+                  "p.xyz | normal n.xyz | dual wu.xyz | dual wv.xyz (a sphere: centre in p, radius in n.x) | kind "
+                  "(PlanarRec wv.w; ITEM_EMPTY for an empty slot) | material | light + 1 | primitive id")
 NORMALS = Record("NormalsRec", "NORMALS", _r4("n0", "n1", "n2"), "vertex normals of a smooth triangle")
 LIGHT_TRI = Record("LightTriRec", "LTRI", _r4("p_alias", "u_prob", "v"),
                    "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
 
-SCENE_RECORDS = (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, NORMALS, LIGHT_TRI)
+SCENE_RECORDS = (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI)
 
 # Light kinds in LIGHT.p_kind.
 KIND_QUAD, KIND_TRIANGLE, KIND_SPHERE, KIND_MESH = 0, 1, 2, 3
 # Primitive kinds in PLANAR.wv_kind.w (a smooth triangle has its normals' record index there instead).
 ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE = -1, -2, -3
+ITEM_EMPTY = -4  # an empty slot of a BVH leaf block
 
 
 def c_source() -> str:
@@ -134,5 +148,6 @@ def c_source() -> str:
     parts += [f"#define KIND_QUAD {KIND_QUAD}", f"#define KIND_TRIANGLE {KIND_TRIANGLE}",
               f"#define KIND_SPHERE {KIND_SPHERE}", f"#define KIND_MESH {KIND_MESH}",
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
-              f"#define ITEM_SPHERE {ITEM_SPHERE}"]
+              f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define ITEM_EMPTY {ITEM_EMPTY}",
+              f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}"]
     return "\n".join(parts) + "\n"

@@ -1,9 +1,10 @@
 """Triangle meshes from OBJ and PLY files, and their transforms.
 
 Files are parsed by trimesh's format readers (trimesh.exchange.obj and
-trimesh.exchange.ply), which return plain arrays: positions, faces
-(polygons already fanned into triangles) and, where the file has them,
-per-vertex normals. Nothing is merged, reordered or repaired on the way
+trimesh.exchange.ply), which return plain arrays: positions, faces and,
+where the file has them, per-vertex normals. Polygons are fanned into
+triangles from their first vertex (the readers do so for files of mixed
+polygon sizes, fan_triangulate for files of quads or other k-gons only). Nothing is merged, reordered or repaired on the way
 (trimesh's ``process`` step is not run), so triangle i of the file is
 triangle i here, less the degenerate ones, which are dropped with one
 warning giving their count.
@@ -47,6 +48,22 @@ def _parts(kw):
     return [(kw["vertices"], kw["faces"], kw.get("vertex_normals"))]
 
 
+def fan_triangulate(faces):
+    """(M, k) polygons, k >= 3, as (M (k - 2), 3) triangles fanned from each
+    polygon's first vertex, in order: (f0, f1, f2), (f0, f2, f3), ... (the
+    readers fan mixed polygon sizes themselves, as here, but hand back
+    files of quads or other k-gons only as (M, k))."""
+    f = np.asarray(faces)
+    k = f.shape[1]
+    if k == 3:
+        return f
+    tri = np.empty((len(f), k - 2, 3), dtype=f.dtype)
+    tri[:, :, 0] = f[:, :1]
+    tri[:, :, 1] = f[:, 1:-1]
+    tri[:, :, 2] = f[:, 2:]
+    return tri.reshape(-1, 3)
+
+
 def read_mesh(path):
     """(vertices float64 (N,3), triangles int64 (M,3), normals float64 (N,3) or None).
 
@@ -75,8 +92,9 @@ def read_mesh(path):
     for v, f, n in parts:
         v = np.asarray(v, dtype=np.float64).reshape(-1, 3)
         f = np.asarray(f)
-        if f.ndim != 2 or f.shape[1] != 3:
+        if f.ndim != 2 or f.shape[1] < 3:
             raise MeshError(f"{path}: faces must be triangles or polygons (got shape {f.shape})")
+        f = fan_triangulate(f)
         vs.append(v)
         fs.append(f.astype(np.int64) + base)
         ns.append(None if n is None else np.asarray(n, dtype=np.float64).reshape(-1, 3))
@@ -117,7 +135,7 @@ def check_mesh(vertices, triangles, normals=None, source="<mesh>"):
         n = np.asarray(normals, dtype=np.float64)
         if n.shape != v.shape:
             raise MeshError(f"{source}: normals must be one per vertex, shape {v.shape} (got {n.shape})")
-        length = np.linalg.norm(n, axis=1)
+        length = norm_rows(n)
         if not (np.isfinite(length).all() and (length > 0).all()):
             bad = int(np.flatnonzero(~(np.isfinite(length) & (length > 0)))[0])
             raise MeshError(f"{source}: normal {bad} is zero or not finite ({n[bad].tolist()})")
@@ -133,13 +151,27 @@ def check_mesh(vertices, triangles, normals=None, source="<mesh>"):
     return v, t, n
 
 
+def cross_rows(a, b):
+    """Row-wise a x b of (M, 3) arrays (np.cross is several times slower)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
+def norm_rows(a):
+    """Row-wise Euclidean length of an (M, 3) array."""
+    return np.sqrt(a[:, 0] * a[:, 0] + a[:, 1] * a[:, 1] + a[:, 2] * a[:, 2])
+
+
 def degenerate(vertices, triangles):
     """Mask of triangles with a repeated index or (relative to their edge
     lengths) zero area."""
-    a, b, c = (vertices[triangles[:, k]] for k in range(3))
-    e1, e2 = b - a, c - a
-    area2 = np.linalg.norm(np.cross(e1, e2), axis=1)
-    scale = np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1)
+    a = vertices[triangles[:, 0]]
+    e1, e2 = vertices[triangles[:, 1]] - a, vertices[triangles[:, 2]] - a
+    area2 = norm_rows(cross_rows(e1, e2))
+    scale = norm_rows(e1) * norm_rows(e2)
     repeated = ((triangles[:, 0] == triangles[:, 1]) | (triangles[:, 1] == triangles[:, 2])
                 | (triangles[:, 0] == triangles[:, 2]))
     return repeated | ~(area2 > 1e-12 * scale) | (scale == 0)
@@ -163,7 +195,7 @@ def transform_mesh(vertices, normals, matrix):
     if normals is None:
         return v, None
     n = np.asarray(normals, dtype=np.float64) @ np.linalg.inv(a)  # (A^-T n) as rows
-    return v, n / np.linalg.norm(n, axis=1, keepdims=True)
+    return v, n / norm_rows(n)[:, None]
 
 
 def _axis_rotation(axis, degrees):

@@ -5,7 +5,8 @@ this module fills them. Records are 4-vectors of the kernel's real type
 (float32, or float64 for double-precision builds), in sections:
 
   materials, spheres, quads, triangles, planes, lights, caustic casters,
-  then BVH nodes, BVH items, vertex normals and mesh-light triangles.
+  then BVH nodes and leaf blocks (which hold their items' records), vertex
+  normals and mesh-light triangles.
 
 Scenes with fewer than BVH_MIN_PRIMS bounded primitives keep them in the
 plain sections, which the kernels loop over; larger ones put every sphere,
@@ -21,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import bvh as bvh_mod
-from .layout import (BVH_NODE, CAUSTIC, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_QUAD,
+from .layout import (BVH_LEAF, BVH_NODE, CAUSTIC, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_QUAD,
                      KIND_SPHERE, KIND_TRIANGLE, LIGHT, LIGHT_TRI, MATERIAL, NORMALS, PLANAR, PLANE, SPHERE)
 from .scene import Camera, Material, Scene, SceneError, Sphere, length_scale
 
@@ -111,22 +112,32 @@ def _material_records(m: Material):
     ]
 
 
+def _cross(a, b):
+    """Row-wise a x b of (M, 3) arrays (np.cross is several times slower)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return out
+
+
 def _planar_array(c, u, v, mat, kind, prim, light1):
     """PLANAR records (M, 4, 4) of parallelograms or triangles corner c with
     edges u, v (M, 3 each), and their unit normals and areas of the
     parallelogram. kind: ITEM_QUAD or ITEM_FLAT_TRIANGLE."""
-    n_raw = np.cross(u, v)
-    nn = np.einsum("ij,ij->i", n_raw, n_raw)
-    ln = np.sqrt(nn)
-    n = n_raw / ln[:, None]
-    # Dual vectors: for q = a u + b v in the plane, a = q.wu and b = q.wv.
-    wu = np.cross(v, n_raw) / nn[:, None]
-    wv = np.cross(n_raw, u) / nn[:, None]
     out = np.empty((len(c), 4, 4))
+    n_raw = _cross(u, v)
+    nn = n_raw[:, 0] * n_raw[:, 0] + n_raw[:, 1] * n_raw[:, 1] + n_raw[:, 2] * n_raw[:, 2]
+    ln = np.sqrt(nn)
+    n = out[:, 1, :3]
+    np.divide(n_raw, ln[:, None], out=n)
+    # Dual vectors: for q = a u + b v in the plane, a = q.wu and b = q.wv.
+    np.divide(_cross(v, n_raw), nn[:, None], out=out[:, 2, :3])
+    np.divide(_cross(n_raw, u), nn[:, None], out=out[:, 3, :3])
     out[:, 0, :3], out[:, 0, 3] = c, mat
-    out[:, 1, :3], out[:, 1, 3] = n, light1
-    out[:, 2, :3], out[:, 2, 3] = wu, prim
-    out[:, 3, :3], out[:, 3, 3] = wv, kind
+    out[:, 1, 3] = light1
+    out[:, 2, 3] = prim
+    out[:, 3, 3] = kind
     return out, n, ln
 
 
@@ -235,8 +246,7 @@ class _Builder:
         u, w = v1 - v0, v2 - v0
         recs, n, ln = _planar_array(v0, u, w, mid, ITEM_FLAT_TRIANGLE, self._prims(len(t)), self._light1(m))
         self.blocks[KIND_TRIANGLE].append(recs)
-        tv = np.stack([v0, v1, v2], axis=1)
-        self.bounds.append((tv.min(1), tv.max(1)))
+        self.bounds.append((np.minimum(np.minimum(v0, v1), v2), np.maximum(np.maximum(v0, v1), v2)))
         if p.normals is not None:
             self.normals.append((recs, p.normals[t]))
         if m.is_emissive:
@@ -270,6 +280,25 @@ def _sphere_records(spheres):
     return plain, items
 
 
+# Primitives whose box has at least this share of the scene's box surface
+# area stay in the plain loops when there is a BVH, at most BIG_MAX of them.
+BIG_SHARE = 0.05
+BIG_MAX = 16
+
+
+def _big_primitives(lo, hi, exclude):
+    """Mask of the (at most BIG_MAX) primitives, boxes lo..hi, not excluded,
+    whose box surface is at least BIG_SHARE of the whole's; at least one
+    primitive is left out of it."""
+    area = bvh_mod._area(hi - lo)
+    whole = float(bvh_mod._area(hi.max(0) - lo.min(0)))
+    cand = np.flatnonzero((area >= BIG_SHARE * whole) & ~exclude)
+    cand = cand[np.argsort(-area[cand], kind="stable")][:min(BIG_MAX, len(lo) - 1)]
+    big = np.zeros(len(lo), dtype=bool)
+    big[cand] = True
+    return big
+
+
 def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh") -> PackedScene:
     """bvh: "auto" (a BVH from BVH_MIN_PRIMS bounded primitives), True/"on"
     (always), False/"off" (never: plain loops)."""
@@ -296,43 +325,62 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     lights = b.lights
     powers = np.array([sides * math.pi * area * float(np.mean(m.emission)) for sides, area, m, *_ in lights])
     probs = powers / powers.sum()
-    cdf = np.cumsum(probs)
-    cdf[-1] = 1.0
+    # Walker's alias table over them: light j's record keeps slot j's
+    # probability (info.z) and its alias (n.w), for an O(1) pick.
+    keep, alias = alias_table(powers) if len(lights) else (np.zeros(0), np.zeros(0, dtype=np.int64))
     caustics = np.array(_caustic_objects(scene), dtype=np.float64).reshape(-1, 4)
 
     n_mat = len(surfaces)
     mat_recs = np.array([r for m in surfaces for r in _material_records(m)], dtype=np.float64).reshape(-1, 4)
-    head = (len(mat_recs) + (0 if use_bvh else len(sphere_plain) * SPHERE_STRIDE + PLANAR_STRIDE * (len(quads) + len(tris)))
-            + len(planes) + LIGHT_STRIDE * len(lights) + len(caustics))
-    tree = None
-    nodes = np.zeros((0, 4))
     if use_bvh:
         # Items in prim order, as the bounds are (spheres, quads and
         # triangles are interleaved in scene order).
-        items = np.concatenate([sphere_items, quads, tris])
-        items = items[np.argsort(items[:, 2, 3], kind="stable")]
+        items = np.concatenate([sphere_items, quads, tris]) if len(sphere_items) or len(quads) else tris
+        prim = items[:, 2, 3]
+        if not (np.diff(prim) > 0).all():
+            items = items[np.argsort(prim, kind="stable")]
         lo = np.concatenate([x for x, _ in b.bounds])
         hi = np.concatenate([y for _, y in b.bounds])
+        # The few primitives as big as the scene (a room's walls) stay in the
+        # plain loops, which test them against all lanes at once and give the
+        # walk a near tmax; in the tree their boxes would overlap everything.
+        smooth_prims = np.concatenate([r[:, 2, 3] for r, _ in b.normals]) if b.normals else np.zeros(0)
+        big = _big_primitives(lo, hi, np.isin(items[:, 2, 3], smooth_prims))
+        big_ids = items[big, 2, 3]
+        sphere_plain = sphere_plain[np.isin(sphere_plain[:, 1, 2], big_ids)]
+        quads = quads[np.isin(quads[:, 2, 3], big_ids)]
+        tris = tris[np.isin(tris[:, 2, 3], big_ids)]
+        items, lo, hi = items[~big], lo[~big], hi[~big]
+    head = (len(mat_recs) + len(sphere_plain) * SPHERE_STRIDE + PLANAR_STRIDE * (len(quads) + len(tris))
+            + len(planes) + LIGHT_STRIDE * len(lights) + len(caustics))
+    # The BVH starts on a 64-byte boundary (4 real4 records; scene.h OFF_BVH),
+    # so that a node's rows of 8 floats never straddle cache lines.
+    pad = (-head) % 4 if use_bvh else 0
+    head += pad
+    tree = None
+    nodes = np.zeros((0, 4))
+    if use_bvh:
         tree = bvh_mod.build(lo, hi, method=bvh_method)
-        if tree.depth() >= bvh_mod.MAX_DEPTH:  # the kernels' traversal stack
-            raise SceneError(f"{scene.source}: the BVH is {tree.depth()} levels deep, more than the kernels' "
-                             f"{bvh_mod.MAX_DEPTH}; try bvh_method='lbvh'")
-        n_inner = max(1, int((tree.left >= 0).sum()))
-        item_base = head + BVH_NODE.stride * n_inner
-        nodes = bvh_mod.flatten(tree, head, item_base, PLANAR_STRIDE, double=False).reshape(-1, 4)
+        wide = bvh_mod.collapse(tree)
+        if bvh_mod.stack_need(wide) > bvh_mod.MAX_STACK:  # the kernels' traversal stack
+            raise SceneError(f"{scene.source}: the BVH is {wide.levels} wide levels deep, more than the kernels' "
+                             f"traversal stack holds; try bvh_method='lbvh'")
+        # Nodes, then leaf blocks, which hold their items' records whole.
+        leaf_base = head + BVH_NODE.stride * wide.n_nodes
+        nodes, leaves = bvh_mod.flatten(tree, wide, head, leaf_base, double=False)
+        nodes = nodes.reshape(-1, 4)
         items = items[tree.order]
-        geo_sections = [items]
+        bvh_end = leaf_base + BVH_LEAF.stride * len(leaves)
     else:
-        item_base = None
-        geo_sections = []
+        bvh_end = head
     # Vertex normals: one NORMALS record per smooth triangle, pointed to by
     # the w of its planar record's last row (which the blocks above share).
-    normals_base = head + len(nodes) + sum(PLANAR_STRIDE * len(g) for g in geo_sections)
+    normals_base = bvh_end
     smooth = bool(b.normals)
     normal_recs = []
     if smooth:
         if use_bvh:
-            slot_prims = geo_sections[0][:, 2, 3].astype(np.int64)
+            slot_prims = items[:, 2, 3].astype(np.int64)
             prim_to_slot = np.full(b.n_prims, -1, dtype=np.int64)
             prim_to_slot[slot_prims] = np.arange(len(slot_prims))
         k = 0
@@ -340,7 +388,7 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
             idx = normals_base + NORMALS.stride * (k + np.arange(len(recs)))
             prims = recs[:, 2, 3].astype(np.int64)
             if use_bvh:
-                geo_sections[0][prim_to_slot[prims], 3, 3] = idx
+                items[prim_to_slot[prims], 3, 3] = idx
             else:
                 tris[np.searchsorted(tris[:, 2, 3], recs[:, 2, 3]), 3, 3] = idx
             block = np.zeros((len(recs), NORMALS.stride, 4))
@@ -348,23 +396,25 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
             normal_recs.append(block.reshape(-1, 4))
             k += len(recs)
     normal_recs = np.concatenate(normal_recs) if normal_recs else np.zeros((0, 4))
+    if use_bvh:  # the items' records (smooth ones now pointing to their normals) into the leaf blocks
+        nodes = np.concatenate([nodes, bvh_mod.leaf_blocks(tree, leaves, items).reshape(-1, 4)])
     ltri_base = normals_base + len(normal_recs)
     light_recs, ltri_recs = [], []
-    for (sides, area, m, recs, mid, ltris), pr, cd in zip(lights, probs, cdf):
+    for (sides, area, m, recs, mid, ltris), pr, kp, al in zip(lights, probs, keep, alias):
         recs = [list(r) for r in recs]
         if ltris is not None:
             recs[1][0] = ltri_base + sum(len(x) for x in ltri_recs)
             ltri_recs.append(ltris.reshape(-1, 4))
-        light_recs += recs + [(area, pr, cd, mid)]
+        recs[3][3] = float(al)
+        light_recs += recs + [(area, pr, kp, mid)]
     light_recs = np.array(light_recs, dtype=np.float64).reshape(-1, 4)
     ltri_recs = np.concatenate(ltri_recs) if ltri_recs else np.zeros((0, 4))
 
-    plain = [] if use_bvh else [sphere_plain.reshape(-1, 4), quads.reshape(-1, 4), tris.reshape(-1, 4)]
-    records = np.concatenate([mat_recs, *plain, planes, light_recs, caustics, nodes,
-                              *[g.reshape(-1, 4) for g in geo_sections], normal_recs, ltri_recs])
-    n_nodes = len(nodes) // BVH_NODE.stride
-    counts = (n_mat, 0 if use_bvh else len(sphere_plain), 0 if use_bvh else len(quads),
-              0 if use_bvh else len(tris), len(planes) // PLANE_STRIDE, len(lights), len(caustics), n_nodes)
+    plain = [sphere_plain.reshape(-1, 4), quads.reshape(-1, 4), tris.reshape(-1, 4)]
+    records = np.concatenate([mat_recs, *plain, planes, light_recs, caustics, np.zeros((pad, 4)), nodes,
+                              normal_recs, ltri_recs])
+    n_nodes = wide.n_nodes if use_bvh else 0
+    counts = (n_mat, len(sphere_plain), len(quads), len(tris), len(planes) // PLANE_STRIDE, len(lights), len(caustics), n_nodes)
     kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere",
              LIGHT_KIND_MESH: "mesh"}
     lo, hi = scene.bounds(camera=False)

@@ -374,11 +374,16 @@ class Mesh(_ShapeBase):
         pass  # checked (and degenerate triangles dropped) on construction
 
     def triangle_areas(self) -> np.ndarray:
+        from .meshio import cross_rows, norm_rows
         v, t = self.vertices, self.triangles
-        return 0.5 * np.linalg.norm(np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]), axis=1)
+        a = v[t[:, 0]]
+        return 0.5 * norm_rows(cross_rows(v[t[:, 1]] - a, v[t[:, 2]] - a))
 
     def area(self):
-        return float(self.triangle_areas().sum())
+        # The arrays are read-only, so the sum is computed once.
+        if "_area" not in self.__dict__:
+            object.__setattr__(self, "_area", float(self.triangle_areas().sum()))
+        return self.__dict__["_area"]
 
     def points(self):
         return self.vertices

@@ -1,23 +1,104 @@
 // bvh.h: closest-hit and shadow queries through the scene's BVH.
 //
-// Layout (clpt/layout.py BvhNode, built by clpt/bvh.py, packed by
-// clpt/pack.py): a node holds both children's boxes, lo.xyz | hi.xyz, with a
-// pointer in lo.w and a count in hi.w: count > 0 is a leaf of that many
-// items (PlanarRec each, spheres among them) from record pointer, 0 an inner
-// node at record pointer, -1 no child (a root that is a single leaf). The
-// root is the node at OFF_BVH.
+// Layout (clpt/layout.py BvhNode and BvhLeaf, built by clpt/bvh.py, packed
+// by clpt/pack.py): a wide node holds its 8 children's boxes as rows of 8
+// reals (lo.x, hi.x, lo.y, hi.y, lo.z, hi.z), then their pointers and
+// counts: count > 0 is a leaf block of that many items at the pointer, 0 a
+// node at the pointer, -1 an empty slot. A leaf block holds up to 4 items
+// (triangles, quads, spheres) in rows of 4 reals (structure of arrays):
+// their PlanarRec fields, geometry and the hit's attributes (material,
+// light, primitive id, kind), 256 bytes. The root is the node at OFF_BVH,
+// on a 64-byte boundary, so no node or leaf straddles more cache lines
+// than it fills.
 //
 // Two walks (CLPT_BVH_LANE_WALK chooses; README "BVH" has the measurements):
-//   packet (0)  all CLPT_LANES rays of the work-item walk the tree together:
-//               each node's two boxes are tested against every lane at once,
-//               a child is entered if any lane enters it, the nearer first
-//               (by the smallest entry distance among the lanes); a leaf's
-//               items get the lanes' vector tests of the plain loops.
-//   per lane (1) each lane's ray walks alone in scalar code with its own
-//               stack, nearer child first; tests mirror the vector ones.
-// The stack holds at most the tree's depth, which the host bounds.
+//   packet (0)  all CLPT_LANES rays of the work-item walk the tree together
+//               where they are coherent (all active, one origin: camera
+//               rays), each child's box tested against every lane at once,
+//               a child entered if any lane enters it, the nearest first;
+//               other rays take the per-lane walk.
+//   per lane (1) each lane's ray walks alone with its own stack: a node's
+//               8 boxes are tested against the one ray in one vector
+//               operation, and a leaf's 4 items likewise (Embree's way);
+//               the nearest child is entered first, the others pushed with
+//               their entry distance and skipped when popped beyond the
+//               nearest hit found by then.
+// The stack bound (clpt/bvh.py MAX_STACK) is checked by the host.
 
-#define BVH_STACK 64
+#define BVH_STACK 96
+#define BVH_LEAF_BIT 0x80000000u
+
+#if CLPT_DOUBLE
+typedef double8 breal8;
+typedef long8 bmask8;
+#else
+typedef float8 breal8;
+typedef int8 bmask8;
+#endif
+#if BVHL_WIDTH == 4
+typedef real4 lreal;
+#if CLPT_DOUBLE
+typedef long4 lmask;
+#else
+typedef int4 lmask;
+#endif
+#define LEAF_MIN(v) bvh_min4(v)
+#else
+#error "leaf blocks of 4 items"
+#endif
+#define BVH_EL(v, k) (((private real *)&(v))[k])
+// Sort keys of 8 non-negative reals: their bits as unsigned integers.
+#if CLPT_DOUBLE
+typedef ulong8 bkey8;
+typedef ulong bkeyel;
+#define BVH_AS_KEY8(v) as_ulong8(v)
+#define BVH_KEY_INF 0x7ff0000000000000ul
+#define BVH_KEY_MASK 0x7ffffffffffffff8ul
+#define BVH_IOTA8 ((ulong8)(0, 1, 2, 3, 4, 5, 6, 7))
+#else
+typedef uint8 bkey8;
+typedef uint bkeyel;
+#define BVH_AS_KEY8(v) as_uint8(v)
+#define BVH_KEY_INF 0x7f800000u
+#define BVH_KEY_MASK 0x7ffffff8u
+#define BVH_IOTA8 ((uint8)(0, 1, 2, 3, 4, 5, 6, 7))
+#endif
+// An 8-lane comparison's mask as int8 (-1: true).
+#if CLPT_DOUBLE
+#define BVH_I8(m) convert_int8(m)
+#else
+#define BVH_I8(m) (m)
+#endif
+
+// Row `row` (8 reals) of the node or leaf block at record rec.
+inline breal8 bvh_row(const Scene *sc, uint rec, int row)
+{
+#if CLPT_DOUBLE
+    return vload8(row, (SCENE_SPACE const double *)(sc->rec + rec));
+#else
+    return vload8(row, (SCENE_SPACE const float *)(sc->rec + rec));
+#endif
+}
+
+// Row `row` (BVHL_WIDTH reals) of a leaf block.
+inline lreal bvh_lrow(const Scene *sc, uint blk, int row)
+{
+    return scene_rec(sc, blk + row);
+}
+
+inline real bvh_min4(real4 v)
+{
+    __typeof__(v.lo) a = min(v.lo, v.hi);
+    return min(a.x, a.y);
+}
+
+// Smallest of 8 (no NaNs).
+inline real bvh_min8(breal8 v)
+{
+    __typeof__(v.lo) a = min(v.lo, v.hi);
+    __typeof__(a.lo) b = min(a.lo, a.hi);
+    return min(b.x, b.y);
+}
 
 // Entry distance into the box lo..hi for lanes that enter it before tmax
 // (+inf for the others). The exit distance is widened by a few ulps so that
@@ -59,12 +140,28 @@ inline real bvh_min_lane(vreal v)
 #endif
 }
 
-// Closest hits among a leaf's items, into h.
-inline void bvh_leaf_closest(const Scene *sc, uint first, uint count, V3 o, V3 d, Hit *h)
+// Item k of the leaf block at blk as the PlanarRec rows p, n, wu, wv.
+inline void bvh_leaf_item(const Scene *sc, uint blk, int k, real4 *p, real4 *n, real4 *wu, real4 *wv)
 {
-    for (uint k = 0; k < count; k++) {
-        uint r = first + PLANAR_STRIDE * k;
-        real4 p = scene_rec(sc, r), n = scene_rec(sc, r + 1), wu = scene_rec(sc, r + 2), wv = scene_rec(sc, r + 3);
+    real4 r[16];
+#pragma unroll
+    for (int i = 0; i < 16; i++)
+        r[i] = bvh_lrow(sc, blk, i);
+    *p = (real4)(BVH_EL(r[0], k), BVH_EL(r[1], k), BVH_EL(r[2], k), BVH_EL(r[13], k));
+    *n = (real4)(BVH_EL(r[3], k), BVH_EL(r[4], k), BVH_EL(r[5], k), BVH_EL(r[14], k));
+    *wu = (real4)(BVH_EL(r[6], k), BVH_EL(r[7], k), BVH_EL(r[8], k), BVH_EL(r[15], k));
+    *wv = (real4)(BVH_EL(r[9], k), BVH_EL(r[10], k), BVH_EL(r[11], k), BVH_EL(r[12], k));
+}
+
+// Closest hits among a leaf's items, into h (every lane against each item).
+inline void bvh_leaf_closest(const Scene *sc, uint blk, V3 o, V3 d, Hit *h)
+{
+    real4 kind = bvh_lrow(sc, blk, BVHL_KIND);
+    for (int k = 0; k < BVHL_WIDTH; k++) {
+        if (BVH_EL(kind, k) == (real)ITEM_EMPTY)
+            break;
+        real4 p, n, wu, wv;
+        bvh_leaf_item(sc, blk, k, &p, &n, &wu, &wv);
         if (wv.w == (real)ITEM_SPHERE) {
             real4 cr = (real4)(p.x, p.y, p.z, n.x);
             vreal t = intersect_sphere(cr, o, d);
@@ -78,11 +175,14 @@ inline void bvh_leaf_closest(const Scene *sc, uint first, uint count, V3 o, V3 d
 }
 
 // Lanes among !occ that a leaf's items block before tmax, or'ed into occ.
-inline vmask bvh_leaf_occluded(const Scene *sc, uint first, uint count, V3 o, V3 d, vreal tmax, vmask occ)
+inline vmask bvh_leaf_occluded(const Scene *sc, uint blk, V3 o, V3 d, vreal tmax, vmask occ)
 {
-    for (uint k = 0; k < count; k++) {
-        uint r = first + PLANAR_STRIDE * k;
-        real4 p = scene_rec(sc, r), n = scene_rec(sc, r + 1), wu = scene_rec(sc, r + 2), wv = scene_rec(sc, r + 3);
+    real4 kind = bvh_lrow(sc, blk, BVHL_KIND);
+    for (int k = 0; k < BVHL_WIDTH; k++) {
+        if (BVH_EL(kind, k) == (real)ITEM_EMPTY)
+            break;
+        real4 p, n, wu, wv;
+        bvh_leaf_item(sc, blk, k, &p, &n, &wu, &wv);
         vreal t;
         if (wv.w == (real)ITEM_SPHERE) {
             t = intersect_sphere((real4)(p.x, p.y, p.z, n.x), o, d);
@@ -95,170 +195,173 @@ inline vmask bvh_leaf_occluded(const Scene *sc, uint first, uint count, V3 o, V3
     return occ;
 }
 
-// The walk shared by both queries. LEAF(first, count) tests a leaf; TMAX is
-// the per-lane distance beyond which boxes are not entered (lanes with
-// nothing left to find have it at -1); DONE ends the walk early.
-#define BVH_WALK(TMAX, LEAF, DONE)                                                                  \
-    V3 inv = v3(R(1) / d.x, R(1) / d.y, R(1) / d.z);                                                \
-    uint stack[BVH_STACK];                                                                          \
-    int sp = 0;                                                                                     \
-    uint node = OFF_BVH;                                                                            \
-    for (;;) {                                                                                      \
-        real4 l0 = scene_rec(sc, node), l1 = scene_rec(sc, node + 1);                               \
-        real4 r0 = scene_rec(sc, node + 2), r1 = scene_rec(sc, node + 3);                           \
-        vreal tl = bvh_enter(l0, l1, o, inv, TMAX);                                                 \
-        vreal tr = r1.w >= R(0) ? bvh_enter(r0, r1, o, inv, TMAX) : (vreal)R(INFINITY);            \
-        int hl = VANY(tl < R(INFINITY)), hr = VANY(tr < R(INFINITY));                               \
-        if (hl && l1.w > R(0)) { LEAF((uint)l0.w, (uint)l1.w); hl = 0; if (DONE) break; }          \
-        if (hr && r1.w > R(0)) { LEAF((uint)r0.w, (uint)r1.w); hr = 0; if (DONE) break; }          \
-        if (hl && hr) {                                                                             \
-            int right_first = bvh_min_lane(tr) < bvh_min_lane(tl);                                  \
-            stack[sp++] = right_first ? (uint)l0.w : (uint)r0.w;                                    \
-            node = right_first ? (uint)r0.w : (uint)l0.w;                                           \
-        } else if (hl) {                                                                            \
-            node = (uint)l0.w;                                                                      \
-        } else if (hr) {                                                                            \
-            node = (uint)r0.w;                                                                      \
-        } else {                                                                                    \
-            if (sp == 0) break;                                                                     \
-            node = stack[--sp];                                                                     \
-        }                                                                                           \
+// --- one ray against a wide node and a leaf block, in vectors of 8 ---------
+// The box and item tests mirror bvh_enter and the plain loops' tests
+// operation for operation, so every walk finds the same hits.
+
+// Entry distances of the ray into the node's 8 boxes (+inf: missed or
+// empty). Each axis is entered by the lo plane for a positive direction
+// and the hi plane for a negative one (neg): with no zero directions (bvh_safe_inv) the slab ends need no min/max to order them.
+inline breal8 bvh_node_enter1(const Scene *sc, uint node, real3 o, real3 inv, int3 neg, real tmax)
+{
+    breal8 lx = bvh_row(sc, node, 0), hx = bvh_row(sc, node, 1);
+    breal8 ly = bvh_row(sc, node, 2), hy = bvh_row(sc, node, 3);
+    breal8 lz = bvh_row(sc, node, 4), hz = bvh_row(sc, node, 5);
+    // Vector blends on the ray's (fixed) signs, not branches.
+    bmask8 mx = (bmask8)(-neg.x), my = (bmask8)(-neg.y), mz = (bmask8)(-neg.z);
+    breal8 nx = (select(lx, hx, mx) - o.x) * inv.x, fx = (select(hx, lx, mx) - o.x) * inv.x;
+    breal8 ny = (select(ly, hy, my) - o.y) * inv.y, fy = (select(hy, ly, my) - o.y) * inv.y;
+    breal8 nz = (select(lz, hz, mz) - o.z) * inv.z, fz = (select(hz, lz, mz) - o.z) * inv.z;
+    breal8 tn = max(max(nx, ny), max(nz, (breal8)R(0)));
+    breal8 tf = min(min(fx, fy), fz) * R(1 + 4 * REAL_EPS);
+    bmask8 hit = tn <= min(tf, (breal8)tmax) && bvh_row(sc, node, 7) >= R(0);
+    return select((breal8)R(INFINITY), tn, hit);
+}
+
+// 1 / d with zero and tiny components replaced by +-BVH_TINY first, so that
+// (box plane - origin) * inverse is never 0 * inf (NaN): a ray in a box's
+// face plane counts as inside that slab's side it moves towards.
+#define BVH_TINY R(1e-18)
+inline real bvh_safe_inv(real x)
+{
+    return R(1) / (fabs(x) < BVH_TINY ? copysign(BVH_TINY, x) : x);
+}
+
+// The leaf block's items against the ray (in rows of BVHL_WIDTH): where one is hit before *tmax,
+// *tmax, *best (its PlanarRec) and its coordinates a, b take the nearest.
+// Returns whether one was.
+inline int bvh_leaf1(const Scene *sc, uint blk, real3 o, real3 d, real *tmax, int *best, real *a_out, real *b_out)
+{
+    lreal px = bvh_lrow(sc, blk, 0), py = bvh_lrow(sc, blk, 1), pz = bvh_lrow(sc, blk, 2);
+    lreal nx = bvh_lrow(sc, blk, 3), ny = bvh_lrow(sc, blk, 4), nz = bvh_lrow(sc, blk, 5);
+    lreal kind = bvh_lrow(sc, blk, BVHL_KIND);
+    lreal opx = o.x - px, opy = o.y - py, opz = o.z - pz;
+    lreal t = -(opx * nx + opy * ny + opz * nz) / (d.x * nx + d.y * ny + d.z * nz);
+    lreal qx = mad((lreal)d.x, t, opx), qy = mad((lreal)d.y, t, opy), qz = mad((lreal)d.z, t, opz);
+    lreal a = qx * bvh_lrow(sc, blk, 6) + qy * bvh_lrow(sc, blk, 7) + qz * bvh_lrow(sc, blk, 8);
+    lreal b = qx * bvh_lrow(sc, blk, 9) + qy * bvh_lrow(sc, blk, 10) + qz * bvh_lrow(sc, blk, 11);
+    lmask tri = kind >= R(0) || kind == (real)ITEM_FLAT_TRIANGLE;  // >= 0: a smooth triangle
+    lmask in = a >= R(0) && b >= R(0) && ((tri && a + b <= R(1)) || (kind == (real)ITEM_QUAD && a <= R(1) && b <= R(1)));
+    lreal tt = select((lreal)R(INFINITY), t, in && t > R(0));
+    lmask sph = kind == (real)ITEM_SPHERE;
+    if (any(sph)) {
+        lreal bb = opx * d.x + opy * d.y + opz * d.z;
+        lreal fx = mad((lreal)d.x, -bb, opx), fy = mad((lreal)d.y, -bb, opy), fz = mad((lreal)d.z, -bb, opz);
+        lreal r2 = nx * nx;
+        lreal disc = r2 - (fx * fx + fy * fy + fz * fz);
+        lreal c = (opx * opx + opy * opy + opz * opz) - r2;
+        lreal q = -bb - copysign(sqrt(fmax(disc, R(0))), bb);
+        lreal t0 = c / q, t1 = q;
+        lreal tn = fmin(t0, t1), tf = fmax(t0, t1);
+        lreal ts = select(tf, tn, tn > R(0));
+        tt = select(tt, select((lreal)R(INFINITY), ts, disc >= R(0) && ts > R(0)), sph);
+        a = select(a, (lreal)R(0), sph);
+        b = select(b, (lreal)R(0), sph);
     }
-
-#if !CLPT_BVH_LANE_WALK
-void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h)
-{
-#define BVH_LEAF_CLOSEST(first, count) bvh_leaf_closest(sc, first, count, o, d, h)
-    BVH_WALK(h->t, BVH_LEAF_CLOSEST, 0)
-#undef BVH_LEAF_CLOSEST
-}
-
-vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
-{
-    vreal tm = VSEL(tmax, (vreal)R(-1), occ);
-#define BVH_LEAF_OCCLUDED(first, count) \
-    do { occ = bvh_leaf_occluded(sc, first, count, o, d, tmax, occ); tm = VSEL(tmax, (vreal)R(-1), occ); } while (0)
-    BVH_WALK(tm, BVH_LEAF_OCCLUDED, VALL(occ))
-#undef BVH_LEAF_OCCLUDED
-    return occ;
-}
-
-#else
-// --- per-lane walk: each lane's ray in scalar code with its own stack ----------
-// The scalar tests mirror the vector ones operation for operation, so both
-// walks find the same hits.
-inline real bvh_enter1(real4 lo, real4 hi, real3 o, real3 inv, real tmax)
-{
-    real x0 = (lo.x - o.x) * inv.x, x1 = (hi.x - o.x) * inv.x;
-    real y0 = (lo.y - o.y) * inv.y, y1 = (hi.y - o.y) * inv.y;
-    real z0 = (lo.z - o.z) * inv.z, z1 = (hi.z - o.z) * inv.z;
-    real tn = fmax(fmax(fmin(x0, x1), fmin(y0, y1)), fmax(fmin(z0, z1), R(0)));
-    real tf = fmin(fmin(fmax(x0, x1), fmax(y0, y1)), fmax(z0, z1)) * R(1 + 4 * REAL_EPS);
-    return tn <= fmin(tf, tmax) ? tn : R(INFINITY);
-}
-
-inline real intersect_item1(real4 p, real4 n, real4 wu, real4 wv, real3 o, real3 d, real *a_out, real *b_out)
-{
-    *a_out = *b_out = R(0);
-    if (wv.w == (real)ITEM_SPHERE) {
-        real3 oc = (real3)(o.x - p.x, o.y - p.y, o.z - p.z);
-        real b = oc.x * d.x + oc.y * d.y + oc.z * d.z;
-        real3 f = (real3)(mad(d.x, -b, oc.x), mad(d.y, -b, oc.y), mad(d.z, -b, oc.z));
-        real r2 = n.x * n.x;
-        real disc = r2 - (f.x * f.x + f.y * f.y + f.z * f.z);
-        real c = (oc.x * oc.x + oc.y * oc.y + oc.z * oc.z) - r2;
-        real q = -b - copysign(sqrt(fmax(disc, R(0))), b);
-        real t0 = c / q, t1 = q;
-        real tn = fmin(t0, t1), tf = fmax(t0, t1);
-        real t = tn > R(0) ? tn : tf;
-        return disc >= R(0) && t > R(0) ? t : R(INFINITY);
-    }
-    real3 op = (real3)(o.x - p.x, o.y - p.y, o.z - p.z);
-    real t = -(op.x * n.x + op.y * n.y + op.z * n.z) / (d.x * n.x + d.y * n.y + d.z * n.z);
-    real3 q = (real3)(mad(d.x, t, op.x), mad(d.y, t, op.y), mad(d.z, t, op.z));
-    real a = q.x * wu.x + q.y * wu.y + q.z * wu.z, b = q.x * wv.x + q.y * wv.y + q.z * wv.z;
-    int in = wv.w != (real)ITEM_QUAD ? (a >= R(0) && b >= R(0) && a + b <= R(1))
-                                     : (a >= R(0) && b >= R(0) && a <= R(1) && b <= R(1));
-    *a_out = a;
-    *b_out = b;
-    return in && t > R(0) ? t : R(INFINITY);
+    tt = select((lreal)R(INFINITY), tt, tt < *tmax);
+    real tmin = LEAF_MIN(tt);
+    if (!(tmin < *tmax))
+        return 0;
+    int k = BVHL_WIDTH - 1;
+#pragma unroll
+    for (int j = BVHL_WIDTH - 2; j >= 0; j--)
+        k = BVH_EL(tt, j) == tmin ? j : k;
+    *tmax = tmin;
+    *best = (int)(blk << 2) | k;  // the block and slot (blocks are below 2^24 records)
+    *a_out = BVH_EL(a, k);
+    *b_out = BVH_EL(b, k);
+    return 1;
 }
 
 // One lane's walk: the nearest item before tmax (its record, or -1) and
 // its t and coordinates; any = 1 stops at the first item hit (shadow rays).
 inline int bvh_walk1(const Scene *sc, real3 o, real3 d, real tmax, int any, real *t_out, real *a_out, real *b_out)
 {
-    real3 inv = (real3)(R(1) / d.x, R(1) / d.y, R(1) / d.z);
+    real3 inv = (real3)(bvh_safe_inv(d.x), bvh_safe_inv(d.y), bvh_safe_inv(d.z));
+    int3 neg = (int3)(inv.x < R(0), inv.y < R(0), inv.z < R(0));
     uint stack[BVH_STACK];
+    real stack_t[BVH_STACK];
     int sp = 0, best = -1;
-    uint node = OFF_BVH;
+    uint cur = OFF_BVH;
     for (;;) {
-        real4 l0 = scene_rec(sc, node), l1 = scene_rec(sc, node + 1);
-        real4 r0 = scene_rec(sc, node + 2), r1 = scene_rec(sc, node + 3);
-        real tl = bvh_enter1(l0, l1, o, inv, tmax);
-        real tr = r1.w >= R(0) ? bvh_enter1(r0, r1, o, inv, tmax) : R(INFINITY);
-        int hl = tl < R(INFINITY), hr = tr < R(INFINITY);
-        for (int side = 0; side < 2; side++) {
-            real4 c0 = side ? r0 : l0, c1 = side ? r1 : l1;
-            if (!(side ? hr : hl) || c1.w <= R(0))
-                continue;
-            for (uint k = 0; k < (uint)c1.w; k++) {
-                uint r = (uint)c0.w + PLANAR_STRIDE * k;
-                real a, b;
-                real t = intersect_item1(scene_rec(sc, r), scene_rec(sc, r + 1), scene_rec(sc, r + 2),
-                                         scene_rec(sc, r + 3), o, d, &a, &b);
-                if (t < tmax) {
-                    tmax = t; best = (int)r; *a_out = a; *b_out = b;
-                    if (any) { *t_out = t; return best; }
-                }
-            }
-            if (side) hr = 0; else hl = 0;
-        }
-        if (hl && hr) {
-            int right_first = tr < tl;
-            stack[sp++] = right_first ? (uint)l0.w : (uint)r0.w;
-            node = right_first ? (uint)r0.w : (uint)l0.w;
-        } else if (hl) {
-            node = (uint)l0.w;
-        } else if (hr) {
-            node = (uint)r0.w;
+        if (cur & BVH_LEAF_BIT) {
+            if (bvh_leaf1(sc, cur & ~BVH_LEAF_BIT, o, d, &tmax, &best, a_out, b_out) && any)
+                break;
         } else {
-            if (sp == 0) break;
-            node = stack[--sp];
+            breal8 tn = bvh_node_enter1(sc, cur, o, inv, neg, tmax);
+            // The nearest child and whether any was hit in one reduction: the
+            // entry distances' bits (>= 0, so ordered as integers) with the
+            // child's index in their lowest three (ties and near-ties go to
+            // the lower index; a missed child's +inf stays above every hit;
+            // the sign bit is dropped, for a -0 entry distance).
+            bkey8 key = (BVH_AS_KEY8(tn) & (bkey8)BVH_KEY_MASK) | BVH_IOTA8;
+            __typeof__(key.lo) k4 = min(key.lo, key.hi);
+            __typeof__(k4.lo) k2 = min(k4.lo, k4.hi);
+            bkeyel kmin = min(k2.x, k2.y);
+            if (kmin < BVH_KEY_INF) {
+                // Enter the nearest child; push the others hit.
+                breal8 ptr = bvh_row(sc, cur, 6), cnt = bvh_row(sc, cur, 7);
+                uint8 pk = convert_uint8(ptr) | (as_uint8(BVH_I8(cnt > R(0))) & (uint8)BVH_LEAF_BIT);
+                int8 hits = -BVH_I8(tn < R(INFINITY));
+                int kn = (int)(kmin & 7);
+                int4 h4 = hits.lo + hits.hi;
+                int2 h2 = h4.lo + h4.hi;
+                cur = ((private uint *)&pk)[kn];
+                if (h2.x + h2.y > 1) {
+#pragma unroll
+                    for (int k = 0; k < 8; k++) {
+                        stack[sp] = ((private uint *)&pk)[k];
+                        stack_t[sp] = BVH_EL(tn, k);
+                        sp += ((private int *)&hits)[k] & (k != kn);
+                    }
+                }
+                continue;
+            }
         }
+        // Pop the next child still nearer than the nearest hit.
+        for (;;) {
+            if (sp == 0) {
+                *t_out = tmax;
+                return best;
+            }
+            sp--;
+            if (stack_t[sp] <= tmax)
+                break;
+        }
+        cur = stack[sp];
     }
     *t_out = tmax;
     return best;
 }
 
-void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h)
+// Lane l's ray, and its hit written into h.
+inline void bvh_lane_closest(const Scene *sc, V3 o, V3 d, Hit *h, int l)
 {
-    for (int l = 0; l < CLPT_LANES; l++) {
-        real3 ol = (real3)(VLANE_R(o.x, l), VLANE_R(o.y, l), VLANE_R(o.z, l));
-        real3 dl = (real3)(VLANE_R(d.x, l), VLANE_R(d.y, l), VLANE_R(d.z, l));
-        real t, a, b;
-        int best = bvh_walk1(sc, ol, dl, VLANE_R(h->t, l), 0, &t, &a, &b);
-        if (best < 0)
-            continue;
-        uint r = (uint)best;
-        real4 p = scene_rec(sc, r), n = scene_rec(sc, r + 1), wu = scene_rec(sc, r + 2), wv = scene_rec(sc, r + 3);
-        real3 ng = n.xyz;
-        if (wv.w == (real)ITEM_SPHERE) {
-            real k = R(1) / n.x;
-            ng = (real3)(mad(dl.x, t, ol.x - p.x) * k, mad(dl.y, t, ol.y - p.y) * k, mad(dl.z, t, ol.z - p.z) * k);
-        }
-        VLANE_R(h->t, l) = t;
-        VLANE_R(h->ng.x, l) = ng.x; VLANE_R(h->ng.y, l) = ng.y; VLANE_R(h->ng.z, l) = ng.z;
-        VLANE_R(h->mat, l) = p.w;
-        VLANE_R(h->light, l) = n.w;
-        VLANE_R(h->prim, l) = wu.w;
-        VLANE_R(h->bu, l) = a;
-        VLANE_R(h->bv, l) = b;
-        VLANE_R(h->nrm, l) = wv.w;
+    real3 ol = (real3)(VLANE_R(o.x, l), VLANE_R(o.y, l), VLANE_R(o.z, l));
+    real3 dl = (real3)(VLANE_R(d.x, l), VLANE_R(d.y, l), VLANE_R(d.z, l));
+    real t, a, b;
+    int best = bvh_walk1(sc, ol, dl, VLANE_R(h->t, l), 0, &t, &a, &b);
+    if (best < 0)
+        return;
+    real4 p, n, wu, wv;
+    bvh_leaf_item(sc, (uint)best >> 2, best & 3, &p, &n, &wu, &wv);
+    real3 ng = n.xyz;
+    if (wv.w == (real)ITEM_SPHERE) {
+        real k = R(1) / n.x;
+        ng = (real3)(mad(dl.x, t, ol.x - p.x) * k, mad(dl.y, t, ol.y - p.y) * k, mad(dl.z, t, ol.z - p.z) * k);
     }
+    VLANE_R(h->t, l) = t;
+    VLANE_R(h->ng.x, l) = ng.x; VLANE_R(h->ng.y, l) = ng.y; VLANE_R(h->ng.z, l) = ng.z;
+    VLANE_R(h->mat, l) = p.w;
+    VLANE_R(h->light, l) = n.w;
+    VLANE_R(h->prim, l) = wu.w;
+    VLANE_R(h->bu, l) = a;
+    VLANE_R(h->bv, l) = b;
+    VLANE_R(h->nrm, l) = wv.w;
+    VLANE_R(h->err, l) = wv.w == (real)ITEM_SPHERE ? max_abs4(p) + n.x : max_abs4(p);
 }
 
-vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
+inline vmask bvh_lanes_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
 {
     for (int l = 0; l < CLPT_LANES; l++) {
         if (VLANE_M(occ, l) != 0)
@@ -271,4 +374,107 @@ vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
     }
     return occ;
 }
+
+// --- the packet walk: every lane against each child box ----------------------
+// LEAF(blk) tests a leaf block's items with the lanes' vector tests;
+// TMAX is the per-lane distance beyond which boxes are not entered (lanes
+// with nothing left to find have it at -1); DONE ends the walk early.
+#define BVH_PACKET_WALK(TMAX, LEAF, DONE)                                                           \
+    V3 inv = v3(R(1) / d.x, R(1) / d.y, R(1) / d.z);                                                \
+    uint stack[BVH_STACK];                                                                          \
+    real stack_t[BVH_STACK];                                                                        \
+    int sp = 0;                                                                                     \
+    uint cur = OFF_BVH;                                                                             \
+    for (;;) {                                                                                      \
+        int go = 0;                                                                                 \
+        if (cur & BVH_LEAF_BIT) {                                                                   \
+            LEAF(cur & ~BVH_LEAF_BIT);                                                              \
+            if (DONE) break;                                                                        \
+        } else {                                                                                    \
+            breal8 lx = bvh_row(sc, cur, 0), hx = bvh_row(sc, cur, 1), ly = bvh_row(sc, cur, 2);    \
+            breal8 hy = bvh_row(sc, cur, 3), lz = bvh_row(sc, cur, 4), hz = bvh_row(sc, cur, 5);    \
+            breal8 ptr = bvh_row(sc, cur, 6), cnt = bvh_row(sc, cur, 7);                            \
+            breal8 tk8;                                                                             \
+            _Pragma("unroll")                                                                       \
+            for (int k = 0; k < 8; k++) {                                                           \
+                real4 lo = (real4)(BVH_EL(lx, k), BVH_EL(ly, k), BVH_EL(lz, k), R(0));              \
+                real4 hi = (real4)(BVH_EL(hx, k), BVH_EL(hy, k), BVH_EL(hz, k), R(0));              \
+                vreal tk = bvh_enter(lo, hi, o, inv, TMAX);                                         \
+                BVH_EL(tk8, k) = BVH_EL(cnt, k) >= R(0) ? bvh_min_lane(tk) : R(INFINITY);           \
+            }                                                                                       \
+            real tmin = bvh_min8(tk8);                                                              \
+            if (tmin < R(INFINITY)) {                                                               \
+                int taken = 0;                                                                      \
+                uint next = 0;                                                                      \
+                _Pragma("unroll")                                                                   \
+                for (int k = 0; k < 8; k++) {                                                       \
+                    real tk = BVH_EL(tk8, k);                                                       \
+                    uint p = (uint)BVH_EL(ptr, k) | (BVH_EL(cnt, k) > R(0) ? BVH_LEAF_BIT : 0u);   \
+                    int near = !taken && tk == tmin;                                                \
+                    next = near ? p : next;                                                         \
+                    taken |= near;                                                                  \
+                    stack[sp] = p;                                                                  \
+                    stack_t[sp] = tk;                                                               \
+                    sp += !near && tk < R(INFINITY);                                                \
+                }                                                                                   \
+                cur = next;                                                                         \
+                go = 1;                                                                             \
+            }                                                                                       \
+        }                                                                                           \
+        if (!go) {                                                                                  \
+            if (sp == 0) break;                                                                     \
+            cur = stack[--sp];                                                                      \
+        }                                                                                           \
+    }
+
+inline void bvh_packet_closest(const Scene *sc, V3 o, V3 d, Hit *h)
+{
+#define BVH_LEAF_CLOSEST(blk) bvh_leaf_closest(sc, blk, o, d, h)
+    BVH_PACKET_WALK(h->t, BVH_LEAF_CLOSEST, 0)
+#undef BVH_LEAF_CLOSEST
+}
+
+inline vmask bvh_packet_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
+{
+    vreal tm = VSEL(tmax, (vreal)R(-1), occ);
+#define BVH_LEAF_OCCLUDED(blk) \
+    do { occ = bvh_leaf_occluded(sc, blk, o, d, tmax, occ); tm = VSEL(tmax, (vreal)R(-1), occ); } while (0)
+    BVH_PACKET_WALK(tm, BVH_LEAF_OCCLUDED, VALL(occ))
+#undef BVH_LEAF_OCCLUDED
+    return occ;
+}
+
+// Whether every lane is active and starts at one point (camera rays after
+// all lanes restarted together): then the packet walk pays.
+inline int bvh_coherent(V3 o, vmask active)
+{
+#if CLPT_LANES == 1
+    return 0;
+#else
+    vmask same = o.x == (vreal)VLANE_R(o.x, 0) && o.y == (vreal)VLANE_R(o.y, 0) && o.z == (vreal)VLANE_R(o.z, 0);
+    return VALL(active && same);
 #endif
+}
+
+// Closest hits of the active lanes (the others' h is left as it is).
+void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h, vmask active)
+{
+#if !CLPT_BVH_LANE_WALK
+    if (bvh_coherent(o, active)) {
+        bvh_packet_closest(sc, o, d, h);
+        return;
+    }
+#endif
+    for (int l = 0; l < CLPT_LANES; l++)
+        if (VLANE_M(active, l) != 0)
+            bvh_lane_closest(sc, o, d, h, l);
+}
+
+vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
+{
+#if !CLPT_BVH_LANE_WALK
+    if (bvh_coherent(o, !occ))
+        return bvh_packet_occluded(sc, o, d, tmax, occ);
+#endif
+    return bvh_lanes_occluded(sc, o, d, tmax, occ);
+}

@@ -1,7 +1,7 @@
 // lights.h: next event estimation. Every emissive quad, triangle or sphere,
 // and every emissive mesh as a whole, is an area light; one light is picked
-// per lane by the power-proportional table the host built, then a point on it
-// is drawn:
+// per lane by power from the alias table the host built (O(1) in the number
+// of lights), then a point on it is drawn:
 //   quad, triangle  uniformly by area (pdf_sa = dist^2 / (area |cos_l|))
 //   mesh            a triangle by area from the mesh's alias table (O(1)),
 //                   then uniformly on it: uniform over the mesh's whole area
@@ -18,16 +18,76 @@ typedef struct {
     vmask valid;  // a usable sample (emitting side faces the point, pdf > 0)
 } LightSample;
 
-// Light i's records start at r; `pick` gets the lanes whose u_pick falls in
-// its slot of the power table and that no earlier light took. Returns the
-// light's info record (area, pick probability, cdf, material).
-inline real4 light_pick(const Scene *sc, uint i, vreal u_pick, vmask *taken, vmask *pick, uint *r)
+// The light each lane picks, by power, in O(1): Walker's alias table (the
+// host's pack.alias_table), slot j kept with probability info.z of light j
+// and otherwise giving light n.w of light j's records. u_pick picks the
+// slot and, rescaled, decides between the slot and its alias.
+inline vreal light_pick_index(const Scene *sc, vreal u_pick)
 {
-    *r = OFF_LIGHTS + LIGHT_STRIDE * i;
-    real4 info = scene_rec(sc, *r + 4);
-    *pick = !*taken && (u_pick < info.z || i + 1 == NUM_LIGHTS);
-    *taken = *taken || *pick;
-    return info;
+    vreal li = (vreal)R(0);
+    if (NUM_LIGHTS <= 1)
+        return NUM_LIGHTS == 1 ? li : (vreal)R(INFINITY);
+    for (int l = 0; l < CLPT_LANES; l++) {
+        real u = VLANE_R(u_pick, l) * (real)NUM_LIGHTS;
+        uint j = min((uint)u, (uint)NUM_LIGHTS - 1u);
+        uint r = OFF_LIGHTS + LIGHT_STRIDE * j;
+        real keep = scene_rec(sc, r + 4).z;
+        VLANE_R(li, l) = u - (real)j < keep ? (real)j : scene_rec(sc, r + 3).w;
+    }
+    return li;
+}
+
+// Smallest lane of v, by halving the vector.
+#if CLPT_DOUBLE
+#define LIGHTS_RN(n) CLPT_CAT(double, n)
+#else
+#define LIGHTS_RN(n) CLPT_CAT(float, n)
+#endif
+inline real lights_min_lane(vreal v)
+{
+#if CLPT_LANES == 1
+    return v;
+#elif CLPT_LANES == 2
+    return fmin(v.x, v.y);
+#elif CLPT_LANES == 4
+    LIGHTS_RN(2) a = fmin(v.lo, v.hi);
+    return fmin(a.x, a.y);
+#elif CLPT_LANES == 8
+    LIGHTS_RN(4) a = fmin(v.lo, v.hi);
+    LIGHTS_RN(2) b = fmin(a.lo, a.hi);
+    return fmin(b.x, b.y);
+#else
+    LIGHTS_RN(8) a = fmin(v.lo, v.hi);
+    LIGHTS_RN(4) b = fmin(a.lo, a.hi);
+    LIGHTS_RN(2) c = fmin(b.lo, b.hi);
+    return fmin(c.x, c.y);
+#endif
+}
+
+// The lights the lanes picked (li, +inf where done), one at a time: light
+// *i, the lanes that picked it (pick) and its records at *r; the lanes are
+// marked done in li. Returns 0 when none is left. Light-sampling costs so
+// grow with the lights the lanes picked, at most CLPT_LANES, not with all
+// of the scene's lights.
+inline int light_next(const Scene *sc, vreal *li, uint *i, vmask *pick, uint *r)
+{
+    if (NUM_LIGHTS == 1) {  // one light: no search (a constant in specialized builds)
+        *pick = *li == R(0);
+        if (!VANY(*pick))
+            return 0;
+        *li = (vreal)R(INFINITY);
+        *i = 0;
+        *r = OFF_LIGHTS;
+        return 1;
+    }
+    real m = lights_min_lane(*li);
+    if (!(m < R(INFINITY)))
+        return 0;
+    *i = (uint)m;
+    *pick = *li == m;
+    *li = VSEL(*li, (vreal)R(INFINITY), *pick);
+    *r = OFF_LIGHTS + LIGHT_STRIDE * *i;
+    return 1;
 }
 
 #if CLPT_HAS_MESH_LIGHTS
@@ -77,12 +137,11 @@ inline LightSample light_sample(const Scene *sc, V3 x, vreal u_pick, vreal u1, v
     ls.dist = (vreal)R(0);
     ls.pdf = (vreal)R(0);
     ls.valid = (vreal)R(0) != (vreal)R(0);
-    vmask taken = ls.valid;
-    for (uint i = 0; i < NUM_LIGHTS; i++) {
-        uint r;
-        vmask pick;
-        real4 info = light_pick(sc, i, u_pick, &taken, &pick, &r);  // area, pick probability, cdf, material
-        if (!VANY(pick)) continue;
+    vreal li = light_pick_index(sc, u_pick);
+    uint i, r;
+    vmask pick;
+    while (light_next(sc, &li, &i, &pick, &r)) {
+        real4 info = scene_rec(sc, r + 4);  // area, pick probability, alias probability, material
         real4 p = scene_rec(sc, r);
         int kind = (int)p.w;
         V3 wi, Le;
@@ -175,12 +234,11 @@ inline LightPoint light_sample_point(const Scene *sc, vreal u_pick, vreal u1, vr
     lp.p = lp.n = lp.Le = v3_zero();
     lp.pdf_area = lp.err = (vreal)R(0);
     lp.two_sided = lp.pdf_area != lp.pdf_area;
-    vmask taken = lp.two_sided;
-    for (uint i = 0; i < NUM_LIGHTS; i++) {
-        uint r;
-        vmask pick;
-        real4 info = light_pick(sc, i, u_pick, &taken, &pick, &r);  // area, pick probability, cdf, material
-        if (!VANY(pick)) continue;
+    vreal li = light_pick_index(sc, u_pick);
+    uint i, r;
+    vmask pick;
+    while (light_next(sc, &li, &i, &pick, &r)) {
+        real4 info = scene_rec(sc, r + 4);  // area, pick probability, alias probability, material
         real4 p = scene_rec(sc, r);
         int kind = (int)p.w;
         V3 y, n;
@@ -228,12 +286,12 @@ inline vreal light_pdf_hit(const Scene *sc, vreal light1, V3 x, V3 y, V3 ng, vre
     vreal pdf = (vreal)R(0);
     V3 w = v3_sub(y, x);
     vreal d2 = dist * dist;
-    for (uint i = 0; i < NUM_LIGHTS; i++) {
-        vmask is = light1 == (real)(i + 1);
-        if (!VANY(is)) continue;
-        uint r = OFF_LIGHTS + LIGHT_STRIDE * i;
+    vreal li = VSEL(light1 - R(1), (vreal)R(INFINITY), light1 <= R(0));  // the lights hit, as light_next takes them
+    uint i, r;
+    vmask is;
+    while (light_next(sc, &li, &i, &is, &r)) {
         real4 p = scene_rec(sc, r);
-        real4 info = scene_rec(sc, r + 4);  // area, pick probability, cdf, material
+        real4 info = scene_rec(sc, r + 4);  // area, pick probability, alias probability, material
         vreal cos_l = fabs(v3_dot(ng, w)) / dist;
         vreal per = d2 / (info.x * cos_l);
 #if CLPT_HAS_SPHERE_LIGHTS

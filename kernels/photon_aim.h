@@ -92,7 +92,7 @@ inline vreal light_photon_pdf(const Scene *sc, vreal light1, V3 y, V3 ng, V3 w, 
     for (uint i = 0; i < NUM_LIGHTS; i++) {
         vmask is = light1 == (real)(i + 1);
         if (!VANY(is)) continue;
-        real4 info = scene_rec(sc, OFF_LIGHTS + LIGHT_STRIDE * i + 4);  // area, pick probability, cdf, material
+        real4 info = scene_rec(sc, OFF_LIGHTS + LIGHT_STRIDE * i + 4);  // area, pick probability, alias probability, material
         p_area = VSEL(p_area, (vreal)(info.y / info.x), is);
     }
     vreal c = fabs(v3_dot(ng, w));

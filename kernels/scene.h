@@ -7,7 +7,8 @@
 //   materials  MaterialRec     spheres  SphereRec    quads, triangles  PlanarRec
 //   planes     PlaneRec        lights   LightRec     caustics  CausticRec
 //   then, when the scene has a BVH (NUM_NODES > 0): BVH nodes (BvhNode),
-//   BVH items (PlanarRec, spheres among them), vertex normals (NormalsRec)
+//   leaf blocks (BvhLeaf: their items' PlanarRec fields, spheres among them),
+//   vertex normals (NormalsRec)
 //   and mesh-light triangles (LightTriRec); pointers into these are absolute
 //   record indices stored as reals.
 // Caustics are bounding spheres (centre.xyz, radius; radius < 0 if
@@ -57,7 +58,8 @@ typedef struct {
 #define OFF_PLANES (OFF_TRIANGLES + PLANAR_STRIDE * NUM_TRIANGLES)
 #define OFF_LIGHTS (OFF_PLANES + PLANE_STRIDE * NUM_PLANES)
 #define OFF_CAUSTICS (OFF_LIGHTS + LIGHT_STRIDE * NUM_LIGHTS)
-#define OFF_BVH (OFF_CAUSTICS + CAUSTIC_STRIDE * NUM_CAUSTICS)
+// The BVH starts at the next multiple of 4 records (64 bytes in float builds).
+#define OFF_BVH ((OFF_CAUSTICS + CAUSTIC_STRIDE * NUM_CAUSTICS + 3u) & ~3u)
 
 inline real4 scene_rec(const Scene *sc, uint i) { return sc->rec[i]; }
 
@@ -250,11 +252,13 @@ inline void closest_planar(const Scene *sc, uint off, uint count, int tri, V3 o,
 // The BVH (bvh.h, after this file): closest hit and shadow queries over
 // every sphere, quad and triangle of scenes large enough to have one.
 #if CLPT_HAS_BVH
-void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h);
+void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h, vmask active);
 vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ);
 #endif
 
-inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
+// Closest hits; lanes outside `active` may be left without one (the BVH
+// does not walk them).
+inline Hit scene_intersect_active(const Scene *sc, V3 o, V3 d, vmask active)
 {
     Hit h = hit_none();
 #if CLPT_HAS_SPHERES
@@ -273,7 +277,7 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
 #endif
 #if CLPT_HAS_BVH
     if (NUM_NODES > 0)
-        bvh_closest(sc, o, d, &h);
+        bvh_closest(sc, o, d, &h, active);
 #endif
 #if CLPT_HAS_PLANES
     for (uint i = 0; i < NUM_PLANES; i++) {
@@ -294,6 +298,11 @@ inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
 #endif
     h.err = h.err + max_abs3(o);
     return h;
+}
+
+inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
+{
+    return scene_intersect_active(sc, o, d, (vreal)R(0) == (vreal)R(0));
 }
 
 // --- shading normals -----------------------------------------------------------

@@ -349,7 +349,7 @@ __kernel void trace_paths(__global const real4 *scene, uint8 counts, real eps_ab
         vuint sample = s_begin + VUINT(done_count);
 
         // --- closest hit --------------------------------------------------------------
-        Hit h = scene_intersect(sc, ps.o, ps.d);
+        Hit h = scene_intersect_active(sc, ps.o, ps.d, active);  // ended lanes need no hit
         vmask hit = active && h.t < R(INFINITY);
         Material m = material_fetch(sc, h.mat);
         V3 x = v3_fma(ps.d, h.t, ps.o);

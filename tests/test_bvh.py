@@ -162,7 +162,57 @@ def test_flatten_rounds_boxes_outwards():
     lo = np.array([[0.1, 0.2, 0.3]])
     hi = np.array([[0.7, 0.8, 0.9]])
     tree = bvh.build(lo, hi)
-    recs = bvh.flatten(tree, node_base=10, item_base=14, item_stride=4, double=False)
-    assert recs.shape == (1, 4, 4)
-    assert (recs[0, 0, :3].astype(np.float32) <= lo[0]).all() and (recs[0, 1, :3].astype(np.float32) >= hi[0]).all()
-    assert recs[0, 0, 3] == 14 and recs[0, 1, 3] == 1 and recs[0, 3, 3] == -1  # a leaf root, no right child
+    wide = bvh.collapse(tree)
+    recs, leaves = bvh.flatten(tree, wide, node_base=10, leaf_base=26, double=False)
+    assert recs.shape == (1, 16, 4)
+    rows = recs.reshape(8, 8)  # lo.x hi.x lo.y hi.y lo.z hi.z ptr count, one column a child
+    assert (rows[0:6:2, 0].astype(np.float32) <= lo[0]).all() and (rows[1:6:2, 0].astype(np.float32) >= hi[0]).all()
+    assert rows[6, 0] == 26 and rows[7, 0] == 1 and (rows[7, 1:] == -1).all()  # a leaf root, empty slots
+
+
+@pytest.mark.parametrize("method", bvh.METHODS)
+def test_collapse_keeps_every_leaf_once(method):
+    """The wide tree's children are the binary tree's nodes: every binary
+    leaf under exactly one wide node, every inner child a wide node of its
+    own, no wide node over WIDTH children, and each box holding its
+    children's boxes."""
+    rng = np.random.default_rng(2)
+    c = rng.uniform(-1, 1, (3000, 3))
+    tree = bvh.build(c - 0.01, c + 0.01, method=method)
+    wide = bvh.collapse(tree)
+    ch = wide.children
+    assert ch.shape[1] == bvh.WIDTH
+    used = ch[ch >= 0]
+    assert len(used) == len(set(used.tolist()))
+    leaves = set(np.flatnonzero(tree.left < 0).tolist())
+    assert leaves <= set(used.tolist())
+    inner = [x for x in used.tolist() if tree.left[x] >= 0]
+    assert len(inner) == wide.n_nodes - 1
+    assert (np.sort(tree.count[list(leaves)]).sum()) == len(c)
+    # Fewer, fuller nodes than the binary tree's.
+    assert 2 * wide.n_nodes < (tree.left >= 0).sum() and (ch >= 0).sum(1).mean() > 3
+    recs, order = bvh.flatten(tree, wide, node_base=0, leaf_base=16 * wide.n_nodes, double=False)
+    assert sorted(order.tolist()) == sorted(leaves)
+    rows = recs.reshape(-1, 8, 8)
+    cnt = rows[:, 7]
+    assert ((cnt > 0).sum()) == len(leaves) and ((cnt == 0).sum()) == wide.n_nodes - 1
+
+
+def test_scene_sized_primitives_stay_in_the_plain_loops():
+    """A room's walls (quads as big as the scene) are kept out of the BVH, in
+    the plain loops, and the mesh goes in it; the hits are the brute force's
+    (test_bvh_equals_brute_force covers a scene with such a quad)."""
+    s = clpt.load_scene("cornell_box")
+    v, t, n = uv_sphere(center=(0.0, -0.5, 0.0), radius=0.3, n_theta=10, n_phi=20)
+    s.shapes.append(clpt.Mesh(vertices=v, triangles=t, normals=n, material="white", name="ball"))
+    p = pack_scene(s, bvh="on")
+    n_quads = sum(len(sh.primitives()) for sh in s.shapes if not isinstance(sh, clpt.Mesh))
+    assert 0 < p.count("quads") < n_quads  # the walls, not the blocks' small faces or the light
+    assert p.count("triangles") == 0 and p.count("nodes") > 0  # smooth triangles stay in the tree
+    # Every primitive somewhere, once.
+    from clpt.pack import _big_primitives
+    lo = np.array([[0.0, 0, 0], [0, 0, 0], [0.4, 0.4, 0.4]])
+    hi = np.array([[1.0, 1, 1], [1, 1, 1], [0.5, 0.5, 0.5]])
+    assert _big_primitives(lo, hi, np.zeros(3, bool)).tolist() == [True, True, False]
+    assert _big_primitives(lo[:2], hi[:2], np.zeros(2, bool)).sum() == 1  # one stays in the tree
+    assert not _big_primitives(lo, hi, np.array([True, True, False])).any()

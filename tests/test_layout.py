@@ -41,6 +41,7 @@ def test_dtype_follows_opencl_alignment():
 
 def test_generated_c_is_in_every_build():
     src = program.stitch(["trace.cl"])
-    assert "typedef struct {\n    real4 lo_l;" in src and "#define PLANAR_STRIDE 4" in src
+    assert "typedef struct {\n    real4 lo_x_a;" in src and "#define PLANAR_STRIDE 4" in src
     assert src.index("<clpt/layout.py>") < src.index('"kernels/scene.h"')
-    assert layout.PLANAR.stride == 4 and layout.BVH_NODE.stride == 4
+    assert layout.PLANAR.stride == 4 and layout.BVH_NODE.stride == 16 and layout.BVH_LEAF.stride == 16
+    assert f"#define BVHL_WIDTH {layout.BVH_LEAF_WIDTH}" in src

@@ -201,3 +201,46 @@ def test_mesh_light_renders_like_hand_built_triangles(device_spec):
     sigma = np.sqrt((va + vb).sum()) / la.size
     assert abs(la.mean() - lb.mean()) < 5 * sigma
     assert la.mean() > 0.1
+
+
+@pytest.mark.parametrize("fmt", ["obj", "ply"])
+@pytest.mark.parametrize("faces", ["quads", "pentagons", "mixed"])
+def test_polygons_are_fan_triangulated(tmp_path, fmt, faces):
+    """Quads and other k-gons (a file of them only, or mixed with triangles)
+    become k - 2 triangles with the polygon's winding that cover its area:
+    fanned from its first vertex, in order, for a file of k-gons only."""
+    # A convex pentagon and a unit square in the plane z = 0, counter-clockwise.
+    v = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [2, 0, 0], [3, 0, 0], [3.3, 0.8, 0],
+                  [2.5, 1.4, 0], [1.8, 0.8, 0]], dtype=float)
+    polys = {"quads": [[0, 1, 2, 3]], "pentagons": [[4, 5, 6, 7, 8]],
+             "mixed": [[0, 1, 2], [4, 5, 6, 7, 8], [0, 2, 3]]}[faces]
+    p = tmp_path / f"m.{fmt}"
+    if fmt == "obj":
+        p.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in v)
+                     + "".join("f " + " ".join(str(i + 1) for i in f) + "\n" for f in polys))
+    else:
+        p.write_text("ply\nformat ascii 1.0\n" f"element vertex {len(v)}\n"
+                     "property float x\nproperty float y\nproperty float z\n"
+                     f"element face {len(polys)}\nproperty list uchar int vertex_indices\nend_header\n"
+                     + "".join(f"{x} {y} {z}\n" for x, y, z in v)
+                     + "".join(f"{len(f)} " + " ".join(map(str, f)) + "\n" for f in polys))
+    vr, t, _ = read_mesh(p)
+    expect = [[f[0], f[i], f[i + 1]] for f in polys for i in range(1, len(f) - 1)]
+    if faces != "mixed":  # ours: in order, from the first vertex
+        # The OBJ reader keeps only the vertices faces use: compare positions.
+        np.testing.assert_allclose(vr[t], v[np.array(expect)], rtol=1e-6)  # PLY: float32
+    else:  # trimesh's own fan of mixed sizes: the same triangles, in its order and rotation
+        def canon(tris):
+            tris = np.round(np.asarray(tris, dtype=float), 5)
+            out = []
+            for tr in tris:
+                k = min(range(3), key=lambda i: tuple(tr[i]))
+                out.append(tuple(map(tuple, np.roll(tr, -k, axis=0))))
+            return sorted(out)
+        assert canon(vr[t]) == canon(v[np.array(expect)])
+    e1, e2 = vr[t[:, 1]] - vr[t[:, 0]], vr[t[:, 2]] - vr[t[:, 0]]
+    cz = np.cross(e1, e2)[:, 2]
+    assert (cz > 0).all()  # the polygons' winding (+z) is kept
+    shoelace = sum(0.5 * abs(sum(v[f[i], 0] * v[f[(i + 1) % len(f)], 1] - v[f[(i + 1) % len(f)], 0] * v[f[i], 1]
+                                 for i in range(len(f)))) for f in polys)
+    assert np.isclose(0.5 * cz.sum(), shoelace)

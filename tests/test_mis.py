@@ -105,3 +105,41 @@ def test_no_nonfinite_sample_on_shipped_scenes(device_spec, name):
     scene = clpt.load_scene(name)
     res = clpt.Renderer(scene, device=device_spec).render(4, width=24, height=24, seed=9)
     assert res.stats.nonfinite == 0 and np.isfinite(res.image).all()
+
+
+@pytest.mark.parametrize("lanes", [1, 8])
+def test_light_pick_follows_power(probes, lanes):
+    """The O(1) alias-table pick (lights.h light_pick_index) chooses each
+    light with probability proportional to its power, sides x pi x area x
+    mean(Le): a chi-square test of which light 200,000 samples took (each
+    light has its own Le.x, which the sample returns)."""
+    from stats import ALPHA, chi2_test
+    shapes, power = [], []
+    rng = np.random.default_rng(11)
+    for k in range(13):
+        size = rng.uniform(0.05, 0.6)
+        le = (1.0 + k, 0.5, 0.25 * (k % 3))
+        two = bool(k % 2)
+        z = -1.0 + 0.15 * k
+        shapes.append(clpt.Quad(corner=(-size / 2, 1.0, z), edge_u=(size, 0, 0), edge_v=(0, 0, 0.1),
+                                material="black", emission=le, two_sided=two))
+        power.append((2 if two else 1) * math.pi * size * 0.1 * np.mean(le))
+    shapes.append(clpt.Sphere(center=(0.0, -0.5, 0.0), radius=0.2, material="black", emission=(20.0, 1, 1)))
+    power.append(math.pi * 4 * math.pi * 0.2 ** 2 * np.mean((20.0, 1, 1)))
+    shapes.append(clpt.Triangle(vertices=((1, 0, 0), (1, 0.5, 0), (1, 0, 0.5)), material="black",
+                                emission=(30.0, 0, 0)))
+    power.append(math.pi * 0.125 * 10.0)
+    packed = pack_scene(clpt.Scene(shapes=shapes))
+    n = 200_000
+    x = np.zeros((n, 3))
+    u = np.random.default_rng(5).random((3, n))
+    probe = probes(lanes)
+    out = probe.run("probe_light_sample", [x[:, 0], x[:, 1], x[:, 2], u[0], u[1], u[2]], 7,
+                    prefix=probe.scene_args(packed))
+    le_x = np.round(out[4]).astype(int)
+    ids = [1 + k for k in range(13)] + [20, 30]
+    counts = np.array([(le_x == i).sum() for i in ids])
+    assert counts.sum() == n
+    expected = n * np.array(power) / np.sum(power)
+    p, stat, dof = chi2_test(counts, expected)
+    assert p > ALPHA, (p, stat, dof, counts, expected.round())
