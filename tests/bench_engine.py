@@ -70,7 +70,10 @@ def bench_checkpoint(rounds=3, size=512, seconds=8.0):
 DEVICE_RUN = r"""
 import json, sys, time, clpt
 dev = sys.argv[1]
-if "#" in dev:  # one part of a split device: "intel/2#0"
+if dev in ("pocl", "pocl-all"):  # PoCL's first device, or all of them (whatever else is registered)
+    devs = [d for d in clpt.device.select_devices("all") if "portable" in d.platform.name.lower()]
+    dev = devs if dev == "pocl-all" else devs[0]
+elif "#" in dev:  # one part of a split device: "intel/2#0"
     spec, k = dev.split("#")
     dev = clpt.device.select_devices(spec)[int(k)]
 ex = sys.argv[3] if len(sys.argv) > 3 and sys.argv[3] != "-" else None
@@ -88,10 +91,10 @@ print(json.dumps({"devices": len(r.states), "rates": rates}))
 def bench_devices(rounds=3):
     out = {}
     split = {"POCL_DEVICES": "pthread pthread", "POCL_MAX_PTHREAD_COUNT": "1"}
-    configs = {"one device, 1 thread": ({"POCL_MAX_PTHREAD_COUNT": "1"}, "0", "-"),
-               "two devices, 1 thread each, one process": (split, "all", "-"),
-               "two devices, 1 thread each, a process each": (split, "all", "processes"),
-               "one device, 2 threads": ({"POCL_MAX_PTHREAD_COUNT": "2"}, "0", "-")}
+    configs = {"one device, 1 thread": ({"POCL_MAX_PTHREAD_COUNT": "1"}, "pocl", "-"),
+               "two devices, 1 thread each, one process": (split, "pocl-all", "-"),
+               "two devices, 1 thread each, a process each": (split, "pocl-all", "processes"),
+               "one device, 2 threads": ({"POCL_MAX_PTHREAD_COUNT": "2"}, "pocl", "-")}
     if os.environ.get("OCL_ICD_VENDORS"):  # Intel's CPU runtime registered: its device split in two by fission
         configs.update({"intel: one half (1 core)": ({}, "intel/2#0", "-"),
                         "intel: both halves, one process": ({}, "intel/2", "-"),
@@ -129,11 +132,11 @@ def bench_dask(rounds=3):
     for c in clusters.values():
         r.render(4, width=128, height=128, executor=c)  # kernels built on the workers
     for i in range(rounds):
-        res = r.render(256, width=128, height=128, seed=i, pass_seconds=0.5)
+        res = r.render(1024, width=128, height=128, seed=i, pass_seconds=0.5)
         out["in-process"].append(res.samples / res.stats.render_seconds)
         for n, c in clusters.items():
             t0 = time.perf_counter()
-            res = r.render(256, width=128, height=128, seed=i, executor=c, pass_seconds=0.5)
+            res = r.render(1024, width=128, height=128, seed=i, executor=c, pass_seconds=0.5)
             wall = time.perf_counter() - t0
             out[f"dask {n} worker{'s' if n > 1 else ''}"].append(res.samples / wall)
             if n == 1:  # one worker: the driver's wall time minus the device's, per range (start-up included)
