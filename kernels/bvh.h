@@ -113,32 +113,6 @@ inline vreal bvh_enter(real4 lo, real4 hi, V3 o, V3 inv, vreal tmax)
     return VSEL((vreal)R(INFINITY), tn, tn <= fmin(tf, tmax));
 }
 
-// Smallest lane, by halving the vector (no trip through memory).
-#if CLPT_DOUBLE
-#define BVH_RN(n) CLPT_CAT(double, n)
-#else
-#define BVH_RN(n) CLPT_CAT(float, n)
-#endif
-inline real bvh_min_lane(vreal v)
-{
-#if CLPT_LANES == 1
-    return v;
-#elif CLPT_LANES == 2
-    return fmin(v.x, v.y);
-#elif CLPT_LANES == 4
-    BVH_RN(2) a = fmin(v.lo, v.hi);
-    return fmin(a.x, a.y);
-#elif CLPT_LANES == 8
-    BVH_RN(4) a = fmin(v.lo, v.hi);
-    BVH_RN(2) b = fmin(a.lo, a.hi);
-    return fmin(b.x, b.y);
-#else
-    BVH_RN(8) a = fmin(v.lo, v.hi);
-    BVH_RN(4) b = fmin(a.lo, a.hi);
-    BVH_RN(2) c = fmin(b.lo, b.hi);
-    return fmin(c.x, c.y);
-#endif
-}
 
 // Item k of the leaf block at blk as the PlanarRec rows p, n, wu, wv.
 inline void bvh_leaf_item(const Scene *sc, uint blk, int k, real4 *p, real4 *n, real4 *wu, real4 *wv)
@@ -400,7 +374,7 @@ inline vmask bvh_lanes_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask o
                 real4 lo = (real4)(BVH_EL(lx, k), BVH_EL(ly, k), BVH_EL(lz, k), R(0));              \
                 real4 hi = (real4)(BVH_EL(hx, k), BVH_EL(hy, k), BVH_EL(hz, k), R(0));              \
                 vreal tk = bvh_enter(lo, hi, o, inv, TMAX);                                         \
-                BVH_EL(tk8, k) = BVH_EL(cnt, k) >= R(0) ? bvh_min_lane(tk) : R(INFINITY);           \
+                BVH_EL(tk8, k) = BVH_EL(cnt, k) >= R(0) ? vmin_lane(tk) : R(INFINITY);           \
             }                                                                                       \
             real tmin = bvh_min8(tk8);                                                              \
             if (tmin < R(INFINITY)) {                                                               \

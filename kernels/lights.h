@@ -37,33 +37,6 @@ inline vreal light_pick_index(const Scene *sc, vreal u_pick)
     return li;
 }
 
-// Smallest lane of v, by halving the vector.
-#if CLPT_DOUBLE
-#define LIGHTS_RN(n) CLPT_CAT(double, n)
-#else
-#define LIGHTS_RN(n) CLPT_CAT(float, n)
-#endif
-inline real lights_min_lane(vreal v)
-{
-#if CLPT_LANES == 1
-    return v;
-#elif CLPT_LANES == 2
-    return fmin(v.x, v.y);
-#elif CLPT_LANES == 4
-    LIGHTS_RN(2) a = fmin(v.lo, v.hi);
-    return fmin(a.x, a.y);
-#elif CLPT_LANES == 8
-    LIGHTS_RN(4) a = fmin(v.lo, v.hi);
-    LIGHTS_RN(2) b = fmin(a.lo, a.hi);
-    return fmin(b.x, b.y);
-#else
-    LIGHTS_RN(8) a = fmin(v.lo, v.hi);
-    LIGHTS_RN(4) b = fmin(a.lo, a.hi);
-    LIGHTS_RN(2) c = fmin(b.lo, b.hi);
-    return fmin(c.x, c.y);
-#endif
-}
-
 // The lights the lanes picked (li, +inf where done), one at a time: light
 // *i, the lanes that picked it (pick) and its records at *r; the lanes are
 // marked done in li. Returns 0 when none is left. Light-sampling costs so
@@ -80,7 +53,7 @@ inline int light_next(const Scene *sc, vreal *li, uint *i, vmask *pick, uint *r)
         *r = OFF_LIGHTS;
         return 1;
     }
-    real m = lights_min_lane(*li);
+    real m = vmin_lane(*li);
     if (!(m < R(INFINITY)))
         return 0;
     *i = (uint)m;

@@ -147,3 +147,30 @@ inline vreal v3_luminance(V3 a) { return R(CLPT_LUMA_R) * a.x + R(CLPT_LUMA_G) *
 inline V3 v3_reflect(V3 d, V3 n) { return v3_fma(n, R(-2) * v3_dot(d, n), d); }
 
 inline vreal vsafe_sqrt(vreal x) { return sqrt(fmax(x, R(0))); }
+
+// The smallest lane of v, by halving the vector (no trip through memory).
+#if CLPT_DOUBLE
+#define SIMD_RN(n) CLPT_CAT(double, n)
+#else
+#define SIMD_RN(n) CLPT_CAT(float, n)
+#endif
+inline real vmin_lane(vreal v)
+{
+#if CLPT_LANES == 1
+    return v;
+#elif CLPT_LANES == 2
+    return fmin(v.x, v.y);
+#elif CLPT_LANES == 4
+    SIMD_RN(2) a = fmin(v.lo, v.hi);
+    return fmin(a.x, a.y);
+#elif CLPT_LANES == 8
+    SIMD_RN(4) a = fmin(v.lo, v.hi);
+    SIMD_RN(2) b = fmin(a.lo, a.hi);
+    return fmin(b.x, b.y);
+#else
+    SIMD_RN(8) a = fmin(v.lo, v.hi);
+    SIMD_RN(4) b = fmin(a.lo, a.hi);
+    SIMD_RN(2) c = fmin(b.lo, b.hi);
+    return fmin(c.x, c.y);
+#endif
+}
