@@ -127,6 +127,17 @@ inline void bvh_leaf_item(const Scene *sc, uint blk, int k, real4 *p, real4 *n, 
     *wv = (real4)(BVH_EL(r[9], k), BVH_EL(r[10], k), BVH_EL(r[11], k), BVH_EL(r[12], k));
 }
 
+// Item k of a leaf against every lane: its records and the hit distances
+// (a, b: the planar hit's coordinates; a sphere's records are p.xyz = centre, n.x = radius).
+inline vreal bvh_leaf_item_t(const Scene *sc, uint blk, int k, V3 o, V3 d, real4 *p, real4 *n, real4 *wu,
+                             real4 *wv, vreal *a, vreal *b)
+{
+    bvh_leaf_item(sc, blk, k, p, n, wu, wv);
+    if ((*wv).w == (real)ITEM_SPHERE)
+        return intersect_sphere((real4)((*p).x, (*p).y, (*p).z, (*n).x), o, d);
+    return intersect_planar_recs(*p, *n, *wu, *wv, o, d, (*wv).w != (real)ITEM_QUAD, a, b);
+}
+
 // Closest hits among a leaf's items, into h (every lane against each item).
 inline void bvh_leaf_closest(const Scene *sc, uint blk, V3 o, V3 d, Hit *h)
 {
@@ -135,16 +146,12 @@ inline void bvh_leaf_closest(const Scene *sc, uint blk, V3 o, V3 d, Hit *h)
         if (BVH_EL(kind, k) == (real)ITEM_EMPTY)
             break;
         real4 p, n, wu, wv;
-        bvh_leaf_item(sc, blk, k, &p, &n, &wu, &wv);
-        if (wv.w == (real)ITEM_SPHERE) {
-            real4 cr = (real4)(p.x, p.y, p.z, n.x);
-            vreal t = intersect_sphere(cr, o, d);
-            hit_sphere(h, t, t < h->t, cr, o, d, p.w, n.w, wu.w);
-        } else {
-            vreal a, b;
-            vreal t = intersect_planar_recs(p, n, wu, wv, o, d, wv.w != (real)ITEM_QUAD, &a, &b);
+        vreal a, b;
+        vreal t = bvh_leaf_item_t(sc, blk, k, o, d, &p, &n, &wu, &wv, &a, &b);
+        if (wv.w == (real)ITEM_SPHERE)
+            hit_sphere(h, t, t < h->t, (real4)(p.x, p.y, p.z, n.x), o, d, p.w, n.w, wu.w);
+        else
             hit_planar(h, t, t < h->t, p, n, wu, wv, a, b);
-        }
     }
 }
 
@@ -156,15 +163,8 @@ inline vmask bvh_leaf_occluded(const Scene *sc, uint blk, V3 o, V3 d, vreal tmax
         if (BVH_EL(kind, k) == (real)ITEM_EMPTY)
             break;
         real4 p, n, wu, wv;
-        bvh_leaf_item(sc, blk, k, &p, &n, &wu, &wv);
-        vreal t;
-        if (wv.w == (real)ITEM_SPHERE) {
-            t = intersect_sphere((real4)(p.x, p.y, p.z, n.x), o, d);
-        } else {
-            vreal a, b;
-            t = intersect_planar_recs(p, n, wu, wv, o, d, wv.w != (real)ITEM_QUAD, &a, &b);
-        }
-        occ = occ || t < tmax;
+        vreal a, b;
+        occ = occ || bvh_leaf_item_t(sc, blk, k, o, d, &p, &n, &wu, &wv, &a, &b) < tmax;
     }
     return occ;
 }
