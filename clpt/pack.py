@@ -24,6 +24,7 @@ import numpy as np
 from . import bvh as bvh_mod
 from .layout import (BVH_LEAF, BVH_NODE, CAUSTIC, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_QUAD,
                      KIND_SPHERE, KIND_TRIANGLE, LIGHT, LIGHT_TRI, MATERIAL, NORMALS, PLANAR, PLANE, SPHERE)
+from .meshio import cross_rows
 from .scene import Camera, Material, Scene, SceneError, Sphere, length_scale
 
 MAT_STRIDE = MATERIAL.stride
@@ -112,28 +113,19 @@ def _material_records(m: Material):
     ]
 
 
-def _cross(a, b):
-    """Row-wise a x b of (M, 3) arrays (np.cross is several times slower)."""
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[:, 0] = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
-    out[:, 1] = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
-    out[:, 2] = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
-    return out
-
-
 def _planar_array(c, u, v, mat, kind, prim, light1):
     """PLANAR records (M, 4, 4) of parallelograms or triangles corner c with
     edges u, v (M, 3 each), and their unit normals and areas of the
     parallelogram. kind: ITEM_QUAD or ITEM_FLAT_TRIANGLE."""
     out = np.empty((len(c), 4, 4))
-    n_raw = _cross(u, v)
+    n_raw = cross_rows(u, v)
     nn = n_raw[:, 0] * n_raw[:, 0] + n_raw[:, 1] * n_raw[:, 1] + n_raw[:, 2] * n_raw[:, 2]
     ln = np.sqrt(nn)
     n = out[:, 1, :3]
     np.divide(n_raw, ln[:, None], out=n)
     # Dual vectors: for q = a u + b v in the plane, a = q.wu and b = q.wv.
-    np.divide(_cross(v, n_raw), nn[:, None], out=out[:, 2, :3])
-    np.divide(_cross(n_raw, u), nn[:, None], out=out[:, 3, :3])
+    np.divide(cross_rows(v, n_raw), nn[:, None], out=out[:, 2, :3])
+    np.divide(cross_rows(n_raw, u), nn[:, None], out=out[:, 3, :3])
     out[:, 0, :3], out[:, 0, 3] = c, mat
     out[:, 1, 3] = light1
     out[:, 2, 3] = prim

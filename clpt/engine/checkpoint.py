@@ -62,7 +62,7 @@ def write_checkpoint(path, job: RenderJob, sums: Accumulator, schedule_state: di
             os.fsync(fd)
         finally:
             os.close(fd)
-    except OSError:
+    except OSError:  # a directory that cannot be opened or fsynced (some filesystems): the rename stands
         pass
     return path.stat().st_size
 

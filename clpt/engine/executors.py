@@ -216,4 +216,4 @@ class DaskExecutor:
         return self.client.submit(dask_denoise, self.job, args, self.device, pure=False).result()
 
     def close(self):
-        pass
+        """Nothing to release: the Client belongs to the caller, who closes it."""
