@@ -5,15 +5,20 @@
     clpt.save_image("cbox.png", img)
 """
 
-from .adaptive import AdaptiveSettings
-from .denoise import FilterSettings, OidnSettings
-from .device import DeviceError, list_devices
-from .features import Features, scene_features
-from .image import load_image, save_image
-from .photons import PhotonSettings
-from .program import KernelBuildError, clear_cache
-from .render import RenderResult, Renderer, RenderStats, RenderUpdate, render, resume as render_resume
-from .resources import shipped_scenes
+# Before any OpenCL call: the runtimes installed with clpt join the ICD loader's list (clpt/runtimes.py).
+from .runtimes import register as _register_runtimes
+
+_register_runtimes()
+
+from .adaptive import AdaptiveSettings  # noqa: E402
+from .denoise import FilterSettings, OidnSettings  # noqa: E402
+from .device import DeviceError, list_devices  # noqa: E402
+from .features import Features, scene_features  # noqa: E402
+from .image import load_image, save_image  # noqa: E402
+from .photons import PhotonSettings  # noqa: E402
+from .program import KernelBuildError, clear_cache  # noqa: E402
+from .render import RenderResult, Renderer, RenderStats, RenderUpdate, render, resume as render_resume  # noqa: E402
+from .resources import shipped_scenes  # noqa: E402
 from .scene import (Box, Camera, Material, Mesh, Plane, Quad, RenderSettings, Scene, SceneError, SettingsError, Sphere, Triangle,
                     load_scene, parse_scene)
 

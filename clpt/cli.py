@@ -281,6 +281,7 @@ def cmd_render(a) -> int:
                            photons=photons.resolved(width * height).count if photons and r.features.photons else 0,
                            cpu_device=all(st.dctx.is_cpu for st in r.states))
     if a.verbose:
+        print(f"devices: {r.device_choice}", file=sys.stderr)
         for st in r.states:
             b = st.build
             print(f"device: {st.dctx.label}", file=sys.stderr)
@@ -400,7 +401,8 @@ def _report(a, res, out, fallback):
 
 
 def cmd_devices(a) -> int:
-    from .device import DeviceContext, list_devices, select_devices
+    from . import device as devmod, runtimes
+    from .device import DeviceContext, list_devices
 
     devs = list_devices()
     for d in devs:
@@ -408,23 +410,35 @@ def cmd_devices(a) -> int:
         if a.verbose:
             from . import tune
 
-            dctx = DeviceContext(select_devices(f"{d.platform_index}:{d.device_index}")[0])
-            dev = dctx.device
+            dev = devmod._all_devices()[d.index][3]
+            dctx = DeviceContext(dev)
             print(f"    float vector width: native {dev.native_vector_width_float}, preferred "
                   f"{dev.preferred_vector_width_float}; max work-group {dev.max_work_group_size}; "
                   f"max allocation {d.max_alloc / 2**30:.1f} GiB")
-            q = tune.query_tuning(dctx)
-            if q is not None:
-                print(f"    defaults: {q.describe()}")
+            if devmod.is_simulator(dev):
+                print("    check: a simulator (never a default; name it with --device to debug kernels)")
             else:
-                print(f"    defaults: measured per kernel the first time it is built (else "
-                      f"{tune.fallback_tuning(dctx).describe()})")
+                print(f"    check: {devmod.check_device(dev).line()}")
+            for photons in (False, True):
+                print(f"    defaults{' with photons' if photons else ''}: "
+                      f"{tune.query_tuning(dctx, photons).describe()}")
             for e in tune.cached_choices(dctx):
                 print(f"    measured: lanes {e['lanes']}, local size {e['local_size']}, pass {e['pass_seconds']:g} s "
                       f"({e['why']})")
     if not devs:
         print("no OpenCL devices found", file=sys.stderr)
         return 1
+    if a.verbose:
+        reg = runtimes.registration()
+        if reg is not None:
+            print(f"runtimes: {reg.note}")
+        for photons, kind in ((False, "path tracing"), (True, "with photon merging")):
+            try:
+                c = devmod.default_device(photons)
+                print(f"default for {kind}: {devmod.device_label(c.device)}: {c.why}"
+                      + "".join(f"; {s}" for s in c.skipped))
+            except devmod.DeviceError as e:
+                print(f"default for {kind}: none ({e})")
     return 0
 
 
@@ -457,7 +471,8 @@ def cmd_cache(a) -> int:
     from .program import cache_dir, clear_cache
 
     if a.clear:
-        print(f"removed {clear_cache()} cached kernel builds from {cache_dir()}")
+        print(f"removed {clear_cache()} cached kernel builds, the tuned settings and the device checks "
+              f"from {cache_dir()}")
     else:
         d = cache_dir() / "kernels"
         files = list(d.glob("*.bin")) if d.is_dir() else []
@@ -698,7 +713,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     """Scene warnings as one line each, like the errors."""
     from .scene import SceneWarning
 
-    if issubclass(category, SceneWarning):
+    from .device import DeviceWarning
+
+    if issubclass(category, (SceneWarning, DeviceWarning)):
         print(f"clpt: warning: {message}", file=sys.stderr)
     else:
         print(warnings.formatwarning(message, category, filename, lineno, line), file=sys.stderr, end="")

@@ -10,9 +10,20 @@ case-insensitively: first exactly, against the device name, the platform
 name and the platform's short name (``pocl``, ``intel``, ``nvidia``, ``amd``:
 the first device of that platform); else as a substring of the device or
 platform name, which must then pick out one device (an ambiguous name is
-refused with the list of its matches). Without a selection, PYOPENCL_CTX is
-honoured, then a GPU is preferred, then PoCL's CPU device, then any CPU, so
-registering another CPU runtime does not change the default.
+refused with the list of its matches). Where platforms share a name (the
+PoCL in pyopencl's wheel beside a system PoCL), the first that renders.
+
+Every device is checked before its first render (clpt/probe.py: a child
+process builds and renders a tiny Cornell box; cached per device and
+driver). Without a selection, PYOPENCL_CTX is honoured; else the default is
+the first candidate that passes: a GPU, then the CPU runtimes in the order
+of their measured speed for the kernel's kind (CPU_RUNTIME_RATES: path
+tracing alone, or with photon merging), then anything else; each candidate
+skipped is named in one DeviceWarning line, and if none passes the error
+says what to install. A device named alone that fails is an error, never a
+silent switch; in a list or "all" it is left out with a warning.
+Simulators (Oclgrind, which reports itself as a GPU) are chosen only by
+name.
 """
 
 from __future__ import annotations
@@ -63,8 +74,7 @@ def _all_devices():
     try:
         platforms = cl.get_platforms()
     except cl.Error as e:
-        raise DeviceError(f"no OpenCL platform found ({e}); install an OpenCL runtime "
-                          f"(pip install pocl-binary-distribution gives a CPU one)") from None
+        raise DeviceError(f"no OpenCL platform found ({e}). {_FIX}") from None
     out = []
     for pi, p in enumerate(platforms):
         try:
@@ -127,10 +137,14 @@ def _match(spec: str, found) -> list:
             raise DeviceError(f"no device {i}: there are {len(found)} (see `clpt devices`)")
         return [found[i][3]]
     low = spec.lower()
-    exact = [d for _, _, p, d in found
-             if low in (d.name.strip().lower(), p.name.strip().lower(), platform_short_name(p.name.strip()))]
+    exact, platforms = [], set()
+    for pi, _, p, d in found:
+        if low in (d.name.strip().lower(), p.name.strip().lower(), platform_short_name(p.name.strip())) \
+                and pi not in platforms:
+            platforms.add(pi)
+            exact.append(d)
     if exact:
-        return exact[:1]
+        return exact  # the first device of each platform: several where platforms share a name (two PoCLs)
     hits = [(pi, di, p, d) for pi, di, p, d in found if low in d.name.lower() or low in p.name.lower()]
     if len(hits) == 1:
         return [hits[0][3]]
@@ -145,38 +159,204 @@ def _match(spec: str, found) -> list:
                       f"name one exactly, by platform:device, or by a platform's short name")
 
 
-def select_devices(spec=None) -> list:
-    """pyopencl Device objects for a selection string, an index, a Device or a list of these."""
+class DeviceWarning(UserWarning):
+    """A device left out of a selection: one line naming it and why."""
+
+
+# Simulators and debuggers: never chosen by default or by "all", whatever
+# device type they report (Oclgrind reports a GPU); only by name.
+SIMULATORS = ("oclgrind",)
+
+# Samples/s of CPU runtimes that ranked the default CPU device, per kind of
+# kernel: path tracing alone, and with the caustic photon gather. Measured on
+# the 2-core AVX-512 machine with Intel's runtime 2026.2 and Debian's PoCL 3.1
+# (`clpt bench cornell_box cornell_box_caustics --device intel,pocl --width 128
+# --height 128`; cornell_box for "plain", cornell_box_caustics with its
+# default photon merging for "photons"). A runtime not listed ranks after
+# these; a GPU before every CPU.
+CPU_RUNTIME_RATES = {
+    "plain": {"intel": 23.6, "pocl": 18.0},
+    "photons": {"intel": 2.6, "pocl": 7.5},
+}
+
+
+def is_simulator(device) -> bool:
+    p = device.platform.name.lower()
+    return any(s in p or s in device.name.lower() for s in SIMULATORS)
+
+
+def device_label(device) -> str:
+    return f"{device.name.strip()} ({device.platform.name.strip()}, driver {device.driver_version.strip()})"
+
+
+def _where(device, found) -> tuple[int, int] | None:
+    for pi, di, _, d in found:
+        if d == device:
+            return pi, di
+    return None
+
+
+def check_device(device, lanes: int | None = None, photons: bool = False, found=None):
+    """The device's check (clpt/probe.py) at the lanes it would render with;
+    an ok result without running anything for simulators, sub-devices and
+    when CLPT_DEVICE_CHECK=0."""
+    from . import probe, tune
+
+    n = lanes or tune.predict(device).lanes  # the width of the Cornell box's kernel on this device
+    where = _where(device, found if found is not None else _all_devices())
+    if not probe.enabled() or is_simulator(device) or where is None:
+        return probe.CheckResult(True, n, "", 0.0)
+    return probe.check(device, DeviceContext.identity_of(device), device_label(device), n, where)
+
+
+@dataclass(frozen=True)
+class DefaultChoice:
+    """The device chosen when none was asked for, why, and those skipped."""
+    device: object
+    why: str
+    skipped: tuple[str, ...] = ()
+
+
+def _rank(found, photons: bool):
+    """Candidates for the default, best first: GPUs in listed order, then
+    CPUs by CPU_RUNTIME_RATES for the kernel's kind (unlisted runtimes after,
+    in listed order), then other devices; simulators never."""
+    rates = CPU_RUNTIME_RATES["photons" if photons else "plain"]
+    gpus, cpus, other = [], [], []
+    for i, (pi, di, p, d) in enumerate(found):
+        if is_simulator(d):
+            continue
+        if d.type & cl.device_type.GPU:
+            gpus.append(d)
+        elif d.type & cl.device_type.CPU:
+            cpus.append((-rates.get(platform_short_name(p.name.strip()), -1.0), i, d))
+        else:
+            other.append(d)
+    return gpus + [d for _, _, d in sorted(cpus, key=lambda t: t[:2])] + other
+
+
+def _why(device, photons: bool) -> str:
+    if device.type & cl.device_type.GPU:
+        return "the first GPU"
+    kind = "photons" if photons else "plain"
+    rates = CPU_RUNTIME_RATES[kind]
+    short = platform_short_name(device.platform.name.strip())
+    if device.type & cl.device_type.CPU and short in rates:
+        table = ", ".join(f"{k} {v:g}" for k, v in sorted(rates.items(), key=lambda kv: -kv[1]))
+        what = "with caustic photon merging" if photons else "path tracing"
+        return (f"the fastest CPU runtime {what} that renders here (measured Msamples/s: {table}; "
+                f"clpt/device.py CPU_RUNTIME_RATES)")
+    return "the first device that renders here (no GPU, no measured CPU runtime)"
+
+
+def default_device(photons: bool = False, lanes: int | None = None, found=None) -> DefaultChoice:
+    """The device to render on when none is named: the best candidate (see
+    _rank) that passes its check; raises DeviceError naming the fix if none does."""
+    found = _all_devices() if found is None else found
+    if not found:
+        raise DeviceError(_NO_DEVICE)
+    skipped = []
+    for d in _rank(found, photons):
+        r = check_device(d, lanes, photons, found)
+        if r.ok:
+            return DefaultChoice(d, _why(d, photons), tuple(skipped))
+        skipped.append(f"skipped {device_label(d)}: {r.line()}")
+    listed = "; ".join(skipped) or "only simulators are listed (name one with --device)"
+    raise DeviceError(f"no OpenCL device can render here ({listed}). {_FIX}")
+
+
+_FIX = ("Reinstall clpt on Linux x86-64 to get Intel's CPU runtime (pip install --force-reinstall "
+        "intel-opencl-rt intel-cmplr-lib-rt), install another OpenCL driver (e.g. apt install pocl-opencl-icd, "
+        "or a GPU's), or name a device with --device (clpt devices lists them)")
+_NO_DEVICE = f"no OpenCL device found. {_FIX}"
+
+
+def _checked(devices, lanes, found, explicit_one: bool, spec: str) -> list:
+    """The devices that pass their checks; one named alone that fails is an
+    error, others that fail are left out with a DeviceWarning each."""
+    import warnings
+
+    out, failed = [], []
+    for d in devices:
+        r = check_device(d, lanes, False, found)
+        if r.ok:
+            out.append(d)
+        else:
+            failed.append(f"{device_label(d)} {r.line()}")
+    if explicit_one and failed:
+        raise DeviceError(f"{failed[0]}; choose another device (clpt devices lists them), or fewer --lanes")
+    if not out:
+        raise DeviceError(f"no device of {spec!r} can render here: {'; '.join(failed)}")
+    for f in failed:
+        warnings.warn(DeviceWarning(f"left out {f}"), stacklevel=3)
+    return out
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The devices selected and why (`render -v`)."""
+    devices: list
+    why: str
+
+
+def select_devices(spec=None, *, photons: bool = False, lanes: int | None = None) -> list:
+    """pyopencl Device objects for a selection string, an index, a Device or a
+    list of these (choose_devices(...).devices)."""
+    return choose_devices(spec, photons=photons, lanes=lanes).devices
+
+
+def choose_devices(spec=None, *, photons: bool = False, lanes: int | None = None) -> Selection:
+    """The devices for a selection, and why. Without one: PYOPENCL_CTX, else
+    default_device() for the kernel's kind (photons) at `lanes`. Named
+    devices are checked (clpt/probe.py): one named alone that cannot render
+    is an error, never a silent switch; in a list or "all", those that cannot
+    are left out with a warning, and simulators are left out of "all"."""
+    import warnings
+
     found = _all_devices()
     if not found:
-        raise DeviceError("no OpenCL device found; install an OpenCL runtime "
-                          "(pip install pocl-binary-distribution gives a CPU one)")
+        raise DeviceError(_NO_DEVICE)
     if isinstance(spec, cl.Device):
-        return [spec]
+        return Selection([spec], "given as a pyopencl Device")
     if isinstance(spec, (list, tuple)):
         out = []
         for s in spec:
-            out += select_devices(s)
-        return out
+            out += [d for d in select_devices(s, photons=photons, lanes=lanes) if d not in out]
+        return Selection(out, f"named: {', '.join(map(str, spec))}")
     if isinstance(spec, int):
         spec = str(spec)
+    why = f"named: {spec}"
     if spec is None:
         env = os.environ.get("PYOPENCL_CTX", "").strip()
         if env:
-            spec = env
+            spec, why = env, f"PYOPENCL_CTX={env}"
     if spec is None:
-        gpus = [d for _, _, _, d in found if d.type & cl.device_type.GPU]
-        cpus = [d for _, _, p, d in found if d.type & cl.device_type.CPU]
-        cpus.sort(key=lambda d: platform_short_name(d.platform.name.strip()) != "pocl")  # stable: PoCL first
-        return [(gpus or cpus or [found[0][3]])[0]]
-    out = []
-    for part in str(spec).split(","):
+        choice = default_device(photons, lanes, found)
+        for line in choice.skipped:
+            warnings.warn(DeviceWarning(line), stacklevel=3)
+        return Selection([choice.device], "default: " + choice.why + "".join(f"; {s}" for s in choice.skipped))
+    parts = [p.strip() for p in str(spec).split(",")]
+    named = []  # (device, sub-device count or "")
+    for part in parts:
         part, slash, n = part.partition("/")
-        for d in _match(part, found):
-            for sub in (split_device(d, n) if slash else [d]):
-                if sub not in out:
-                    out.append(sub)
-    return out
+        matched = _match(part, found)
+        if part.lower() == "all":
+            matched = [d for d in matched if not is_simulator(d)]
+        elif len(matched) > 1:  # one name for several platforms (two PoCLs): the first that renders
+            ok = [d for d in matched if check_device(d, lanes, photons, found).ok]
+            matched = ok[:1] or matched[:1]
+        named += [(d, n if slash else "") for d in matched if (d, n if slash else "") not in named]
+    alone = len(parts) == 1 and parts[0].lower() != "all"
+    distinct = []
+    for d, _ in named:
+        if d not in distinct:
+            distinct.append(d)
+    usable = _checked(distinct, lanes, found, alone, spec)
+    out = []
+    for d, n in named:
+        if d in usable:
+            out += [sub for sub in (split_device(d, n) if n else [d]) if sub not in out]
+    return Selection(out, why)
 
 
 def split_device(device, n) -> list:
@@ -217,5 +397,10 @@ class DeviceContext:
         return f"{self.name} ({self.platform}){self.part}"
 
     def identity(self) -> str:
-        d = self.device
-        return "|".join([self.platform, d.platform.version, self.name, d.vendor, d.version, d.driver_version])
+        return self.identity_of(self.device)
+
+    @staticmethod
+    def identity_of(d) -> str:
+        """The device and driver, as build caches and checks key them."""
+        return "|".join([d.platform.name.strip(), d.platform.version, d.name.strip(), d.vendor, d.version,
+                         d.driver_version])

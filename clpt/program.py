@@ -69,11 +69,11 @@ def cache_dir() -> Path:
 
 
 def clear_cache() -> int:
-    """Remove every cached kernel binary and the tuned settings; returns how
-    many kernel binaries there were."""
+    """Remove every cached kernel binary, the tuned settings and the device
+    checks; returns how many kernel binaries there were."""
     d = cache_dir() / "kernels"
     n = len(list(d.glob("*.bin"))) if d.is_dir() else 0
-    for sub in ("kernels", "tune"):
+    for sub in ("kernels", "tune", "devices"):
         shutil.rmtree(cache_dir() / sub, ignore_errors=True)
     return n
 

@@ -26,7 +26,7 @@ import numpy as np
 from .adaptive import AdaptiveSettings
 from .denoise import FilterSettings
 from . import tune
-from .device import DeviceContext, DeviceError, select_devices
+from .device import DeviceContext, DeviceError, choose_devices
 from .engine.checkpoint import Checkpoint, CheckpointError
 from .engine.device import DeviceWorker, device_features, kernel_source, kernel_sources  # noqa: F401
 from .engine.driver import Driver
@@ -186,7 +186,10 @@ class Renderer:
         self.packed = self.options.pack(scene)
         self.pack_seconds = time.perf_counter() - t0
         self._local = self._processes = None
-        self.devices = [DeviceContext(d) for d in select_devices(device)]
+        wants_photons = self.packed.has_caustics and photons is not False
+        selection = choose_devices(device, photons=wants_photons, lanes=lanes)
+        self.device_choice = selection.why  # render -v
+        self.devices = [DeviceContext(d) for d in selection.devices]
         names = [d.label for d in self.devices]
         for i, d in enumerate(self.devices):
             if names.count(names[i]) > 1:  # one device twice, or its sub-devices: told apart in stats

@@ -1,6 +1,6 @@
 """Per-device defaults: paths per work-item (lanes), work-group size and pass
-length, from device queries where they predict the fastest choice, else from
-a short measurement the first time a device meets a kernel.
+length, predicted from device queries and the kernel's kind, or measured
+on request (CLPT_TUNE=measure).
 
 - GPU: 1 lane (the hardware runs work-items in lockstep), work-groups of
   LOCAL_SIZE_GPU.
@@ -10,21 +10,30 @@ a short measurement the first time a device meets a kernel.
   registers, so the register width is the best width (measured on the
   AVX-512 machine: 11.4 Msamples/s at 16 lanes, 7.3 at 8, 4.0 at 4, 1.6 at 1,
   on the Cornell box).
-- Other CPU runtimes (Intel's): measured. Intel's compiler vectorizes across
-  work-items itself, so 1 lane is also vector code; which of that and the
-  register width wins depends on the kernel (16 on the Cornell box, 1 with
-  the caustic photon gather), and narrower explicit widths were slowest on
-  both. Both candidates are built (in parallel) and timed in interleaved
-  rounds on a 64x64 image, rendering the scene the default way; the one with
+- Other CPU runtimes (Intel's): predicted from the kernel. Intel's compiler
+  vectorizes across work-items itself, so 1 lane is also vector code, and
+  which of that and the register width wins depends on the kernel: with the
+  caustic photon gather 1 lane won on every shipped scene, and built in a
+  fraction of the time; without it the register width won on every one
+  (Intel 2026.2 on the AVX-512 machine, 128x128, 32 spp, `python
+  tests/bench_tune.py`; Msamples/s 1 lane / 16 lanes and build seconds):
+  photon scenes 1.4-2.0 / 0.2-1.4 at 1.3-2.1 s / 8-23 s builds, the others
+  6.0-8.4 / 7.7-13.6 (mesh_lights 1.2 / 1.7) at 0.6-1.0 s / 0.8-2.8 s. A
+  measurement costs both builds and trial renders (13-25 s on a photon
+  scene, more than most renders), so it is not on the first render's path:
+  CLPT_TUNE=measure measures (and caches the choice, which later renders
+  then use). It builds both candidates (in parallel) and times them in
+  interleaved rounds on a 64x64 image, rendering the scene the default way;
   the faster best round is kept. Then, with those lanes, the work-group
   sizes LOCAL_CANDIDATES in the same way (no rebuild: the local size is a
   launch parameter); one replaces LOCAL_SIZE_CPU only when it is more than
   LOCAL_MARGIN faster, since on a shared machine the trial's best rounds
-  differ by more than the sizes do. Intel's kernel queries are no guide (it reports a
-  preferred multiple of 128 for every build), and the size matters there:
-  1 lane with work-groups of 8 ran 0.6 Msamples/s against 3.0-3.1 with 16,
-  32 or 64 on the Cornell box, because Intel's compiler vectorizes across
-  16 work-items of a group.
+  differ by more than the sizes do (16 to 128 were within 3% on the Cornell
+  box). Intel's kernel queries are no guide (it reports a preferred
+  multiple of 128 for every build), and the size matters there: 1 lane
+  with work-groups of 8 ran 0.6 Msamples/s against 3.0-3.1 with 16, 32 or
+  64 on the Cornell box, because Intel's compiler vectorizes across 16
+  work-items of a group.
 - Local size on PoCL: LOCAL_SIZE_CPU, from the query. PoCL runs a group's
   work-items in a loop on one thread, so the size only sets the grain of
   the load balance; measured on the Cornell box at 16 lanes, 2 to 64 were
@@ -38,9 +47,10 @@ device and driver identity, the kernel source and the build options, less
 the lane count and the scene's primitive counts (so scenes with the same
 kinds of shapes, lobes and lights share one measurement); ``clpt cache
 --clear`` removes it. An explicit lanes or local_size
-always wins. CLPT_TUNE=query never measures (an unpredicted device gets its
-register width; the test suite runs so, for speed); CLPT_TUNE=measure
-measures on every CPU, PoCL included (to check the queries' predictions).
+always wins. CLPT_TUNE=auto (the default) takes a cached measurement where
+there is one, else the prediction; CLPT_TUNE=query always the prediction
+(the test suite runs so); CLPT_TUNE=measure measures on every CPU, PoCL
+included (to check the predictions), and caches what it finds.
 """
 
 from __future__ import annotations
@@ -83,23 +93,37 @@ def register_width(device) -> int:
     return max(x for x in LANE_WIDTHS if x <= max(w, 1))
 
 
-def query_tuning(dctx) -> Tuning | None:
-    """The choice device queries predict, or None where they do not."""
-    if not dctx.is_cpu:
-        local = min(LOCAL_SIZE_GPU, dctx.device.max_work_group_size)
+def predict(device, photons: bool = False) -> Tuning:
+    """What a pyopencl Device's queries and the kernel's kind predict (see
+    the module's docstring); photons: the kernel gathers caustic photons."""
+    import pyopencl as cl
+
+    from .device import platform_short_name
+
+    if not device.type & cl.device_type.CPU:
+        local = min(LOCAL_SIZE_GPU, device.max_work_group_size)
         return Tuning(1, local, PASS_SECONDS, "query", "a GPU runs work-items in lockstep: 1 lane")
-    if dctx.is_pocl:
-        w = register_width(dctx.device)
+    w = register_width(device)
+    runtime = platform_short_name(device.platform.name.strip())
+    if runtime == "pocl":
         return Tuning(w, LOCAL_SIZE_CPU, PASS_SECONDS, "query",
                       f"PoCL compiles lane vectors to the ISA's registers: native float width "
-                      f"{dctx.device.native_vector_width_float}")
-    return None
-
-
-def fallback_tuning(dctx, note: str = "not measured: CLPT_TUNE=query") -> Tuning:
-    w = register_width(dctx.device)
+                      f"{device.native_vector_width_float}")
+    if runtime == "intel" and photons:
+        return Tuning(1, LOCAL_SIZE_CPU, PASS_SECONDS, "query",
+                      "Intel's compiler vectorizes across work-items; with the photon gather 1 lane was faster "
+                      "on every shipped scene (CLPT_TUNE=measure measures)")
+    if runtime == "intel":
+        return Tuning(w, LOCAL_SIZE_CPU, PASS_SECONDS, "query",
+                      f"native float width {device.native_vector_width_float}: faster than 1 lane on every shipped "
+                      f"scene without photons (CLPT_TUNE=measure measures)")
     return Tuning(w, LOCAL_SIZE_CPU, PASS_SECONDS, "query",
-                  f"native float width {dctx.device.native_vector_width_float} ({note})")
+                  f"native float width {device.native_vector_width_float} (not measured; CLPT_TUNE=measure measures)")
+
+
+def query_tuning(dctx, photons: bool = False) -> Tuning:
+    """The choice device queries and the kernel's kind predict for a DeviceContext."""
+    return predict(dctx.device, photons)
 
 
 def tune_key(dctx, source: str, options) -> str:
@@ -197,13 +221,13 @@ def choose(dctx, source: str, options, make_state, trial, *, lanes=None, local_s
     policy = os.environ.get("CLPT_TUNE", "auto").lower()
     if policy not in ("auto", "query", "measure"):
         raise ValueError(f"CLPT_TUNE must be auto, query or measure (got {policy!r})")
-    base = None if policy == "measure" and dctx.is_cpu and lanes is None else query_tuning(dctx)
-    state = None
-    if base is None and (lanes is not None or policy == "query"):
-        base = fallback_tuning(dctx, "not measured: CLPT_TUNE=query" if lanes is None else "lanes given")
-    if base is None:
-        key = tune_key(dctx, source, options)
-        base = load(key) if use_cache else None
+    photons = "-DCLPT_PHOTONS=1" in options
+    state = base = None
+    key = tune_key(dctx, source, options)
+    if policy != "query" and dctx.is_cpu and lanes is None and use_cache:
+        base = load(key)  # a measurement made earlier (CLPT_TUNE=measure)
+    if base is None and not (policy == "measure" and dctx.is_cpu and lanes is None):
+        base = query_tuning(dctx, photons)
     if base is None:
         t0 = time.perf_counter()
         # The candidates build in parallel (the OpenCL compilers release the GIL).

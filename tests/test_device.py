@@ -1,6 +1,7 @@
 """Device selection by name: exact names and platform short names first, a
 substring only when it picks out one device, else a refusal naming the matches."""
 
+import sys
 from types import SimpleNamespace
 
 import pytest
@@ -42,3 +43,125 @@ def test_ambiguous_and_unknown_names_are_refused():
         _match("cuda", _found())  # a substring of one platform with two devices
     with pytest.raises(DeviceError, match="no OpenCL device matches 'amd'"):
         _match("amd", _found())
+
+
+# --- the default device and checks (clpt/device.py, clpt/probe.py) -------------------------------
+
+import warnings  # noqa: E402
+
+import pyopencl as cl  # noqa: E402
+
+import clpt.device as devmod  # noqa: E402
+from clpt import probe  # noqa: E402
+
+
+def _dev(platform, name, kind, driver="1.0"):
+    p = SimpleNamespace(name=platform, version="OpenCL 3.0")
+    return SimpleNamespace(name=name, platform=p, type=kind, driver_version=driver, vendor="v", version="OpenCL 3.0")
+
+
+CPU, GPU = cl.device_type.CPU, cl.device_type.GPU
+
+
+def _machine(monkeypatch, devices, broken=()):
+    """Fake platforms (one device each) and checks: devices named in broken fail."""
+    found = [(i, 0, d.platform, d) for i, d in enumerate(devices)]
+    monkeypatch.setattr(devmod, "_all_devices", lambda: found)
+    checked = []
+
+    def check(d, lanes=None, photons=False, found=None):
+        checked.append(d.name)
+        bad = d.name in broken
+        return probe.CheckResult(not bad, lanes or 16, "LLVM ERROR: boom" if bad else "", 0.1)
+
+    monkeypatch.setattr(devmod, "check_device", check)
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    return checked
+
+
+def _three():
+    return [_dev("Portable Computing Language", "pthread-old", CPU, "3.0"),
+            _dev("Intel(R) OpenCL", "EPYC", CPU),
+            _dev("Oclgrind", "Oclgrind Simulator", GPU)]
+
+
+def test_default_ranks_cpu_runtimes_by_kernel_kind_and_never_takes_a_simulator(monkeypatch):
+    _machine(monkeypatch, _three())
+    assert devmod.default_device(photons=False).device.name == "EPYC"  # Intel is faster path tracing
+    assert devmod.default_device(photons=True).device.name == "pthread-old"  # PoCL is faster merging
+    nv = _dev("NVIDIA CUDA", "H200", GPU)
+    _machine(monkeypatch, _three() + [nv])
+    c = devmod.default_device(photons=True)
+    assert c.device.name == "H200" and c.why == "the first GPU"
+
+
+def test_a_default_that_cannot_render_is_skipped_in_one_line(monkeypatch):
+    checked = _machine(monkeypatch, _three(), broken={"pthread-old"})
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        sel = devmod.choose_devices(None, photons=True)
+    assert [d.name for d in sel.devices] == ["EPYC"] and checked == ["pthread-old", "EPYC"]
+    lines = [str(x.message) for x in w if issubclass(x.category, devmod.DeviceWarning)]
+    assert len(lines) == 1 and "pthread-old" in lines[0] and "LLVM ERROR: boom" in lines[0] and "\n" not in lines[0]
+    assert "skipped pthread-old" in sel.why
+
+
+def test_no_device_that_renders_is_an_error_with_the_fix(monkeypatch):
+    _machine(monkeypatch, _three(), broken={"pthread-old", "EPYC"})
+    with pytest.raises(devmod.DeviceError, match="no OpenCL device can render here.*intel-opencl-rt"):
+        devmod.default_device()
+    _machine(monkeypatch, [_three()[2]])  # only a simulator
+    with pytest.raises(devmod.DeviceError, match="only simulators"):
+        devmod.default_device()
+
+
+def test_a_named_device_that_fails_is_an_error_never_a_switch(monkeypatch):
+    _machine(monkeypatch, _three(), broken={"pthread-old"})
+    with pytest.raises(devmod.DeviceError, match="pthread-old .*cannot render at 16 lanes: LLVM ERROR: boom"):
+        devmod.select_devices("pthread-old")
+    assert [d.name for d in devmod.select_devices("oclgrind")] == ["Oclgrind Simulator"]  # by name it is fine
+
+
+def test_one_name_for_two_platforms_takes_the_one_that_renders(monkeypatch):
+    new = _dev("Portable Computing Language", "pthread-new", CPU, "3.1")
+    _machine(monkeypatch, _three() + [new], broken={"pthread-old"})
+    assert [d.name for d in devmod.select_devices("pocl")] == ["pthread-new"]
+
+
+def test_all_and_lists_leave_out_failing_devices_and_simulators(monkeypatch):
+    _machine(monkeypatch, _three(), broken={"pthread-old"})
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        assert [d.name for d in devmod.select_devices("all")] == ["EPYC"]
+        assert [d.name for d in devmod.select_devices("0,1")] == ["EPYC"]
+    assert sum("left out pthread-old" in str(x.message) for x in w) == 2
+    _machine(monkeypatch, _three(), broken={"pthread-old", "EPYC"})
+    with pytest.raises(devmod.DeviceError, match="no device of '0,1' can render"):
+        devmod.select_devices("0,1")
+
+
+def test_the_check_renders_on_the_test_device_and_is_cached(device_spec, monkeypatch):
+    """The real check (a child process) passes on the device the suite runs on, and the second time it is read back."""
+    dev = devmod.select_devices(device_spec)[0]
+    first = devmod.check_device(dev)
+    assert first.ok, first.reason
+    probe._memo.clear()
+    again = devmod.check_device(dev)
+    assert again.ok and again.cached and again.lanes == first.lanes
+
+
+def test_a_crashing_check_fails_with_the_compilers_last_line(monkeypatch, tmp_path):
+    """A compiler that aborts takes only the check's child process with it."""
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    probe._memo.clear()
+    crash = "import os, sys; sys.stdin.read(); print('LLVM ERROR: Cannot emit physreg copy instruction', " \
+            "file=sys.stderr, flush=True); os.abort()"
+    monkeypatch.setattr(probe, "_command", lambda: [sys.executable, "-c", crash])
+    r = probe.check(None, "fake|identity", "fake device", 16, (0, 0))
+    assert not r.ok and r.reason == "the kernel build crashed (SIGABRT): LLVM ERROR: Cannot emit physreg copy instruction"
+    wrong = "import sys, json; sys.stdin.read(); print(json.dumps({'finite': True, 'mean': 0.9}))"
+    monkeypatch.setattr(probe, "_command", lambda: [sys.executable, "-c", wrong])
+    r = probe.check(None, "fake|identity", "fake device", 8, (0, 0))
+    assert not r.ok and "wrong results" in r.reason
+    probe._memo.clear()
+    assert not probe.cached("fake|identity", 16).ok  # saved: the next process does not crash again

@@ -5,6 +5,7 @@ of them changes a bit of the image."""
 import json
 
 import numpy as np
+import pyopencl as cl
 import pytest
 
 import clpt
@@ -45,10 +46,16 @@ def test_measured_choice_is_cached_and_changes_no_bit(device_spec, monkeypatch):
         assert np.array_equal(a, b)
 
 
+class _FakePlatform:
+    name = "Fake(R) OpenCL"
+
+
 class _FakeDevice:
     native_vector_width_float = 16
     preferred_vector_width_float = 1
     max_work_group_size = 64
+    type = cl.device_type.CPU
+    platform = _FakePlatform()
 
 
 class _FakeContext:
@@ -80,7 +87,7 @@ def _fake_trial(speed):
 
 def test_a_measured_device_gets_the_fastest_lanes_and_local_size(monkeypatch, tmp_path):
     monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
-    monkeypatch.setenv("CLPT_TUNE", "auto")
+    monkeypatch.setenv("CLPT_TUNE", "measure")
     states = {}
 
     def make(lanes):
@@ -100,11 +107,17 @@ def test_a_measured_device_gets_the_fastest_lanes_and_local_size(monkeypatch, tm
     t2, _ = tune.choose(_FakeContext(), "src", ["-DX=1"], make, speed, local_size=8)
     assert (t2.lanes, t2.local_size, t2.how) == (1, 8, "explicit")
     assert not list((tmp_path / "other").glob("tune/*.json"))  # a partial measurement is not cached
+    # The default policy takes the measurement made before, and measures nothing itself.
+    monkeypatch.setenv("CLPT_TUNE", "auto")
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    states.clear()
+    cached = tune.choose(_FakeContext(), "src", ["-DX=1"], make, speed)[0]
+    assert (cached.lanes, cached.local_size, cached.how) == (1, 32, "cached") and not states
 
 
 def test_a_local_size_within_noise_of_the_default_leaves_it(monkeypatch, tmp_path):
     monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
-    monkeypatch.setenv("CLPT_TUNE", "auto")
+    monkeypatch.setenv("CLPT_TUNE", "measure")
     speed = _fake_trial(lambda lanes, local: 1.05 if local == 64 else 1.0)
     t, _ = tune.choose(_FakeContext(), "src", [], _FakeState, speed)
     assert t.local_size == 16 and "64 1.05" in t.why
@@ -115,3 +128,31 @@ def test_measure_local_sizes_restores_the_state():
     st.local = 7
     rates = tune.measure_local_sizes(st, _fake_trial(lambda lanes, local: local / 16), [16, 64])
     assert rates == {16: 1.0, 64: 4.0} and st.local == 7
+
+
+def test_the_default_policy_predicts_without_trial_renders(monkeypatch, tmp_path):
+    """Nothing measured before: CLPT_TUNE=auto predicts from the queries and
+    the kernel's kind, and neither builds a candidate nor renders a trial."""
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("CLPT_TUNE", "auto")
+
+    def make(lanes):
+        raise AssertionError("a candidate was built")
+
+    def trial(st, spp, seed):
+        raise AssertionError("a trial was rendered")
+
+    t, st = tune.choose(_FakeContext(), "src", ["-DCLPT_PHOTONS=1"], make, trial)
+    assert t.how == "query" and st is None and t.lanes == 16  # an unknown runtime: its register width
+    assert not list(tmp_path.glob("tune/*.json"))
+
+
+@pytest.mark.parametrize("platform,photons,lanes", [("Intel(R) OpenCL", False, 16), ("Intel(R) OpenCL", True, 1),
+                                                    ("Portable Computing Language", True, 16)])
+def test_predictions_by_runtime_and_kernel(platform, photons, lanes):
+    dev = _FakeDevice()
+    dev.platform = type("P", (), {"name": platform})()
+    assert tune.predict(dev, photons).lanes == lanes
+    gpu = _FakeDevice()
+    gpu.type = cl.device_type.GPU
+    assert tune.predict(gpu, photons).lanes == 1

@@ -36,7 +36,8 @@ def device_features(dctx: DeviceContext, packed: PackedScene, opts: DeviceOption
     acc_double = dctx.fp64 if opts.accumulate == "auto" else opts.accumulate == "double"
     if not (lanes or opts.lanes):
         from .. import tune
-        lanes = (tune.query_tuning(dctx) or tune.fallback_tuning(dctx)).lanes  # no trial renders here
+        photons = packed.has_caustics and opts.photons is not False
+        lanes = tune.query_tuning(dctx, photons).lanes  # no trial renders here
     return scene_features(packed, lanes=lanes or opts.lanes,
                           double=opts.precision == "double", accum_double=acc_double or opts.precision == "double",
                           mode=opts.kernel, nee=opts.nee, photons=packed.has_caustics and opts.photons is not False,
