@@ -803,3 +803,99 @@ def measure_vs_mitsuba(path, *, device=None, width=256, height=256, max_depth=8,
         out["clpt_image_mean"] = float(res.image.mean())
     out["mitsuba_image_mean"] = float(np.asarray(mi.render(mscene, spp=spp)).mean())
     return out
+
+
+# --- cold and warm builds per runtime (clpt bench-builds) ---------------------------------------
+
+def _builds_child(scene: str, device) -> dict:
+    import clpt  # noqa: F401 - the import (runtime registration) is part of what a user waits for
+
+    from .render import Renderer
+
+    t0 = time.perf_counter()
+    r = Renderer(scene, device=device)
+    t1 = time.perf_counter()
+    r.render(1, width=16, height=16)
+    t2 = time.perf_counter()
+    st = r.states[0]
+    return {"renderer_seconds": t1 - t0, "first_render_seconds": t2 - t1, "total_seconds": t2 - t0,
+            "lanes": st.features.lanes, "photons": st.features.photons, "device": st.dctx.label,
+            "cache_hit": bool(st.build.cache_hit)}
+
+
+def _fresh_env(tmp: str, devices_from: str | None) -> dict:
+    """Empty clpt, PoCL and pyopencl caches in tmp; the device checks copied
+    from devices_from (each device is checked once per installation, not
+    per scene: bench-builds reports that apart)."""
+    import shutil
+
+    clpt_dir = os.path.join(tmp, "clpt")
+    os.makedirs(clpt_dir, exist_ok=True)
+    if devices_from and os.path.isdir(os.path.join(devices_from, "devices")):
+        shutil.copytree(os.path.join(devices_from, "devices"), os.path.join(clpt_dir, "devices"), dirs_exist_ok=True)
+    return dict(os.environ, CLPT_CACHE_DIR=clpt_dir, POCL_CACHE_DIR=os.path.join(tmp, "pocl"),
+                PYOPENCL_NO_CACHE="1")
+
+
+def _child_json(code: str, env: dict) -> dict:
+    p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise RuntimeError(p.stderr.strip().splitlines()[-1] if p.stderr.strip() else f"exit {p.returncode}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def measure_builds(scenes, devices) -> list[dict]:
+    """For each device (a selector; None: the default) and scene: a fresh
+    process with empty caches builds the scene's kernels as `clpt render`
+    would (default lanes and tuning) and renders one 16x16 sample (cold),
+    then another process does the same with the cache it left (warm). The
+    device's check (clpt/probe.py) is timed once per device, apart."""
+    rows = []
+    with tempfile.TemporaryDirectory() as checks:
+        for device in devices:
+            env = _fresh_env(checks, None)
+            code = ("import json, time; t = time.perf_counter(); import clpt.device as d; "
+                    f"dev = d.select_devices({device!r})[0]; r = d.check_device(dev); "
+                    "print(json.dumps({'ok': r.ok, 'seconds': r.seconds, 'label': d.device_label(dev), "
+                    "'wall': time.perf_counter() - t}))")
+            check = _child_json(code, env)
+            for scene in scenes:
+                row = {"device": device, "scene": scene, "check_seconds": check["seconds"]}
+                with tempfile.TemporaryDirectory() as tmp:
+                    env = _fresh_env(tmp, os.path.join(checks, "clpt"))
+                    code = (f"import json; from clpt.bench import _builds_child; "
+                            f"print(json.dumps(_builds_child({scene!r}, {device!r})))")
+                    try:
+                        row["cold"] = _child_json(code, env)
+                        row["warm"] = _child_json(code, env)
+                    except RuntimeError as e:
+                        row["error"] = str(e)
+                rows.append(row)
+    return rows
+
+
+def run_bench_builds(a) -> int:
+    from .resources import shipped_scenes
+
+    scenes = shipped_scenes() if a.scene == ["all"] else a.scene
+    devices = [None if d in ("default", "") else d for d in a.device.split(",")]
+    rows = measure_builds(scenes, devices)
+    if a.json:
+        print(json.dumps(rows, indent=2))
+        return 0
+    print("cold: a fresh process with empty kernel caches, Renderer + a 1-sample 16x16 render (wall s); "
+          "warm: the same with the cache filled")
+    print(f"{'device':10} {'scene':34} {'lanes':>5} {'cold s':>7} {'warm s':>7}  runtime")
+    for r in rows:
+        if "error" in r:
+            print(f"{str(r['device'] or 'default'):10} {r['scene']:34} failed: {r['error']}")
+            continue
+        c, w = r["cold"], r["warm"]
+        print(f"{str(r['device'] or 'default'):10} {r['scene']:34} {c['lanes']:>5} {c['total_seconds']:7.2f} "
+              f"{w['total_seconds']:7.2f}  {c['device']}")
+    seen = {}
+    for r in rows:
+        seen.setdefault(str(r["device"] or "default"), r["check_seconds"])
+    print("device checks (once per device and driver): "
+          + ", ".join(f"{k} {v:.1f} s" for k, v in seen.items()))
+    return 0

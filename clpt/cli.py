@@ -598,6 +598,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-nee", action="store_true")
     p.set_defaults(func=cmd_bench)
 
+    p = sub.add_parser("bench-builds", help="cold and warm kernel builds of scenes per device, as a first "
+                                            "render meets them")
+    p.add_argument("scene", nargs="*", default=["all"], help="scenes ('all': every shipped scene, the default)")
+    p.add_argument("--device", "-d", default="default",
+                   help="comma list of devices to measure ('default': the device clpt render picks)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=lambda a: __import__("clpt.bench", fromlist=["x"]).run_bench_builds(a))
+
     p = sub.add_parser("bench-photons", help="photon pass and grid build times, gather cost, and the error "
                                              "of caustics at equal render time")
     p.add_argument("scene", nargs="?", default="cornell_box_caustics")
