@@ -288,8 +288,13 @@ def _checked(devices, lanes, found, explicit_one: bool, spec: str) -> list:
     if not out:
         raise DeviceError(f"no device of {spec!r} can render here: {'; '.join(failed)}")
     for f in failed:
-        warnings.warn(DeviceWarning(f"left out {f}"), stacklevel=3)
+        if f"left out {f}" not in _reported:
+            _reported.add(f"left out {f}")
+            warnings.warn(DeviceWarning(f"left out {f}"), stacklevel=3)
     return out
+
+
+_reported: set[str] = set()
 
 
 @dataclass(frozen=True)
@@ -333,7 +338,9 @@ def choose_devices(spec=None, *, photons: bool = False, lanes: int | None = None
     if spec is None:
         choice = default_device(photons, lanes, found)
         for line in choice.skipped:
-            warnings.warn(DeviceWarning(line), stacklevel=3)
+            if line not in _reported:  # once a process: every Renderer would say it again
+                _reported.add(line)
+                warnings.warn(DeviceWarning(line), stacklevel=3)
         return Selection([choice.device], "default: " + choice.why + "".join(f"; {s}" for s in choice.skipped))
     parts = [p.strip() for p in str(spec).split(",")]
     named = []  # (device, sub-device count or "")
