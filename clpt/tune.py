@@ -93,14 +93,15 @@ def register_width(device) -> int:
     return max(x for x in LANE_WIDTHS if x <= max(w, 1))
 
 
-def predict(device, photons: bool = False) -> Tuning:
+def predict(device, photons: bool = False, cpu: bool | None = None) -> Tuning:
     """What a pyopencl Device's queries and the kernel's kind predict (see
-    the module's docstring); photons: the kernel gathers caustic photons."""
+    the module's docstring); photons: the kernel gathers caustic photons;
+    cpu: whether to treat it as a CPU (default: its device type)."""
     import pyopencl as cl
 
     from .device import platform_short_name
 
-    if not device.type & cl.device_type.CPU:
+    if not (bool(device.type & cl.device_type.CPU) if cpu is None else cpu):
         local = min(LOCAL_SIZE_GPU, device.max_work_group_size)
         return Tuning(1, local, PASS_SECONDS, "query", "a GPU runs work-items in lockstep: 1 lane")
     w = register_width(device)
@@ -123,7 +124,7 @@ def predict(device, photons: bool = False) -> Tuning:
 
 def query_tuning(dctx, photons: bool = False) -> Tuning:
     """The choice device queries and the kernel's kind predict for a DeviceContext."""
-    return predict(dctx.device, photons)
+    return predict(dctx.device, photons, dctx.is_cpu)
 
 
 def tune_key(dctx, source: str, options) -> str:

@@ -14,8 +14,13 @@ import clpt
 
 SPLIT = r"""
 import json, sys, numpy as np, clpt
-one = clpt.Renderer("cornell_box_caustics", device="0").render(24, width=24, height=16, seed=9, pass_seconds=0.02)
-r = clpt.Renderer("cornell_box_caustics", device="all")
+try:
+    pocl = clpt.device.select_devices("pocl")[0].platform.get_devices()  # the first PoCL that renders here
+except clpt.DeviceError as e:
+    print(json.dumps({"devices": 0, "why": str(e)}))
+    sys.exit(0)
+one = clpt.Renderer("cornell_box_caustics", device=pocl[0]).render(24, width=24, height=16, seed=9, pass_seconds=0.02)
+r = clpt.Renderer("cornell_box_caustics", device=list(pocl))
 two = r.render(24, width=24, height=16, seed=9, pass_seconds=0.02)
 labels = [p[0] for p in two.stats.passes]
 procs = r.render(24, width=24, height=16, seed=9, pass_seconds=0.02, executor="processes")
@@ -36,8 +41,10 @@ def test_pocl_split_in_two_devices_gives_the_one_device_image(tmp_path):
     p = subprocess.run([sys.executable, "-c", SPLIT], env=env, capture_output=True, text=True, timeout=600)
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout.strip().splitlines()[-1])
+    if out["devices"] == 0:
+        pytest.skip(f"no PoCL renders here: {out['why']}")
     if out["devices"] < 2:
-        pytest.skip("this OpenCL platform does not split into two devices")
+        pytest.skip("this PoCL does not split into two devices")
     assert out["counts_equal"] and len(out["same_label_passes"]) >= 1
     # Only the order of the float64 additions differs: equal to float32 rounding.
     assert out["max_rel"] < 1e-6
