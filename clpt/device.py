@@ -196,17 +196,24 @@ def _where(device, found) -> tuple[int, int] | None:
     return None
 
 
-def check_device(device, lanes: int | None = None, photons: bool = False, found=None):
+def check_device(device, lanes: int | None = None, photons: bool = False, found=None, *, wait: bool = True):
     """The device's check (clpt/probe.py) at the lanes it would render with;
     an ok result without running anything for simulators, sub-devices and
-    when CLPT_DEVICE_CHECK=0."""
+    when CLPT_DEVICE_CHECK=0. wait=False: the cached result, else None after
+    starting the check in the background."""
     from . import probe, tune
 
     n = lanes or tune.predict(device).lanes  # the width of the Cornell box's kernel on this device
     where = _where(device, found if found is not None else _all_devices())
     if not probe.enabled() or is_simulator(device) or where is None:
         return probe.CheckResult(True, n, "", 0.0)
-    return probe.check(device, DeviceContext.identity_of(device), device_label(device), n, where)
+    identity, label = DeviceContext.identity_of(device), device_label(device)
+    if not wait:
+        hit = probe.cached(identity, n)
+        if hit is None:
+            probe.check_in_background(identity, label, n, where)
+        return hit
+    return probe.check(device, identity, label, n, where)
 
 
 @dataclass(frozen=True)
@@ -244,25 +251,45 @@ def _why(device, photons: bool) -> str:
     if device.type & cl.device_type.CPU and short in rates:
         table = ", ".join(f"{k} {v:g}" for k, v in sorted(rates.items(), key=lambda kv: -kv[1]))
         what = "with caustic photon merging" if photons else "path tracing"
-        return (f"the fastest CPU runtime {what} that renders here (measured Msamples/s: {table}; "
+        return (f"the CPU runtime measured fastest {what} of those that render here (Msamples/s: {table}; "
                 f"clpt/device.py CPU_RUNTIME_RATES)")
     return "the first device that renders here (no GPU, no measured CPU runtime)"
 
 
 def default_device(photons: bool = False, lanes: int | None = None, found=None) -> DefaultChoice:
     """The device to render on when none is named: the best candidate (see
-    _rank) that passes its check; raises DeviceError naming the fix if none does."""
+    _rank) that passes its check; raises DeviceError naming the fix if none
+    does. Checks that make the render wait run in the order of path-tracing
+    speed (the surest first: a GPU, then the CPU runtime that path traces
+    fastest); a candidate ranked ahead of that one only for photon merging
+    and not checked yet is checked in the background, and taken by later
+    renders if it passes: a first render never waits for a runtime that may
+    crash (the PoCL in pyopencl's wheel can spend 30 s failing its check)."""
     found = _all_devices() if found is None else found
     if not found:
         raise DeviceError(_NO_DEVICE)
-    skipped = []
-    for d in _rank(found, photons):
-        r = check_device(d, lanes, photons, found)
+    skipped, base = [], None
+    for d in _rank(found, False):
+        r = check_device(d, lanes, False, found)
         if r.ok:
-            return DefaultChoice(d, _why(d, photons), tuple(skipped))
+            base = d
+            break
         skipped.append(f"skipped {device_label(d)}: {r.line()}")
-    listed = "; ".join(skipped) or "only simulators are listed (name one with --device)"
-    raise DeviceError(f"no OpenCL device can render here ({listed}). {_FIX}")
+    if base is None:
+        listed = "; ".join(skipped) or "only simulators are listed (name one with --device)"
+        raise DeviceError(f"no OpenCL device can render here ({listed}). {_FIX}")
+    for d in _rank(found, photons):
+        if d == base:
+            break
+        r = check_device(d, lanes, photons, found, wait=False)
+        if r is None:
+            skipped.append(f"checking {device_label(d)} in the background (faster with photon merging where "
+                           f"measured); later renders take it if it renders here")
+        elif r.ok:
+            return DefaultChoice(d, _why(d, photons), tuple(skipped))
+        elif not any(device_label(d) in line for line in skipped):
+            skipped.append(f"skipped {device_label(d)}: {r.line()}")
+    return DefaultChoice(base, _why(base, photons), tuple(skipped))
 
 
 _FIX = ("Reinstall clpt on Linux x86-64 to get Intel's CPU runtime (pip install --force-reinstall "

@@ -189,5 +189,44 @@ def _child():
     print(json.dumps({"finite": bool(np.isfinite(img).all()), "mean": float(np.nan_to_num(img).mean())}))
 
 
+def check_in_background(identity: str, label: str, lanes: int, where: tuple[int, int]) -> bool:
+    """Start the check in a detached process that caches its result (the
+    render goes on meanwhile); False if it is cached, running already
+    (another process started it less than BACKGROUND_STALE seconds ago) or
+    cannot start."""
+    if cached(identity, lanes) is not None:
+        return False
+    marker = _path(_key(identity, lanes)).with_suffix(".checking")
+    try:
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        if marker.exists() and time.time() - marker.stat().st_mtime < BACKGROUND_STALE:
+            return False
+        marker.write_text(str(os.getpid()))
+        job = {"platform": where[0], "device": where[1], "identity": identity, "lanes": lanes, "label": label,
+               "marker": str(marker)}
+        p = subprocess.Popen([sys.executable, "-m", "clpt.probe", "--check"], stdin=subprocess.PIPE,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                             text=True, env=dict(os.environ))
+        p.stdin.write(json.dumps(job))
+        p.stdin.close()
+        _background.append(p)  # reaped if this process outlives it (no zombie)
+        return True
+    except OSError:
+        return False
+
+
+BACKGROUND_STALE = 2 * CHECK_SECONDS + 30
+_background: list = []
+
+
+def _check_main():
+    """python -m clpt.probe --check: run a check and cache it (a background check)."""
+    job = json.loads(sys.stdin.read())
+    try:
+        check(None, job["identity"], job["label"], job["lanes"], (job["platform"], job["device"]))
+    finally:
+        Path(job["marker"]).unlink(missing_ok=True)
+
+
 if __name__ == "__main__":
-    _child()
+    _check_main() if sys.argv[1:] == ["--check"] else _child()

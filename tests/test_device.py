@@ -63,14 +63,22 @@ def _dev(platform, name, kind, driver="1.0"):
 CPU, GPU = cl.device_type.CPU, cl.device_type.GPU
 
 
-def _machine(monkeypatch, devices, broken=()):
-    """Fake platforms (one device each) and checks: devices named in broken fail."""
+def _machine(monkeypatch, devices, broken=(), known=None, background=None):
+    """Fake platforms (one device each) and checks: devices named in broken
+    fail; known: names checked before (all, by default); background: gets
+    the names whose checks were started in the background."""
     found = [(i, 0, d.platform, d) for i, d in enumerate(devices)]
     monkeypatch.setattr(devmod, "_all_devices", lambda: found)
     checked = []
+    known = {d.name for d in devices} if known is None else set(known)
+    background = [] if background is None else background
 
-    def check(d, lanes=None, photons=False, found=None):
+    def check(d, lanes=None, photons=False, found=None, wait=True):
+        if not wait and d.name not in known:
+            background.append(d.name)
+            return None
         checked.append(d.name)
+        known.add(d.name)
         bad = d.name in broken
         return probe.CheckResult(not bad, lanes or 16, "LLVM ERROR: boom" if bad else "", 0.1)
 
@@ -102,10 +110,27 @@ def test_a_default_that_cannot_render_is_skipped_in_one_line(monkeypatch):
         warnings.simplefilter("always")
         sel = devmod.choose_devices(None, photons=True)
         devmod.choose_devices(None, photons=True)  # said once a process
-    assert [d.name for d in sel.devices] == ["EPYC"] and checked[:2] == ["pthread-old", "EPYC"]
+    assert [d.name for d in sel.devices] == ["EPYC"] and checked[:2] == ["EPYC", "pthread-old"]
     lines = [str(x.message) for x in w if issubclass(x.category, devmod.DeviceWarning)]
     assert len(lines) == 1 and "pthread-old" in lines[0] and "LLVM ERROR: boom" in lines[0] and "\n" not in lines[0]
     assert "skipped pthread-old" in sel.why
+
+
+def test_a_first_render_never_waits_for_a_check_ranked_ahead_only_for_photons(monkeypatch):
+    """Nothing checked yet: the runtime that path traces fastest is checked
+    (the render waits), the one ahead of it for photon merging is checked in
+    the background and taken once it has passed."""
+    bg = []
+    checked = _machine(monkeypatch, _three(), known=(), background=bg)
+    c = devmod.default_device(photons=True)
+    assert c.device.name == "EPYC" and checked == ["EPYC"] and bg == ["pthread-old"]
+    assert "checking pthread-old" in c.skipped[0] and "in the background" in c.skipped[0]
+    _machine(monkeypatch, _three())  # the background check has passed
+    assert devmod.default_device(photons=True).device.name == "pthread-old"
+    _machine(monkeypatch, _three(), broken={"pthread-old"})  # or failed
+    c = devmod.default_device(photons=True)
+    assert c.device.name == "EPYC" and c.skipped == ("skipped pthread-old (Portable Computing Language, driver 3.0): "
+                                                     "cannot render at 16 lanes: LLVM ERROR: boom",)
 
 
 def test_no_device_that_renders_is_an_error_with_the_fix(monkeypatch):
@@ -167,3 +192,19 @@ def test_a_crashing_check_fails_with_the_compilers_last_line(monkeypatch, tmp_pa
     assert not r.ok and "wrong results" in r.reason
     probe._memo.clear()
     assert not probe.cached("fake|identity", 16).ok  # saved: the next process does not crash again
+
+
+def test_a_background_check_caches_its_result(device_spec, monkeypatch, tmp_path):
+    import time
+
+    dev = devmod.select_devices(device_spec)[0]
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    probe._memo.clear()
+    assert devmod.check_device(dev, wait=False) is None  # unknown: started
+    deadline = time.time() + 2 * probe.CHECK_SECONDS
+    while time.time() < deadline and devmod.check_device(dev, wait=False) is None:
+        probe._memo.clear()
+        time.sleep(0.5)
+    r = devmod.check_device(dev, wait=False)
+    assert r is not None and r.ok and r.cached
+    assert not list(tmp_path.glob("devices/*.checking"))
