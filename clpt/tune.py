@@ -14,7 +14,8 @@ a short measurement the first time a device meets a kernel.
   work-items itself, so 1 lane is also vector code; which of that and the
   register width wins depends on the kernel (16 on the Cornell box, 1 with
   the caustic photon gather), and narrower explicit widths were slowest on
-  both. Both candidates are built (in parallel) and timed in interleaved
+  both. Both candidates are built (in parallel where the runtime takes it:
+  program.builds_at_once) and timed in interleaved
   rounds on a 64x64 image, rendering the scene the default way; the one with
   the faster best round is kept. Then, with those lanes, the work-group
   sizes LOCAL_CANDIDATES in the same way (no rebuild: the local size is a
@@ -53,6 +54,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
+from . import program
 from .program import cache_dir
 
 LANE_WIDTHS = (1, 2, 4, 8, 16)
@@ -206,9 +208,12 @@ def choose(dctx, source: str, options, make_state, trial, *, lanes=None, local_s
         base = load(key) if use_cache else None
     if base is None:
         t0 = time.perf_counter()
-        # The candidates build in parallel (the OpenCL compilers release the GIL).
-        with ThreadPoolExecutor() as pool:
-            states = list(pool.map(make_state, sorted({1, register_width(dctx.device)})))
+        widths = sorted({1, register_width(dctx.device)})
+        if program.builds_at_once(dctx):  # the candidates build in parallel (the OpenCL compilers release the GIL)
+            with ThreadPoolExecutor() as pool:
+                states = list(pool.map(make_state, widths))
+        else:  # a runtime not known to take concurrent builds
+            states = [make_state(w) for w in widths]
         m = measure_candidates(states, trial)
         rates = m["msamples_per_s"]
         best = max(rates, key=rates.get)
