@@ -56,7 +56,6 @@ from pathlib import Path
 import pyopencl as cl
 
 from .constants import kernel_defines
-from .device import platform_short_name
 from .resources import kernel_dir
 
 # Device libraries in dependency order; entry files (*.cl) come after them.
@@ -210,7 +209,9 @@ def builds_at_once(dctx) -> bool:
     them (a GPU driver's build is mostly one thread anyway)."""
     if dctx.is_pocl:
         return True
-    return platform_short_name(dctx.platform) == "intel" and dctx.device.type == cl.device_type.CPU
+    # Intel's CPU runtime is the CPU device of an Intel platform (its GPU and
+    # FPGA-emulator runtimes are other device types).
+    return "intel" in dctx.platform.lower() and dctx.device.type == cl.device_type.CPU
 
 
 # Held around every build (source or cached binary) for a device whose

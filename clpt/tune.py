@@ -14,10 +14,10 @@ a short measurement the first time a device meets a kernel.
   work-items itself, so 1 lane is also vector code; which of that and the
   register width wins depends on the kernel (16 on the Cornell box, 1 with
   the caustic photon gather), and narrower explicit widths were slowest on
-  both. Both candidates are built (in parallel where the runtime takes it:
-  program.builds_at_once) and timed in interleaved
-  rounds on a 64x64 image, rendering the scene the default way; the one with
-  the faster best round is kept. Then, with those lanes, the work-group
+  both. Both candidates are built (at once where the runtime takes it:
+  program.builds_at_once) and timed in interleaved rounds on a 64x64
+  image, rendering the scene the default way; the one with the faster best
+  round is kept. Then, with those lanes, the work-group
   sizes LOCAL_CANDIDATES in the same way (no rebuild: the local size is a
   launch parameter); one replaces LOCAL_SIZE_CPU only when it is more than
   LOCAL_MARGIN faster, since on a shared machine the trial's best rounds

@@ -110,6 +110,7 @@ def test_builds_overlap_only_where_the_runtime_takes_it():
     # Oclgrind reports every device type at once; it segfaults on overlapping builds.
     assert not program.builds_at_once(_fake("Oclgrind", T.CPU | T.GPU | T.ACCELERATOR | T.DEFAULT))
     assert not program.builds_at_once(_fake("Intel(R) OpenCL Graphics", T.GPU))
+    assert not program.builds_at_once(_fake("Intel(R) FPGA Emulation Platform for OpenCL(TM)", T.ACCELERATOR))
     assert not program.builds_at_once(_fake("NVIDIA CUDA", T.GPU))
 
 
