@@ -204,24 +204,29 @@ def check_in_background(identity: str, label: str, lanes: int, where: tuple[int,
         marker.write_text(str(os.getpid()))
         job = {"platform": where[0], "device": where[1], "identity": identity, "lanes": lanes, "label": label,
                "marker": str(marker)}
-        p = subprocess.Popen([sys.executable, "-m", "clpt.probe", "--check"], stdin=subprocess.PIPE,
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
-                             text=True, env=dict(os.environ))
-        p.stdin.write(json.dumps(job))
-        p.stdin.close()
-        _background.append(p)  # reaped if this process outlives it (no zombie)
+        # A process that forks the check off and exits at once: the check is nobody's child
+        # to wait for, and outlives this process if it must.
+        subprocess.run([sys.executable, "-c", _DETACH, json.dumps(job)], stdin=subprocess.DEVNULL,
+                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=dict(os.environ), timeout=30)
         return True
-    except OSError:
+    except (OSError, subprocess.SubprocessError):
         return False
 
 
+_DETACH = """
+import os, sys
+if os.fork():
+    os._exit(0)
+os.setsid()
+from clpt.probe import _check_main
+_check_main(sys.argv[1])
+"""
 BACKGROUND_STALE = 2 * CHECK_SECONDS + 30
-_background: list = []
 
 
-def _check_main():
-    """python -m clpt.probe --check: run a check and cache it (a background check)."""
-    job = json.loads(sys.stdin.read())
+def _check_main(text: str):
+    """Run a check and cache it (a background check; the job as JSON)."""
+    job = json.loads(text)
     try:
         check(None, job["identity"], job["label"], job["lanes"], (job["platform"], job["device"]))
     finally:
@@ -229,4 +234,4 @@ def _check_main():
 
 
 if __name__ == "__main__":
-    _check_main() if sys.argv[1:] == ["--check"] else _child()
+    _child()

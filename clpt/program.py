@@ -29,10 +29,17 @@ process, the largest compiles here and the others each in a child process
 environment), which writes the binary for this process to load; a failed
 child only means the build happens here after all. The binary is the same
 as an in-process build's. CLPT_BUILD_PROCESSES=0 turns this off.
+
+Builds overlap only where the runtime is known to take concurrent
+clBuildProgram calls (builds_at_once: PoCL, Intel's CPU runtime); for any
+other runtime build() takes one process-wide lock, and the callers that
+would build several programs at once (the caustic scenes' two programs,
+the tuner's lane candidates) build them one after another instead.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -191,6 +198,27 @@ def _elsewhere(me) -> bool:
         return any(o is not me and (o[0], -o[1]) > (me[0], -me[1]) for o in _overlapping)
 
 
+def builds_at_once(dctx) -> bool:
+    """Whether programs for this device may build at the same time, from
+    several threads of this process. Only where the runtime is known to take
+    it: PoCL (it compiles behind one lock of its own, and build() sends
+    overlapping builds to child processes) and Intel's CPU runtime (eight
+    builds of the caustic scene's programs at once from threads, three rounds,
+    all fine). Elsewhere one after another: Oclgrind 21.10 segfaults when two
+    clBuildProgram calls overlap, and a runtime not tried is not trusted with
+    them (a GPU driver's build is mostly one thread anyway)."""
+    if dctx.is_pocl:
+        return True
+    # Intel's CPU runtime is the CPU device of an Intel platform (its GPU and
+    # FPGA-emulator runtimes are other device types).
+    return "intel" in dctx.platform.lower() and dctx.device.type == cl.device_type.CPU
+
+
+# Held around every build (source or cached binary) for a device whose
+# runtime does not take concurrent builds (builds_at_once).
+_one_build = threading.Lock()
+
+
 def _parallel_builds() -> bool:
     return os.environ.get("CLPT_BUILD_PROCESSES", "1") != "0" and (os.cpu_count() or 1) > 1
 
@@ -206,6 +234,12 @@ def build(dctx, source: str, options, use_cache: bool = True):
         _dump(source, options, key)
     path = cache_dir() / "kernels" / f"{key}.bin"
     t0 = time.perf_counter()
+    with (contextlib.nullcontext() if builds_at_once(dctx) else _one_build):
+        return _build(dctx, source, options, key, path, use_cache, t0)
+
+
+def _build(dctx, source, options, key, path, use_cache, t0):
+    """build()'s work, from the cache or the source (under _one_build where that is held)."""
     with warnings.catch_warnings():
         # Compiler remarks (e.g. PoCL's notes on wide vector ABIs) are not the user's business.
         warnings.simplefilter("ignore", cl.CompilerWarning)

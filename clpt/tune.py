@@ -22,7 +22,8 @@ on request (CLPT_TUNE=measure).
   measurement costs both builds and trial renders (13-25 s on a photon
   scene, more than most renders), so it is not on the first render's path:
   CLPT_TUNE=measure measures (and caches the choice, which later renders
-  then use). It builds both candidates (in parallel) and times them in
+  then use). It builds both candidates (at once where the runtime takes it:
+  program.builds_at_once) and times them in
   interleaved rounds on a 64x64 image, rendering the scene the default way;
   the faster best round is kept. Then, with those lanes, the work-group
   sizes LOCAL_CANDIDATES in the same way (no rebuild: the local size is a
@@ -63,6 +64,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
+from . import program
 from .program import cache_dir
 
 LANE_WIDTHS = (1, 2, 4, 8, 16)
@@ -231,9 +233,12 @@ def choose(dctx, source: str, options, make_state, trial, *, lanes=None, local_s
         base = query_tuning(dctx, photons)
     if base is None:
         t0 = time.perf_counter()
-        # The candidates build in parallel (the OpenCL compilers release the GIL).
-        with ThreadPoolExecutor() as pool:
-            states = list(pool.map(make_state, sorted({1, register_width(dctx.device)})))
+        widths = sorted({1, register_width(dctx.device)})
+        if program.builds_at_once(dctx):  # the candidates build in parallel (the OpenCL compilers release the GIL)
+            with ThreadPoolExecutor() as pool:
+                states = list(pool.map(make_state, widths))
+        else:  # a runtime not known to take concurrent builds
+            states = [make_state(w) for w in widths]
         m = measure_candidates(states, trial)
         rates = m["msamples_per_s"]
         best = max(rates, key=rates.get)

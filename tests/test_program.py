@@ -95,3 +95,70 @@ def test_concurrent_builds_split_and_agree(dctx, tmp_path, monkeypatch):
         threads[0].start()
         program.build(dctx, small + "syntax error", [])
     threads[0].join()
+
+
+def _fake(platform, device_type):
+    dev = type("Dev", (), {"type": device_type})()
+    return type("D", (), {"platform": platform, "device": dev,
+                          "is_pocl": "portable computing language" in platform.lower()})()
+
+
+def test_builds_overlap_only_where_the_runtime_takes_it():
+    T = cl.device_type
+    assert program.builds_at_once(_fake("Portable Computing Language", T.CPU))
+    assert program.builds_at_once(_fake("Intel(R) OpenCL", T.CPU))
+    # Oclgrind reports every device type at once; it segfaults on overlapping builds.
+    assert not program.builds_at_once(_fake("Oclgrind", T.CPU | T.GPU | T.ACCELERATOR | T.DEFAULT))
+    assert not program.builds_at_once(_fake("Intel(R) OpenCL Graphics", T.GPU))
+    assert not program.builds_at_once(_fake("Intel(R) FPGA Emulation Platform for OpenCL(TM)", T.ACCELERATOR))
+    assert not program.builds_at_once(_fake("NVIDIA CUDA", T.GPU))
+
+
+class _Overlap:
+    """Wraps cl.Program.build: counts the builds running at once (each held
+    a moment, so that builds started together surely overlap if allowed to)
+    and the threads they ran on."""
+
+    def __init__(self, monkeypatch):
+        self.lock, self.now, self.most, self.threads = threading.Lock(), 0, 0, set()
+        real = cl.Program.build
+
+        def build(prg, *args, **kwargs):
+            with self.lock:
+                self.now += 1
+                self.most = max(self.most, self.now)
+                self.threads.add(threading.get_ident())
+            try:
+                threading.Event().wait(0.3)
+                return real(prg, *args, **kwargs)
+            finally:
+                with self.lock:
+                    self.now -= 1
+
+        monkeypatch.setattr(cl.Program, "build", build)
+
+
+@pytest.mark.parametrize("at_once", [False, True])
+def test_builds_from_threads_overlap_only_where_allowed(dctx, monkeypatch, at_once):
+    monkeypatch.setenv("CLPT_BUILD_PROCESSES", "0")  # PoCL too builds in this process
+    monkeypatch.setattr(program, "builds_at_once", lambda d: at_once)
+    seen = _Overlap(monkeypatch)
+    out = {}
+    threads = [threading.Thread(target=lambda n=n: out.setdefault(n, program.build(dctx, SRC + f"// {n}\n", [],
+                                                                                    use_cache=False)))
+               for n in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(out) == 3 and seen.most == (3 if at_once else 1)
+    assert np.array_equal(_run(dctx, out[0][0]), _run(dctx, out[2][0]))
+
+
+def test_a_caustic_scene_builds_its_programs_in_turn_where_builds_cannot_overlap(device_spec, monkeypatch):
+    import clpt
+    monkeypatch.setattr(program, "builds_at_once", lambda d: False)
+    seen = _Overlap(monkeypatch)
+    r = clpt.Renderer("cornell_box_caustics", device=device_spec, use_cache=False, lanes=4)
+    assert r.states[0].pmap is not None  # two programs: the path pass and the photon pass
+    assert seen.most == 1 and seen.threads == {threading.get_ident()}

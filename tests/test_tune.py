@@ -3,6 +3,8 @@ measurement where they do not, its cache, and explicit choices winning; none
 of them changes a bit of the image."""
 
 import json
+import threading
+import time
 
 import numpy as np
 import pyopencl as cl
@@ -60,7 +62,7 @@ class _FakeDevice:
 
 class _FakeContext:
     """A CPU runtime that is not PoCL: its lanes and local size are measured."""
-    is_cpu, is_pocl, label = True, False, "fake CPU (fake runtime)"
+    is_cpu, is_pocl, label, platform = True, False, "fake CPU (fake runtime)", "Fake Runtime"
     device = _FakeDevice()
 
     def identity(self):
@@ -156,3 +158,25 @@ def test_predictions_by_runtime_and_kernel(platform, photons, lanes):
     gpu = _FakeDevice()
     gpu.type = cl.device_type.GPU
     assert tune.predict(gpu, photons).lanes == 1
+
+
+@pytest.mark.parametrize("at_once", [False, True])
+def test_lane_candidates_build_at_once_only_where_the_runtime_takes_it(monkeypatch, tmp_path, at_once):
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("CLPT_TUNE", "measure")
+    monkeypatch.setattr(program, "builds_at_once", lambda dctx: at_once)
+    lock, running, most, threads = threading.Lock(), [0], [0], set()
+
+    def make(lanes):  # a build that takes a moment, so that builds started together overlap
+        with lock:
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+            threads.add(threading.get_ident())
+        time.sleep(0.2)
+        with lock:
+            running[0] -= 1
+        return _FakeState(lanes)
+
+    tune.choose(_FakeContext(), "src", [], make, _fake_trial(lambda lanes, local: 1.0))
+    assert most[0] == (2 if at_once else 1)
+    assert (threads == {threading.get_ident()}) == (not at_once)

@@ -150,6 +150,9 @@ class DeviceWorker:
         if len(sources) == 1:
             built = [build(sources[0])]
             self.pmap = None
+        elif not program.builds_at_once(dctx):  # a runtime not known to take two builds at once
+            built = [build(sources[0]), build_photons(sources[1])]
+            self.pmap = built[1][0]
         else:  # the OpenCL compilers release the GIL: the programs build at once
             with ThreadPoolExecutor(2) as pool:
                 photon_side = pool.submit(build_photons, sources[1])
