@@ -107,7 +107,7 @@ def list_devices() -> list[DeviceInfo]:
     infos = []
     for i, (pi, di, p, d) in enumerate(_all_devices()):
         infos.append(DeviceInfo(index=i, platform_index=pi, device_index=di, name=d.name.strip(),
-                                platform=p.name.strip(), kind=_kind(d), compute_units=d.max_compute_units,
+                                platform=p.name.strip(), kind="simulator" if is_simulator(d) else _kind(d), compute_units=d.max_compute_units,
                                 global_mem=d.global_mem_size, max_alloc=d.max_mem_alloc_size,
                                 fp64=device_has_fp64(d), driver=d.driver_version,
                                 short=platform_short_name(p.name.strip())))
