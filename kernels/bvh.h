@@ -176,7 +176,7 @@ inline vmask bvh_leaf_occluded(const Scene *sc, uint blk, V3 o, V3 d, vreal tmax
 // Entry distances of the ray into the node's 8 boxes (+inf: missed or
 // empty). Each axis is entered by the lo plane for a positive direction
 // and the hi plane for a negative one (neg): with no zero directions (bvh_safe_inv) the slab ends need no min/max to order them.
-inline breal8 bvh_node_enter1(const Scene *sc, uint node, real3 o, real3 inv, int3 neg, real tmax)
+INLINE_VEC3 breal8 bvh_node_enter1(const Scene *sc, uint node, real3 o, real3 inv, int3 neg, real tmax)
 {
     breal8 lx = bvh_row(sc, node, 0), hx = bvh_row(sc, node, 1);
     breal8 ly = bvh_row(sc, node, 2), hy = bvh_row(sc, node, 3);
@@ -204,7 +204,7 @@ inline real bvh_safe_inv(real x)
 // The leaf block's items against the ray (in rows of BVHL_WIDTH): where one is hit before *tmax,
 // *tmax, *best (its PlanarRec) and its coordinates a, b take the nearest.
 // Returns whether one was.
-inline int bvh_leaf1(const Scene *sc, uint blk, real3 o, real3 d, real *tmax, int *best, real *a_out, real *b_out)
+INLINE_VEC3 int bvh_leaf1(const Scene *sc, uint blk, real3 o, real3 d, real *tmax, int *best, real *a_out, real *b_out)
 {
     lreal px = bvh_lrow(sc, blk, 0), py = bvh_lrow(sc, blk, 1), pz = bvh_lrow(sc, blk, 2);
     lreal nx = bvh_lrow(sc, blk, 3), ny = bvh_lrow(sc, blk, 4), nz = bvh_lrow(sc, blk, 5);
@@ -249,7 +249,7 @@ inline int bvh_leaf1(const Scene *sc, uint blk, real3 o, real3 d, real *tmax, in
 
 // One lane's walk: the nearest item before tmax (its record, or -1) and
 // its t and coordinates; any = 1 stops at the first item hit (shadow rays).
-inline int bvh_walk1(const Scene *sc, real3 o, real3 d, real tmax, int any, real *t_out, real *a_out, real *b_out)
+INLINE_VEC3 int bvh_walk1(const Scene *sc, real3 o, real3 d, real tmax, int any, real *t_out, real *a_out, real *b_out)
 {
     real3 inv = (real3)(bvh_safe_inv(d.x), bvh_safe_inv(d.y), bvh_safe_inv(d.z));
     int3 neg = (int3)(inv.x < R(0), inv.y < R(0), inv.z < R(0));

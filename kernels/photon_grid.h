@@ -28,14 +28,14 @@ inline int grid_coord(real v, real inv_cell)
     return (int)floor(clamp(v * inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT));
 }
 
-inline int3 grid_cell(real3 p, real inv_cell)
+INLINE_VEC3 int3 grid_cell(real3 p, real inv_cell)
 {
     return (int3)(grid_coord(p.x, inv_cell), grid_coord(p.y, inv_cell), grid_coord(p.z, inv_cell));
 }
 
 // The lowest of the 2 x 2 x 2 cells that hold every point within half a cell
 // (one radius) of p.
-inline int3 grid_lower_corner(real3 p, real inv_cell)
+INLINE_VEC3 int3 grid_lower_corner(real3 p, real inv_cell)
 {
     real3 q = clamp(p * inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT);
     real3 f = floor(q);
@@ -43,7 +43,7 @@ inline int3 grid_lower_corner(real3 p, real inv_cell)
     return c - (int3)(q.x - f.x < R(0.5), q.y - f.y < R(0.5), q.z - f.z < R(0.5)) * (int3)(1);
 }
 
-inline uint grid_bucket(int3 c, uint mask)
+INLINE_VEC3 uint grid_bucket(int3 c, uint mask)
 {
     return (GRID_ROW_HASH(as_uint(c.y), as_uint(c.z)) + as_uint(c.x)) & mask;
 }
@@ -93,8 +93,8 @@ inline vmask photon_maybe(const PhotonMap *pm, V3 x, vmask active)
 // merge's pdf pf cos mis_k against the BSDF pdf (p_d cos / pi + p_s Phong pdf)
 // of the direction the photon came from. One query, in scalar code: each lane
 // walks its own cells, so no lane waits for a denser neighbour.
-inline real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, real3 kd, real3 ks, real shininess,
-                               real u, real p_d, real p_s, int mis, real max_bounces)
+INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, real3 kd, real3 ks, real shininess,
+                                    real u, real p_d, real p_s, int mis, real max_bounces)
 {
     real r2 = pm->radius * pm->radius;
     real inv_kr = R(1) / (pm->cone_k * pm->radius);

@@ -112,6 +112,18 @@ inline uint vpopcount(vmask m)
     return n;
 }
 
+// A function with a 3-component OpenCL vector (real3, int3, ...) as a
+// parameter, behind a pointer parameter or as its result is declared
+// INLINE_VEC3: always inlined, never called. Intel's CPU runtime
+// (intel-opencl-rt 2026.2), which vectorizes a kernel across the work-items
+// of a group, passes such a value to a function it leaves out of line with
+// the wrong stride: in a group of 16, every work-item but the first gets
+// components of its neighbours' values (a 2- or 4-component vector, or a
+// struct such as V3, passes intact). `inline` alone is a hint Intel's
+// compiler may decline in a large kernel: the generic build of a photon
+// scene called bvh_walk1 out of line and walked shuffled rays.
+#define INLINE_VEC3 inline __attribute__((always_inline))
+
 // --- three-component vectors of lanes (structure of arrays) ----------------
 typedef struct { vreal x, y, z; } V3;
 

@@ -1,6 +1,7 @@
 """Scene-specialized kernels: the feature description, the build cache, and
 that specialization changes nothing in the image."""
 
+import re
 from dataclasses import replace
 
 import numpy as np
@@ -9,7 +10,7 @@ import pytest
 import clpt
 from clpt.features import Features, scene_features
 from clpt.pack import pack_scene
-from clpt.resources import shipped_scenes
+from clpt.resources import kernel_dir, shipped_scenes
 
 
 def test_features_follow_the_scene():
@@ -52,6 +53,27 @@ def test_specialized_generic_and_baked_images_are_identical(device_spec, name):
     imgs = [clpt.render(name, spp=2, width=16, height=16, device=device_spec, kernel=k)
             for k in ("specialized", "generic", "baked")]
     assert np.array_equal(imgs[0], imgs[1]) and np.array_equal(imgs[0], imgs[2])
+
+
+VEC3 = re.compile(r"\b(?:real|float|double|half|u?char|u?short|u?int|u?long)3\b")
+FUNCTION = re.compile(r"^(?!#|typedef\b)(?P<head>[A-Za-z_][\w ]*?)\b(?P<name>\w+)\((?P<params>[^)]*)\)\s*[{;]", re.M)
+
+
+def test_functions_with_three_component_vectors_are_always_inlined():
+    """Intel's CPU runtime hands a 3-component vector (parameter, result or
+    pointer) to a function it leaves out of line with the wrong stride across
+    a group's work-items: the generic build of mesh_glass_knot walked its BVH
+    with shuffled rays (kernels/simd.h INLINE_VEC3). Whether a plain `inline`
+    function stays out of line is the compiler's choice, so every such
+    function is declared INLINE_VEC3."""
+    found = {}
+    for path in sorted(kernel_dir().iterdir()):
+        for m in FUNCTION.finditer(path.read_text()):
+            if "__kernel" in m["head"] or not VEC3.search(m["head"] + " " + m["params"]):
+                continue
+            found[m["name"]] = m["head"].split()[0]
+    assert {"bvh_walk1", "bvh_leaf1", "photon_gather_one", "grid_lower_corner"} <= set(found)
+    assert {name for name, how in found.items() if how != "INLINE_VEC3"} == set()
 
 
 def test_feature_buffers_only_with_the_filter(device_spec):
