@@ -184,7 +184,7 @@ def _child():
     d = p.get_devices()[job["device"]]
     if DeviceContext(d).identity() != job["identity"]:
         sys.exit("the device list changed while checking")
-    r = Renderer("cornell_box", device=d, lanes=job["lanes"], photons=False)
+    r = Renderer("cornell_box", device=d, lanes=job["lanes"], photons=False, use_cache=False)  # no cache filled
     img = r.render(CHECK_SPP, width=CHECK_SIZE, height=CHECK_SIZE, seed=CHECK_SEED).image
     print(json.dumps({"finite": bool(np.isfinite(img).all()), "mean": float(np.nan_to_num(img).mean())}))
 

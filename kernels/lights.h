@@ -215,22 +215,23 @@ inline LightPoint light_sample_point(const Scene *sc, vreal u_pick, vreal u1, vr
         real4 p = scene_rec(sc, r);
         int kind = (int)p.w;
         V3 y, n;
-        real err;
+        vreal err;
 #if CLPT_HAS_SPHERE_LIGHTS
         if (kind == LIGHT_KIND_SPHERE) {
             n = sample_uniform_sphere(u1, u2);
             y = v3_fma(n, (vreal)scene_rec(sc, r + 1).x, v3_splat(p));
-            err = max_abs4(p) + scene_rec(sc, r + 1).x;
+            err = (vreal)(max_abs4(p) + scene_rec(sc, r + 1).x);
         } else
 #endif
 #if CLPT_HAS_MESH_LIGHTS
         if (kind == LIGHT_KIND_MESH) {
             mesh_light_point(sc, r, pick, u1, u2, &y, &n);
+            err = fmax(fabs(y.x), fmax(fabs(y.y), fabs(y.z)));  // each lane's triangle: the point's magnitude
         } else
 #endif
         {
             real4 u = scene_rec(sc, r + 1), v = scene_rec(sc, r + 2);
-            err = max_abs4(p) + max_abs4(u) + max_abs4(v);
+            err = (vreal)(max_abs4(p) + max_abs4(u) + max_abs4(v));
             vreal a = u1, b = u2;
 #if CLPT_HAS_TRIANGLE_LIGHTS
             if (kind == LIGHT_KIND_TRIANGLE)
@@ -245,7 +246,7 @@ inline LightPoint light_sample_point(const Scene *sc, vreal u_pick, vreal u1, vr
         lp.Le = v3_sel(lp.Le, v3_splat(m), pick);
         lp.two_sided = lp.two_sided || (pick && (vreal)m.w != R(0));
         lp.pdf_area = VSEL(lp.pdf_area, (vreal)(info.y / info.x), pick);
-        lp.err = VSEL(lp.err, (vreal)err, pick);
+        lp.err = VSEL(lp.err, err, pick);
     }
     return lp;
 }
