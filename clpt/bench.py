@@ -3,8 +3,8 @@ per scene, device and kernel variant; a table, CSV or JSON, and ratios
 against an earlier run's JSON (--compare).
 
 - variants: every combination of the lane widths, work-group sizes,
-  precisions, kernel builds (specialized, generic, baked) and lane layouts
-  (rows of pixels, or 2-D tiles) asked for, on every device asked for
+  precisions and kernel builds (specialized, generic) asked for, on every
+  device asked for
   (``--device pocl,intel``). "auto" lanes or local size is the device's tuned
   default (clpt/tune.py), as a render without options gets it.
 - steady state: after a warm-up render, every configuration renders in turn,
@@ -49,24 +49,24 @@ import numpy as np
 from .constants import LUMA
 
 
-def _cold_build_child(scene: str, device, lanes, local_size, precision, kernel, nee, tiles) -> dict:
+def _cold_build_child(scene: str, device, lanes, local_size, precision, kernel, nee) -> dict:
     from .render import Renderer
 
     t0 = time.perf_counter()
     r = Renderer(scene, device=device, lanes=lanes, local_size=local_size, precision=precision, kernel=kernel,
-                 nee=nee, tiles=tiles)
+                 nee=nee)
     t_build = time.perf_counter() - t0
     res = r.render(1, width=16, height=16)
     return {"build_seconds": t_build, "first_launch_seconds": res.stats.first_launch_seconds,
             "total_seconds": time.perf_counter() - t0}
 
 
-def cold_build(scene: str, device: str, lanes, local_size, precision, kernel, nee, tiles=False) -> dict | None:
+def cold_build(scene: str, device: str, lanes, local_size, precision, kernel, nee) -> dict | None:
     """Build and first launch in a fresh process with empty caches."""
     with tempfile.TemporaryDirectory() as tmp:
         env = dict(os.environ, CLPT_CACHE_DIR=os.path.join(tmp, "clpt"), POCL_CACHE_DIR=os.path.join(tmp, "pocl"),
                    PYOPENCL_NO_CACHE="1")
-        args = ", ".join(repr(x) for x in (scene, device, lanes, local_size, precision, kernel, nee, tiles))
+        args = ", ".join(repr(x) for x in (scene, device, lanes, local_size, precision, kernel, nee))
         code = f"import json; from clpt.bench import _cold_build_child; print(json.dumps(_cold_build_child({args})))"
         p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
         if p.returncode != 0:
@@ -88,8 +88,7 @@ def device_spec(dev) -> str:
 
 def variant_label(v: dict) -> str:
     """A variant as asked for (auto choices unresolved), the key --compare matches on."""
-    return (f"lanes={v['lanes'] or 'auto'} local={v['local_size'] or 'auto'} {v['precision']} {v['kernel']} "
-            f"{'tiles' if v['tiles'] else 'rows'}")
+    return f"lanes={v['lanes'] or 'auto'} local={v['local_size'] or 'auto'} {v['precision']} {v['kernel']}"
 
 
 def _summary(values) -> dict:
@@ -137,19 +136,19 @@ class _Mitsuba:
 
 
 def measure(scenes, *, device=None, lanes=(None,), local_sizes=(None,), precisions=("float",),
-            kernels=("specialized",), tiles=(False,), nee=True, width=256, height=256, max_depth=8, rounds=5,
+            kernels=("specialized",), nee=True, width=256, height=256, max_depth=8, rounds=5,
             pass_seconds=0.3, cold=True, mitsuba=False, log=None) -> list[dict]:
     from .device import select_devices
     from .render import Renderer
 
     rows, runners = [], []
-    combos = list(itertools.product(lanes, local_sizes, precisions, kernels, tiles))
+    combos = list(itertools.product(lanes, local_sizes, precisions, kernels))
     for dev, scene in itertools.product(select_devices(device), scenes):
         spec = device_spec(dev)
-        for n_lanes, local, precision, kernel, tiled in combos:
-            v = {"lanes": n_lanes, "local_size": local, "precision": precision, "kernel": kernel, "tiles": tiled}
+        for n_lanes, local, precision, kernel in combos:
+            v = {"lanes": n_lanes, "local_size": local, "precision": precision, "kernel": kernel}
             r = Renderer(scene, device=dev, lanes=n_lanes, local_size=local, precision=precision, kernel=kernel,
-                         nee=nee, tiles=tiled)
+                         nee=nee)
             st = r.states[0]
             row = {"scene": scene, "device": st.dctx.label, "platform": st.dctx.platform, "device_spec": spec,
                    "variant": variant_label(v), "resolution": f"{width}x{height}", "max_depth": max_depth,
@@ -159,13 +158,13 @@ def measure(scenes, *, device=None, lanes=(None,), local_sizes=(None,), precisio
             if log:
                 log(f"{scene} on {st.dctx.label}: {row['variant']} ({st.features.lanes} lanes, local {st.local})")
             if cold:
-                c = cold_build(scene, spec, st.features.lanes, st.local, precision, kernel, nee, tiled)
+                c = cold_build(scene, spec, st.features.lanes, st.local, precision, kernel, nee)
                 if c:
                     row["cold_build_seconds"] = c["build_seconds"]
                     row["cold_first_launch_seconds"] = c["first_launch_seconds"]
             first = r.render(1, width=width, height=height, max_depth=max_depth)  # warm-up: the lazy device compile
             warm = Renderer(scene, device=dev, lanes=st.features.lanes, local_size=st.local, precision=precision,
-                            kernel=kernel, nee=nee, tiles=tiled)
+                            kernel=kernel, nee=nee)
             row["warm_build_seconds"] = warm.states[0].build.seconds
             row["warm_build_cache_hit"] = bool(warm.states[0].build.cache_hit)
             del warm
@@ -224,16 +223,6 @@ def _split(s, conv=str):
     return tuple(None if x.strip() == "auto" else conv(x) for x in s.split(","))
 
 
-def _bool_list(s):
-    names = {"rows": False, "tiles": True}
-    out = []
-    for x in s.split(","):
-        if x not in names:
-            raise SystemExit(f"clpt bench: --layout takes rows and/or tiles (got {x!r})")
-        out.append(names[x])
-    return tuple(out)
-
-
 def _short(device: str) -> str:
     return device.replace("(R)", "").replace("Processor ", "").replace("  ", " ")
 
@@ -285,7 +274,7 @@ def format_memory(rows) -> str:
 
 def to_csv(rows) -> str:
     kernels = sorted({k for r in rows for k in r.get("kernel_ms", {})})
-    fields = ["scene", "device", "platform", "variant", "lanes", "local_size", "precision", "kernel", "tiles",
+    fields = ["scene", "device", "platform", "variant", "lanes", "local_size", "precision", "kernel",
               "msamples_per_s", "msamples_min", "msamples_max", "mrays_per_s", "cold_build_seconds",
               "cold_first_launch_seconds", "warm_build_seconds", "device_bytes"] + [f"{k}_ms" for k in kernels]
     buf = io.StringIO()
@@ -306,7 +295,7 @@ def compare(rows, old_rows) -> str:
     device and variant found in both runs."""
     def key(r):  # rows of an older clpt bench (no variant): their resolved lanes and kernel
         v = r.get("variant") or variant_label({"lanes": r.get("lanes"), "local_size": None, "precision": "float",
-                                                "kernel": r.get("kernel", "specialized"), "tiles": False})
+                                                "kernel": r.get("kernel", "specialized")})
         return r["scene"], r["device"], v
 
     old = {key(r): r for r in old_rows}
@@ -341,7 +330,7 @@ def run_bench(a) -> int:
         except (OSError, ValueError) as e:
             raise SystemExit(f"clpt bench: cannot read {a.compare}: {e}") from None
     rows = measure(scenes, device=a.device, lanes=_split(a.lanes, int), local_sizes=_split(a.local_size, int),
-                   precisions=tuple(a.precision.split(",")), kernels=_split(a.kernel), tiles=_bool_list(a.layout),
+                   precisions=tuple(a.precision.split(",")), kernels=_split(a.kernel),
                    nee=not a.no_nee, width=a.width, height=a.height, max_depth=a.max_depth, rounds=a.rounds,
                    cold=not a.no_cold, mitsuba=a.mitsuba,
                    log=None if a.json or a.csv else (lambda m: print(m, file=sys.stderr)))
@@ -585,18 +574,20 @@ def _bvh_bytes(packed) -> int:
     return (len(packed.records) - head) * 16
 
 
-def measure_bvh(counts, *, methods=("sah", "lbvh"), walks=("packet",), device=None, width=128, height=128,
+def measure_bvh(counts, *, methods=("sah", "lbvh"), walks=("hybrid",), device=None, width=128, height=128,
                 max_depth=8, rounds=3, pass_seconds=0.5) -> list[dict]:
     """Per triangle count and builder: build time, memory, SAH cost, depth,
     and path-tracing throughput of the mesh in the Cornell box (rounds
     interleaved over all configurations)."""
+    from .features import Experimental
     from .render import Renderer
 
     rows, runners = [], []
     for n in counts:
         scene = mesh_box_scene(int(n))
         for method, walk in itertools.product(methods, walks):
-            r = Renderer(scene, device=device, bvh="on", bvh_method=method, bvh_walk=walk, photons=False)
+            r = Renderer(scene, device=device, bvh="on", bvh_method=method, photons=False,
+                         experimental=Experimental(bvh_walk=walk))
             tree = r.packed.bvh
             row = {"triangles": int(scene.shapes[-1].triangles.shape[0]), "method": method, "walk": walk,
                    "build_seconds": tree.seconds, "pack_seconds": r.pack_seconds,

@@ -249,7 +249,6 @@ def build(lo, hi, method: str = "sah", max_leaf: int | None = None) -> Tree:
 
 
 WIDTH = 8            # children per device node (kernels/bvh.h tests them in one vector)
-LEAF_FIELDS = 16     # SoA rows of a leaf block: p.xyz, n.xyz, wu.xyz, wv.xyz, kind, material, light, prim
 
 
 @dataclass
@@ -309,13 +308,14 @@ def stack_need(wide: Wide) -> int:
 
 
 def flatten(tree: Tree, wide: Wide, node_base: int, leaf_base: int, double: bool):
-    """Device records of the wide nodes, (n_wide, 16, 4) float64
-    (clpt/layout.py BVH_NODE), and the leaves in block order: rows of WIDTH reals,
-    lo.x, hi.x, lo.y, hi.y, lo.z, hi.z, pointer, count. A child's pointer is
-    an absolute real4 index: of its wide node (count 0) or of its leaf block
-    (count > 0 items); count -1 marks an empty slot. Leaf blocks are
-    numbered in leaf order (tree.start). Boxes are rounded outwards to the
-    kernel's precision."""
+    """Device records of the wide nodes, (n_wide * BVH_NODE.stride, 4)
+    float64 rows (clpt/layout.py BVH_NODE, filled by field name: per child
+    slot lo.x, hi.x, lo.y, hi.y, lo.z, hi.z, pointer, count), and the leaves
+    in block order. A child's pointer is an absolute real4 index: of its
+    wide node (count 0) or of its leaf block (count > 0 items); count -1
+    marks an empty slot. Leaf blocks are numbered in leaf order
+    (tree.start). Boxes are rounded outwards to the kernel's precision."""
+    from . import layout
     ch = wide.children
     n_wide, width = ch.shape
     left = tree.left
@@ -332,40 +332,41 @@ def flatten(tree: Tree, wide: Wide, node_base: int, leaf_base: int, double: bool
     valid = ch >= 0
     c = np.maximum(ch, 0)
     is_leaf = left[c] < 0
-    from .layout import BVH_LEAF, BVH_NODE
-    ptr = np.where(is_leaf, leaf_base + BVH_LEAF.stride * leaf_id[c], node_base + BVH_NODE.stride * wide_id[c])
+    ptr = np.where(is_leaf, leaf_base + layout.BVH_LEAF.stride * leaf_id[c],
+                   node_base + layout.BVH_NODE.stride * wide_id[c])
     cnt = np.where(is_leaf, tree.count[c], 0)
-    out = np.zeros((n_wide, 8, width))
-    for axis in range(3):
-        out[:, 2 * axis] = np.where(valid, lo[c, axis], 0.0)
-        out[:, 2 * axis + 1] = np.where(valid, hi[c, axis], 0.0)
-    out[:, 6] = np.where(valid, ptr, 0)
-    out[:, 7] = np.where(valid, cnt, -1)
-    return out.reshape(n_wide, -1, 4), leaves
+    out = layout.BVH_NODE.zeros(n_wide)
+    for axis, name in enumerate("xyz"):
+        out[f"lo_{name}"] = np.where(valid, lo[c, axis], 0.0)
+        out[f"hi_{name}"] = np.where(valid, hi[c, axis], 0.0)
+    out["ptr"] = np.where(valid, ptr, 0)
+    out["count"] = np.where(valid, cnt, -1)
+    return layout.Rows.rows(out), leaves
 
 
 def leaf_blocks(tree: Tree, leaves, items, width: int = MAX_LEAF):
-    """SoA leaf blocks (n_leaves, LEAF_FIELDS * width / 4, 4) of the leaves
-    (in the order given) over items, the (N, 4, 4) PLANAR records in tree
-    slot order: rows p.x p.y p.z n.x n.y n.z wu.x wu.y wu.z wv.x wv.y wv.z
-    (the records' xyz), kind (wv.w), material (p.w), light + 1 (n.w),
-    primitive id (wu.w), width reals each; empty slots have kind ITEM_EMPTY
-    and zeros elsewhere."""
-    from .layout import ITEM_EMPTY
+    """SoA leaf blocks, (n_leaves * BVH_LEAF.stride, 4) float64 rows, of the
+    leaves (in the order given) over items, the PLANAR records (structured,
+    clpt/layout.py) in tree slot order: per item slot, its corner p.xyz,
+    normal n.xyz, duals wu.xyz and wv.xyz, kind (wv.w), material (p.w),
+    light + 1 (n.w) and primitive id (wu.w), by field name; empty slots have
+    kind ITEM_EMPTY and zeros elsewhere."""
+    from . import layout
     start, count = tree.start[leaves], tree.count[leaves]
     if len(count) and count.max() > width:
         raise ValueError(f"a BVH leaf has {count.max()} items, more than {width}")
     k = np.arange(width)
     slot = start[:, None] + k[None, :]
     valid = k[None, :] < count[:, None]
-    g = items[np.where(valid, slot, 0)]          # (leaves, width, 4 rows, 4)
-    g = g.transpose(0, 2, 3, 1)                   # (leaves, row, component, width)
-    out = np.empty((len(leaves), LEAF_FIELDS, width))
-    out[:, :12] = g[:, :, :3].reshape(len(leaves), 12, width)
-    out[:, 12], out[:, 13], out[:, 14], out[:, 15] = g[:, 3, 3], g[:, 0, 3], g[:, 1, 3], g[:, 2, 3]
-    out *= valid[:, None, :]
-    out[:, 12] = np.where(valid, out[:, 12], ITEM_EMPTY)
-    return out.reshape(len(leaves), -1, 4)
+    g = items[np.where(valid, slot, 0)]          # (leaves, width) PLANAR records
+    out = layout.BVH_LEAF.zeros(len(leaves))
+    for src, dst in (("corner_mat", "p"), ("n_light", "n"), ("wu_prim", "u"), ("wv_kind", "v")):
+        for axis, name in enumerate("xyz"):
+            out[dst + name] = g[src][..., axis] * valid
+    for src, dst in (("wv_kind", "kind"), ("corner_mat", "mat"), ("n_light", "light"), ("wu_prim", "prim")):
+        out[dst] = g[src][..., 3] * valid
+    out["kind"] = np.where(valid, out["kind"], layout.ITEM_EMPTY)
+    return layout.Rows.rows(out)
 
 
 def _outward(lo, hi, double):

@@ -68,9 +68,9 @@ def _add_render_options(p):
     p.add_argument("--local-size", type=int, default=None, help="work-group size (default: tuned per device)")
     p.add_argument("--precision", choices=("float", "double"), default=None,
                    help=f"real type of the kernels (default {_renderer_default('precision')})")
-    p.add_argument("--kernel", choices=("specialized", "generic", "baked"), default=None,
-                   help="kernel build: only the scene's features (specialized), everything (generic), or the "
-                        f"scene compiled in as constants (baked) (default {_renderer_default('kernel')})")
+    p.add_argument("--kernel", choices=("specialized", "generic"), default=None,
+                   help="kernel build: only the scene's features (specialized) or everything (generic) "
+                        f"(default {_renderer_default('kernel')})")
     p.add_argument("--no-nee", action="store_true", help="no next event estimation (pure path tracing)")
     p.add_argument("--no-cache", action="store_true", help="do not use the kernel build cache")
 
@@ -590,10 +590,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", "-d", default=None, help="as for render; a comma list measures each device")
     p.add_argument("--lanes", default=None, help="paths per work-item, or a comma list to compare (auto,1,8,16)")
     p.add_argument("--local-size", default=None, help="work-group size, or a comma list (auto,16,64)")
-    p.add_argument("--kernel", default="specialized", help="specialized, generic, baked, or a comma list")
+    p.add_argument("--kernel", default="specialized", help="specialized, generic, or specialized,generic")
     p.add_argument("--precision", default="float", help="float, double, or float,double")
-    p.add_argument("--layout", default="rows", help="lanes on a row of pixels (rows), on a 2-D tile (tiles), "
-                                                     "or rows,tiles")
     p.add_argument("--mitsuba", action="store_true", help="also time Mitsuba 3's cornell_box() (if installed)")
     p.add_argument("--no-nee", action="store_true")
     p.set_defaults(func=cmd_bench)
@@ -643,7 +641,9 @@ def build_parser() -> argparse.ArgumentParser:
                                           "vs BVH; scene setup time")
     p.add_argument("--triangles", default="1e3,1e5,1e6", help="mesh sizes (comma list; empty: none)")
     p.add_argument("--methods", default="sah,lbvh", help="BVH builders to compare (comma list)")
-    p.add_argument("--walks", default="packet", help="BVH traversals to compare: packet, lane (comma list)")
+    p.add_argument("--walks", default="hybrid", help="BVH traversals to compare (comma list): hybrid (packets "
+                                                     "for coherent camera rays, the default) and lane (every ray "
+                                                     "alone)")
     p.add_argument("--width", type=int, default=128)
     p.add_argument("--height", type=int, default=128)
     p.add_argument("--max-depth", type=int, default=8)

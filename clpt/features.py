@@ -5,8 +5,10 @@
 are built with, and are part of every build-cache key. A specialized build
 compiles only the shapes, lobes and light kinds the scene has, with its
 primitive counts as compile-time constants; a generic build has everything
-on and reads the counts at run time; a baked build also puts the scene's
-records into the kernel source as constants.
+on and reads the counts at run time.
+
+``Experimental`` holds the kernel variants kept only to be measured against
+the defaults (``clpt bench-bvh --walks``); renders never need it.
 """
 
 from __future__ import annotations
@@ -15,14 +17,30 @@ from dataclasses import asdict, dataclass
 
 from .pack import PackedScene
 
-KERNEL_MODES = ("specialized", "generic", "baked")
-BVH_WALKS = ("packet", "lane")
+KERNEL_MODES = ("specialized", "generic")
+BVH_WALKS = ("hybrid", "lane")
+
+
+@dataclass(frozen=True)
+class Experimental:
+    """Kernel variants kept for comparison only; `clpt bench` is their one user.
+
+    bvh_walk: "hybrid" (the default: camera rays that share an origin, with
+    every lane alive, walk the BVH as one packet; every other ray walks
+    alone) or "lane" (every ray walks alone). README "Meshes and the BVH"
+    has the measurements that chose the hybrid."""
+
+    bvh_walk: str = "hybrid"
+
+    def check(self):
+        if self.bvh_walk not in BVH_WALKS:
+            raise ValueError(f"bvh_walk must be one of {', '.join(BVH_WALKS)} (got {self.bvh_walk!r})")
+        return self
 
 
 @dataclass(frozen=True)
 class Features:
     lanes: int = 8
-    tiles: bool = False        # lanes cover a 2-D tile of pixels instead of a run of one row
     double: bool = False
     accum_double: bool = True  # per-pixel sums in fp64, else Kahan-compensated float
     mode: str = "specialized"
@@ -40,18 +58,16 @@ class Features:
     sphere_lights: bool = True
     mesh_lights: bool = True
     bvh: bool = True           # the scene's primitives are in a BVH
-    bvh_walk: str = "packet"   # BVH traversal: "packet" (all lanes together) or "lane" (each lane alone)
+    bvh_walk: str = "hybrid"   # BVH traversal (Experimental): "hybrid" (packets for coherent rays) or "lane"
     smooth: bool = True        # some triangles have vertex normals
     counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights, casters, BVH nodes (not generic)
 
     def defines(self) -> dict[str, int]:
         d = {
             "CLPT_LANES": self.lanes,
-            "CLPT_TILE_W": self.tile_width,
             "CLPT_DOUBLE": int(self.double),
             "CLPT_ACCUM_DOUBLE": int(self.accum_double),
             "CLPT_GENERIC": int(self.mode == "generic"),
-            "CLPT_BAKED": int(self.mode == "baked"),
             "CLPT_NEE": int(self.nee),
             "CLPT_PHOTONS": int(self.photons),
             "CLPT_AUX": int(self.aux),
@@ -66,7 +82,7 @@ class Features:
             "CLPT_HAS_SPHERE_LIGHTS": int(self.sphere_lights),
             "CLPT_HAS_MESH_LIGHTS": int(self.mesh_lights),
             "CLPT_HAS_BVH": int(self.bvh),
-            "CLPT_BVH_LANE_WALK": int(self.bvh_walk == "lane"),
+            "CLPT_BVH_PACKETS": int(self.bvh_walk == "hybrid"),
             "CLPT_HAS_SMOOTH": int(self.smooth),
         }
         if self.mode != "generic":
@@ -76,30 +92,24 @@ class Features:
                 d[f"CLPT_NUM_{name}"] = n
         return d
 
-    @property
-    def tile_width(self) -> int:
-        """Width of a work-item's tile of pixels (1: a run of one row)."""
-        return {16: 4, 8: 4, 4: 2}.get(self.lanes, 1) if self.tiles else 1
-
     def options(self) -> list[str]:
         return sorted(f"-D{k}={v}" for k, v in self.defines().items())
 
     def describe(self) -> str:
-        on = [k for k, v in asdict(self).items() if v is True and k not in ("double", "accum_double", "tiles")]
+        on = [k for k, v in asdict(self).items() if v is True and k not in ("double", "accum_double")]
         counts = ""
         if self.counts:
             counts = " counts=" + ",".join(str(c) for c in self.counts)
-        tiles = f" tiles={self.tile_width}x{self.lanes // self.tile_width}" if self.tile_width > 1 else ""
-        if self.bvh and self.bvh_walk != "packet":
+        if self.bvh and self.bvh_walk != "hybrid":
             counts += f" bvh-walk={self.bvh_walk}"
-        return (f"{self.mode} lanes={self.lanes}{tiles} {'double' if self.double else 'float'} "
+        return (f"{self.mode} lanes={self.lanes} {'double' if self.double else 'float'} "
                 f"sums={'double' if self.accum_double else 'kahan-float'} "
                 f"features={'+'.join(on) or 'none'}{counts}")
 
 
 def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False, accum_double: bool = True,
                    mode: str = "specialized", nee: bool = True, photons: bool | None = None,
-                   aux: bool = False, tiles: bool = False, bvh_walk: str = "packet") -> Features:
+                   aux: bool = False, bvh_walk: str = "hybrid") -> Features:
     """photons: None turns them on exactly when the scene has caustic casters."""
     if mode not in KERNEL_MODES:
         raise ValueError(f"kernel mode must be one of {', '.join(KERNEL_MODES)} (got {mode!r})")
@@ -107,10 +117,10 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         raise ValueError(f"bvh_walk must be one of {', '.join(BVH_WALKS)} (got {bvh_walk!r})")
     use_photons = packed.has_caustics if photons is None else bool(photons) and packed.has_caustics
     if mode == "generic":
-        return Features(lanes=lanes, tiles=tiles, double=double, accum_double=accum_double, mode=mode, nee=nee,
+        return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
                         photons=use_photons, aux=aux, bvh_walk=bvh_walk)
     return Features(
-        lanes=lanes, tiles=tiles, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
+        lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
         spheres=packed.count("spheres") > 0,
         quads=packed.count("quads") > 0,
         triangles=packed.count("triangles") > 0,

@@ -1,19 +1,31 @@
-"""The device layout of every record the host hands to the kernels, defined once.
+"""The device layout of everything the host hands to the kernels, defined once.
 
-Each record is a struct; here it is a list of (field, type) pairs, from which
-come both a numpy dtype (for packing on the host, in float64 or float32) and
-the C typedef and constants the kernels see (``c_source``, stitched in
-before kernels/scene.h by clpt/program.py). Offsets follow OpenCL C's rules
-(a vector of n elements aligned to n times the element size, n = 3 as 4), so
-the two sides agree by construction; tests/test_layout.py checks sizeof and
-offsetof against the device itself through a probe kernel.
+Two kinds of record, each a list of named fields from which come both the
+numpy side (the host packs and fills by field name) and the C side (stitched
+in before kernels/scene.h by clpt/program.py, ``c_source``):
 
-The scene buffer is an array of ``real4`` (float4, or double4 when
-CLPT_DOUBLE), so its records are made of real4 fields only, and each
-record's stride in real4 units is ``<PREFIX>_STRIDE`` in C; field k of a
-record at real4 index r is at r + ``<PREFIX>_<FIELD>``. Integers (material
-ids, primitive ids, record indices, counts) are stored as reals: exact below
-2^24 in float builds, which bounds a float scene at 2^24 real4 records.
+- ``Rows``: the scene's records, in the one array of ``real4`` (float4, or
+  double4 when CLPT_DOUBLE) the kernels read. A record is a run of rows,
+  each field one real4 row (or a real8, two rows: a BVH node's 8 children).
+  The C side gets ``<PREFIX>_STRIDE`` (rows per record) and one constant per
+  field, ``<PREFIX>_<FIELD>``, its row within the record: kernels read field
+  f of the record at row r as ``scene_rec(sc, r + <PREFIX>_<F>)``, never at a
+  number (tests/test_layout.py fails on a literal offset and renders with the
+  fields reordered). Integers (material ids, primitive ids, record indices,
+  counts) are stored as reals: exact below 2^24 in float builds, which bounds
+  a float scene at 2^24 real4 records. What the four components of a row
+  hold is each record's doc.
+- ``Record``: a C struct the kernels take by value through a ``__constant``
+  pointer: the launch records (``TraceLaunch``, ``PhotonLaunch``) and the
+  records nested in them (scene counts, camera, photon map). Offsets follow
+  OpenCL C's rules (a vector of n elements aligned to n times the element
+  size, n = 3 as 4; a struct to its widest member), so the numpy dtype and
+  the C typedef agree by construction; tests/test_layout.py checks sizeof
+  and offsetof against the device. A field added here is a named member on
+  both sides, with no other change.
+
+Code that packs records refers to them as ``layout.NAME`` (not a copy bound
+at import), so a test can reorder a record's fields and see the image stay.
 """
 
 from __future__ import annotations
@@ -22,7 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# OpenCL C scalar types: (numpy type for float builds, for double builds, size).
+# OpenCL C scalar types: (numpy type for float builds, for double builds).
 _SCALARS = {"real": (np.float32, np.float64), "float": (np.float32, np.float32),
             "uint": (np.uint32, np.uint32), "int": (np.int32, np.int32)}
 _VECTOR_SIZES = (2, 3, 4, 8, 16)
@@ -40,56 +52,114 @@ def _parse(ctype: str):
     raise ValueError(f"unsupported field type {ctype!r}")
 
 
+# --- structs: the launch records ----------------------------------------------------------
 @dataclass(frozen=True)
 class Record:
-    """A struct crossing to the kernels: C name, macro prefix, fields."""
+    """A C struct crossing to the kernels: name, fields ((name, OpenCL C type
+    or a nested Record), ...)."""
 
     name: str
-    prefix: str
-    fields: tuple  # ((field name, OpenCL C type), ...)
+    fields: tuple
     doc: str = ""
 
-    def _offsets(self, double: bool):
+    def _layout(self, double: bool):
+        """[(field, numpy dtype, offset)], size, alignment."""
         off, align, out = 0, 1, []
-        for fname, ctype in self.fields:
-            base, n = _parse(ctype)
-            np_t = np.dtype(_SCALARS[base][1 if double else 0])
-            slots = 4 if n == 3 else n
-            size = np_t.itemsize * slots
-            a = size  # OpenCL vectors align to their size, scalars to theirs
+        for fname, ftype in self.fields:
+            if isinstance(ftype, Record):
+                dt, a = ftype.dtype(double), ftype.alignment(double)
+            else:
+                base, n = _parse(ftype)
+                np_t = np.dtype(_SCALARS[base][1 if double else 0])
+                slots = 4 if n == 3 else n
+                dt = np.dtype((np_t, (slots,))) if slots > 1 else np_t
+                a = np_t.itemsize * slots  # OpenCL vectors align to their size, scalars to theirs
             off = -(-off // a) * a
-            out.append((fname, np_t, n, slots, off))
-            off += size
+            out.append((fname, dt, off))
+            off += dt.itemsize
             align = max(align, a)
-        return out, -(-off // align) * align
+        return out, -(-off // align) * align, align
 
     def dtype(self, double: bool = False) -> np.dtype:
-        fields, size = self._offsets(double)
-        return np.dtype({"names": [f for f, *_ in fields],
-                         "formats": [(t, (s,)) if s > 1 else t for _, t, _, s, _ in fields],
-                         "offsets": [o for *_, o in fields], "itemsize": size})
+        fields, size, _ = self._layout(double)
+        return np.dtype({"names": [f for f, _, _ in fields], "formats": [t for _, t, _ in fields],
+                         "offsets": [o for _, _, o in fields], "itemsize": size})
 
     def size(self, double: bool = False) -> int:
-        return self._offsets(double)[1]
+        return self._layout(double)[1]
+
+    def alignment(self, double: bool = False) -> int:
+        return self._layout(double)[2]
 
     def offsets(self, double: bool = False) -> dict:
-        return {f: o for f, *_, o in self._offsets(double)[0]}
+        return {f: o for f, _, o in self._layout(double)[0]}
 
-    @property
-    def stride(self) -> int:
-        """Size in real4 units (records of real4 fields only)."""
-        if any(t != "real4" for _, t in self.fields):
-            raise ValueError(f"{self.name} is not made of real4 fields")
-        return len(self.fields)
+    def zeros(self, double: bool = False) -> np.ndarray:
+        """One record, zero-filled, to fill by field name."""
+        return np.zeros((), dtype=self.dtype(double))
 
     def c_source(self) -> str:
         lines = [f"// {self.doc}"] if self.doc else []
         lines.append("typedef struct {")
-        lines += [f"    {t} {f};" for f, t in self.fields]
+        lines += [f"    {t.name if isinstance(t, Record) else t} {f};" for f, t in self.fields]
         lines.append(f"}} {self.name};")
-        if all(t == "real4" for _, t in self.fields):
-            lines.append(f"#define {self.prefix}_STRIDE {self.stride}")
-            lines += [f"#define {self.prefix}_{f.upper()} {k}" for k, (f, _) in enumerate(self.fields)]
+        return "\n".join(lines)
+
+
+# --- rows: the scene's records ------------------------------------------------------------
+_ROW_TYPES = {"real4": 1, "real8": 2}  # field type -> real4 rows
+
+
+@dataclass(frozen=True)
+class Rows:
+    """A scene record: a run of real4 rows. name (for messages), the C
+    constants' prefix, fields ((name, "real4" or "real8"), ...), doc."""
+
+    name: str
+    prefix: str
+    fields: tuple
+    doc: str = ""
+
+    @property
+    def stride(self) -> int:
+        """Rows (real4s) per record."""
+        return sum(_ROW_TYPES[t] for _, t in self.fields)
+
+    def row(self, field: str) -> int:
+        """The field's first row within the record."""
+        k = 0
+        for f, t in self.fields:
+            if f == field:
+                return k
+            k += _ROW_TYPES[t]
+        raise KeyError(f"{self.name} has no field {field!r}")
+
+    def host_dtype(self) -> np.dtype:
+        """One record as the host packs it: each field float64[4 * rows] at its row."""
+        return np.dtype({"names": [f for f, _ in self.fields],
+                         "formats": [(np.float64, (4 * _ROW_TYPES[t],)) for _, t in self.fields],
+                         "offsets": [32 * self.row(f) for f, _ in self.fields], "itemsize": 32 * self.stride})
+
+    def zeros(self, n: int) -> np.ndarray:
+        """n records, zero-filled, to fill by field name (rec["info"][:, 1] = ...)."""
+        return np.zeros(n, dtype=self.host_dtype())
+
+    def view(self, rows: np.ndarray) -> np.ndarray:
+        """Records by field name over float64 rows (..., 4) or (n, stride, 4), C-contiguous: a view."""
+        rows = np.asarray(rows)
+        if rows.dtype != np.float64 or not rows.flags.c_contiguous:
+            raise ValueError(f"{self.name}: records are C-contiguous float64 rows")
+        return rows.reshape(-1).view(self.host_dtype())
+
+    @staticmethod
+    def rows(records: np.ndarray) -> np.ndarray:
+        """Structured records (zeros, view) as float64 rows (n * stride, 4)."""
+        return np.ascontiguousarray(records).view(np.float64).reshape(-1, 4)
+
+    def c_source(self) -> str:
+        lines = [f"// {self.doc}"] if self.doc else []
+        lines.append(f"#define {self.prefix}_STRIDE {self.stride}")
+        lines += [f"#define {self.prefix}_{f.upper()} {self.row(f)}" for f, _ in self.fields]
         return "\n".join(lines)
 
 
@@ -97,54 +167,88 @@ def _r4(*names):
     return tuple((n, "real4") for n in names)
 
 
-MATERIAL = Record("MaterialRec", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_sides", "params"),
-                  "material: kd.rgb, p_diffuse | ks.rgb, p_phong | kr.rgb, p_mirror | kt.rgb, p_refract | "
-                  "Le.rgb, two_sided | shininess, ior, nondelta, one_sided")
-SPHERE = Record("SphereRec", "SPHERE", _r4("center_radius", "mat"),
-                "sphere: center.xyz, radius | material, light + 1 (0: not a light), prim id, 0")
-PLANAR = Record("PlanarRec", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "wv_kind"),
-                "quad or triangle: corner.xyz, material | n.xyz, light + 1 (0: not a light) | wu.xyz, prim id | "
-                "wv.xyz, kind (>= 0: a smooth triangle, the record index of its vertex normals; KIND_*). "
-                "As a BVH item, a sphere: center.xyz, material | radius, 0, 0, light + 1 | 0, 0, 0, prim id | "
-                "0, 0, 0, KIND_SPHERE")
-PLANE = Record("PlaneRec", "PLANE", _r4("point_mat", "n"), "plane: point.xyz, material | n.xyz, prim id")
-LIGHT = Record("LightRec", "LIGHT", _r4("p_kind", "u", "v", "n", "info"),
-               "light: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, alias | area, pick probability, alias "
-               "probability, material; a mesh light: 0, 0, 0, kind | first triangle record, triangles, 0, 0 | ... | "
-               "0, 0, 0, alias | info. Slot j of the lights' alias table (by power) keeps light j with its alias "
-               "probability, else gives light alias")
-CAUSTIC = Record("CausticRec", "CAUSTIC", _r4("sphere"), "caustic caster: bounding sphere center.xyz, radius")
-# Wide BVH nodes (clpt/bvh.py WIDTH = 8 children): rows of 8 reals, each two
-# real4 records, read as one real8; SoA leaf blocks of up to 4 items: rows
-# of 4 reals, one real4 each.
-_ROWS8 = lambda *rows: _r4(*[f"{r}_{h}" for r in rows for h in ("a", "b")])
-BVH_NODE = Record("BvhNode", "BVH", _ROWS8("lo_x", "hi_x", "lo_y", "hi_y", "lo_z", "hi_z", "ptr", "count"),
-                  "wide BVH node: 8 children's boxes as rows of 8 reals lo.x | hi.x | lo.y | hi.y | lo.z | hi.z, "
-                  "then their pointers | counts (count > 0: a leaf block of count items at record pointer; "
-                  "0: a node at record pointer; -1: an empty slot)")
+MATERIAL = Rows("material", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_sides", "params"),
+                "material: kd.rgb, p_diffuse | ks.rgb, p_phong | kr.rgb, p_mirror | kt.rgb, p_refract | "
+                "Le.rgb, two_sided | shininess, ior, nondelta, one_sided")
+SPHERE = Rows("sphere", "SPHERE", _r4("center_radius", "mat"),
+              "sphere: center.xyz, radius | material, light + 1 (0: not a light), prim id, 0")
+PLANAR = Rows("planar", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "wv_kind"),
+              "quad or triangle: corner.xyz, material | n.xyz, light + 1 (0: not a light) | wu.xyz, prim id | "
+              "wv.xyz, kind (>= 0: a smooth triangle, the record index of its vertex normals; ITEM_*). "
+              "As a BVH item, a sphere: center.xyz, material | radius, 0, 0, light + 1 | 0, 0, 0, prim id | "
+              "0, 0, 0, ITEM_SPHERE")
+PLANE = Rows("plane", "PLANE", _r4("point_mat", "n"), "plane: point.xyz, material | n.xyz, prim id")
+LIGHT = Rows("light", "LIGHT", _r4("p_kind", "u", "v", "n", "info"),
+             "light: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, alias | area, pick probability, alias "
+             "probability, material; a mesh light: 0, 0, 0, kind | first triangle record, triangles, 0, 0 | ... | "
+             "0, 0, 0, alias | info. Slot j of the lights' alias table (by power) keeps light j with its alias "
+             "probability, else gives light alias")
+CAUSTIC = Rows("caustic caster", "CAUSTIC", _r4("sphere"), "caustic caster: bounding sphere center.xyz, radius")
+# Wide BVH nodes (clpt/bvh.py WIDTH = 8 children): rows of 8 reals, read as
+# one real8 each; SoA leaf blocks of up to 4 items: rows of 4 reals.
+BVH_NODE = Rows("BVH node", "BVH", tuple((r, "real8") for r in ("lo_x", "hi_x", "lo_y", "hi_y", "lo_z", "hi_z",
+                                                                    "ptr", "count")),
+                "wide BVH node: 8 children's boxes as rows of 8 reals lo.x | hi.x | lo.y | hi.y | lo.z | hi.z, "
+                "then their pointers | counts (count > 0: a leaf block of count items at record pointer; "
+                "0: a node at record pointer; -1: an empty slot)")
 BVH_LEAF_WIDTH = 4   # items a leaf block holds (clpt/bvh.py LEAF_WIDTH): one real4 a row
-BVH_LEAF = Record("BvhLeaf", "BVHL", _r4("px", "py", "pz", "nx", "ny", "nz", "ux", "uy", "uz", "vx", "vy", "vz",
-                                         "kind", "mat", "light", "prim"),
-                  "BVH leaf block: up to BVHL_WIDTH (4) items as rows of 4 reals, their PlanarRec fields: corner "
-                  "p.xyz | normal n.xyz | dual wu.xyz | dual wv.xyz (a sphere: centre in p, radius in n.x) | kind "
-                  "(PlanarRec wv.w; ITEM_EMPTY for an empty slot) | material | light + 1 | primitive id")
-NORMALS = Record("NormalsRec", "NORMALS", _r4("n0", "n1", "n2"), "vertex normals of a smooth triangle")
-LIGHT_TRI = Record("LightTriRec", "LTRI", _r4("p_alias", "u_prob", "v"),
-                   "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
+BVH_LEAF = Rows("BVH leaf block", "BVHL", _r4("px", "py", "pz", "nx", "ny", "nz", "ux", "uy", "uz", "vx", "vy", "vz",
+                                              "kind", "mat", "light", "prim"),
+                "BVH leaf block: up to BVHL_WIDTH (4) items as rows of 4 reals, their PlanarRec fields: corner "
+                "p.xyz | normal n.xyz | dual wu.xyz | dual wv.xyz (a sphere: centre in p, radius in n.x) | kind "
+                "(PlanarRec wv.w; ITEM_EMPTY for an empty slot) | material | light + 1 | primitive id")
+NORMALS = Rows("vertex normals", "NORMALS", _r4("n0", "n1", "n2"), "vertex normals of a smooth triangle")
+LIGHT_TRI = Rows("mesh-light triangle", "LTRI", _r4("p_alias", "u_prob", "v"),
+                 "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
 
-SCENE_RECORDS = (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI)
-
-# Light kinds in LIGHT.p_kind.
+# Light kinds in LIGHT.p_kind.w.
 KIND_QUAD, KIND_TRIANGLE, KIND_SPHERE, KIND_MESH = 0, 1, 2, 3
 # Primitive kinds in PLANAR.wv_kind.w (a smooth triangle has its normals' record index there instead).
 ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE = -1, -2, -3
 ITEM_EMPTY = -4  # an empty slot of a BVH leaf block
 
+# --- launch records ----------------------------------------------------------------------------
+# The scene's section sizes, in the order the sections are packed (clpt/pack.py).
+COUNT_NAMES = ("materials", "spheres", "quads", "triangles", "planes", "lights", "caustics", "nodes")
+SCENE_INFO = Record("SceneInfo", tuple((n, "uint") for n in COUNT_NAMES) + (("eps_abs", "real"),),
+                    "the scene's section sizes (records of each kind; nodes: BVH nodes) and the absolute "
+                    "floor of ray-origin offsets")
+CAMERA = Record("CameraRec", (("origin", "real4"), ("corner", "real4"), ("dx", "real4"), ("dy", "real4")),
+                "pinhole camera: origin; direction to the image's top-left corner (plane at distance 1); one "
+                "pixel right; one pixel down")
+PHOTON_LOOKUP = Record("PhotonLookup", (
+    ("mask", "uint"), ("max_photons", "uint"), ("budget", "uint"), ("occ_mask", "uint"),
+    ("merge_vertices", "uint"), ("aim", "uint"),
+    ("merge", "uint"), ("gather", "uint"), ("owns", "uint"), ("stop_at_x", "uint"),
+    ("radius", "real"), ("inv_cell", "real"), ("cone_k", "real"), ("mis_k", "real"), ("merge_p", "real")),
+    "the photon map as trace_paths reads it (kernels/photon_grid.h) and what a launch does with it: merge at "
+    "non-delta vertices (merge), gather at the first one (gather), the paths the map owns not path traced "
+    "(owns), camera paths ending there (stop_at_x: the offline pre-pass)")
+TRACE_LAUNCH = Record("TraceLaunch", (
+    ("scene", SCENE_INFO), ("camera", CAMERA), ("photons", PHOTON_LOOKUP), ("lum_scale", "real"),
+    ("width", "uint"), ("height", "uint"), ("group_offset", "uint"), ("sample_begin", "uint"),
+    ("n_samples", "uint"), ("max_depth", "uint"), ("rr_depth", "uint"), ("seed", "uint"), ("n_list", "uint"),
+    ("aux_specular", "uint")),
+    "one trace_paths launch (kernels/trace.cl)")
+PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"), ("n_emit", "uint"),
+                                        ("aim", "uint")),
+                       "one trace_photons launch (kernels/photons.cl)")
+
+
+def scene_records() -> tuple:
+    """The scene's records (Rows), as this module holds them now."""
+    return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI)
+
+
+def launch_records() -> tuple:
+    """The structs (Record), nested ones before those that hold them."""
+    return (SCENE_INFO, CAMERA, PHOTON_LOOKUP, TRACE_LAUNCH, PHOTON_LAUNCH)
+
 
 def c_source() -> str:
-    """The C side of the layout: typedefs and constants for every record."""
+    """The C side of the layout: row constants and typedefs for every record."""
     parts = ["// Generated by clpt/layout.py: the records the host packs (do not edit)."]
-    parts += [r.c_source() for r in SCENE_RECORDS]
+    parts += [r.c_source() for r in scene_records() + launch_records()]
     parts += [f"#define KIND_QUAD {KIND_QUAD}", f"#define KIND_TRIANGLE {KIND_TRIANGLE}",
               f"#define KIND_SPHERE {KIND_SPHERE}", f"#define KIND_MESH {KIND_MESH}",
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",

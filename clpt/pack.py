@@ -1,8 +1,9 @@
 """Scene -> the packed record array the kernels read.
 
 The records' layout is clpt/layout.py's (the kernels get the same from it);
-this module fills them. Records are 4-vectors of the kernel's real type
-(float32, or float64 for double-precision builds), in sections:
+this module fills them by field name. Records are runs of 4-vectors of the
+kernel's real type (float32, or float64 for double-precision builds), in
+sections:
 
   materials, spheres, quads, triangles, planes, lights, caustic casters,
   then BVH nodes and leaf blocks (which hold their items' records), vertex
@@ -22,20 +23,24 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import bvh as bvh_mod
-from .layout import (BVH_LEAF, BVH_NODE, CAUSTIC, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_QUAD,
-                     KIND_SPHERE, KIND_TRIANGLE, LIGHT, LIGHT_TRI, MATERIAL, NORMALS, PLANAR, PLANE, SPHERE)
+from . import layout
+from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_QUAD, KIND_SPHERE,
+                     KIND_TRIANGLE, Rows)
 from .meshio import cross_rows
 from .scene import Camera, Material, Scene, SceneError, Sphere, length_scale
 
-MAT_STRIDE = MATERIAL.stride
-SPHERE_STRIDE = SPHERE.stride
-PLANAR_STRIDE = PLANAR.stride
-PLANE_STRIDE = PLANE.stride
-LIGHT_STRIDE = LIGHT.stride
-CAUSTIC_STRIDE = CAUSTIC.stride
+# Records are referred to as layout.NAME where they are filled (a test reorders their fields).
+MAT_STRIDE = layout.MATERIAL.stride
+SPHERE_STRIDE = layout.SPHERE.stride
+PLANAR_STRIDE = layout.PLANAR.stride
+PLANE_STRIDE = layout.PLANE.stride
+LIGHT_STRIDE = layout.LIGHT.stride
+CAUSTIC_STRIDE = layout.CAUSTIC.stride
 
 LIGHT_KIND_QUAD, LIGHT_KIND_TRIANGLE, LIGHT_KIND_SPHERE, LIGHT_KIND_MESH = KIND_QUAD, KIND_TRIANGLE, KIND_SPHERE, KIND_MESH
-COUNT_NAMES = ("materials", "spheres", "quads", "triangles", "planes", "lights", "caustics", "nodes")
+# The sections before the BVH, in packing order, with their records.
+_SECTIONS = (("materials", "MATERIAL"), ("spheres", "SPHERE"), ("quads", "PLANAR"), ("triangles", "PLANAR"),
+             ("planes", "PLANE"), ("lights", "LIGHT"), ("caustics", "CAUSTIC"))
 
 # Below this many bounded primitives (spheres, quads, triangles) the kernels'
 # plain loops beat the BVH (measured: README, "BVH").
@@ -70,6 +75,19 @@ class PackedScene:
     def count(self, name: str) -> int:
         return self.counts[COUNT_NAMES.index(name)]
 
+    def section(self, name: str) -> np.ndarray:
+        """The records of one section before the BVH ("materials", "spheres",
+        "quads", "triangles", "planes", "lights", "caustics"), by field name
+        (a view of self.records)."""
+        first = 0
+        for sec, rec in _SECTIONS:
+            r = getattr(layout, rec)
+            n = self.count(sec) * r.stride
+            if sec == name:
+                return r.view(self.records[first:first + n])
+            first += n
+        raise KeyError(f"no section {name!r}")
+
     @property
     def has_phong(self) -> bool:
         return any(max(m.ks) > 0 for m in self.materials)
@@ -100,36 +118,37 @@ def lobe_probabilities(m: Material):
     return p / max(1.0, p.sum())
 
 
-def _material_records(m: Material):
-    p_d, p_s, p_r, p_t = lobe_probabilities(m)
-    nondelta = 1.0 if p_d > 0 or p_s > 0 else 0.0
-    return [
-        (*m.kd, p_d),
-        (*m.ks, p_s),
-        (*m.kr, p_r),
-        (*m.kt, p_t),
-        (*m.emission, 1.0 if m.two_sided else 0.0),
-        (m.shininess, m.ior, nondelta, 1.0 if m.one_sided else 0.0),
-    ]
+def _material_records(materials) -> np.ndarray:
+    """MATERIAL records of the materials, in order."""
+    out = layout.MATERIAL.zeros(len(materials))
+    for rec, m in zip(out, materials):
+        p_d, p_s, p_r, p_t = lobe_probabilities(m)
+        rec["kd_pd"] = (*m.kd, p_d)
+        rec["ks_ps"] = (*m.ks, p_s)
+        rec["kr_pr"] = (*m.kr, p_r)
+        rec["kt_pt"] = (*m.kt, p_t)
+        rec["le_sides"] = (*m.emission, 1.0 if m.two_sided else 0.0)
+        rec["params"] = (m.shininess, m.ior, 1.0 if p_d > 0 or p_s > 0 else 0.0, 1.0 if m.one_sided else 0.0)
+    return out
 
 
 def _planar_array(c, u, v, mat, kind, prim, light1):
-    """PLANAR records (M, 4, 4) of parallelograms or triangles corner c with
-    edges u, v (M, 3 each), and their unit normals and areas of the
+    """PLANAR records (M, structured) of parallelograms or triangles corner c
+    with edges u, v (M, 3 each), and their unit normals and areas of the
     parallelogram. kind: ITEM_QUAD or ITEM_FLAT_TRIANGLE."""
-    out = np.empty((len(c), 4, 4))
+    out = layout.PLANAR.zeros(len(c))
     n_raw = cross_rows(u, v)
     nn = n_raw[:, 0] * n_raw[:, 0] + n_raw[:, 1] * n_raw[:, 1] + n_raw[:, 2] * n_raw[:, 2]
     ln = np.sqrt(nn)
-    n = out[:, 1, :3]
-    np.divide(n_raw, ln[:, None], out=n)
+    n = n_raw / ln[:, None]
+    out["n_light"][:, :3] = n
     # Dual vectors: for q = a u + b v in the plane, a = q.wu and b = q.wv.
-    np.divide(cross_rows(v, n_raw), nn[:, None], out=out[:, 2, :3])
-    np.divide(cross_rows(n_raw, u), nn[:, None], out=out[:, 3, :3])
-    out[:, 0, :3], out[:, 0, 3] = c, mat
-    out[:, 1, 3] = light1
-    out[:, 2, 3] = prim
-    out[:, 3, 3] = kind
+    out["wu_prim"][:, :3] = cross_rows(v, n_raw) / nn[:, None]
+    out["wv_kind"][:, :3] = cross_rows(n_raw, u) / nn[:, None]
+    out["corner_mat"][:, :3], out["corner_mat"][:, 3] = c, mat
+    out["n_light"][:, 3] = light1
+    out["wu_prim"][:, 3] = prim
+    out["wv_kind"][:, 3] = kind
     return out, n, ln
 
 
@@ -186,10 +205,10 @@ class _Builder:
 
     def __init__(self):
         self.spheres = []   # (center, radius, material id, prim id)
-        self.blocks = {KIND_QUAD: [], KIND_TRIANGLE: []}  # (M, 4, 4) record blocks
-        self.normals = []   # (records (M, 4, 4) of smooth triangles, their (M, 3, 3) vertex normals)
-        self.planes = []
-        self.lights = []    # (sides, area, material, records, material id, light triangles or None)
+        self.blocks = {KIND_QUAD: [], KIND_TRIANGLE: []}  # PLANAR record blocks
+        self.normals = []   # (PLANAR records of smooth triangles, their (M, 3, 3) vertex normals)
+        self.planes = []    # (point, unit normal, material id, prim id)
+        self.lights = []    # (sides, area, material, LIGHT fields {name: row}, material id, LIGHT_TRI records or None)
         self.n_prims = 0    # every primitive, planes included, has an id
         self.n_bounded = 0
         self.bounds = []    # (lo, hi) blocks of the bounded primitives, in prim order
@@ -211,8 +230,8 @@ class _Builder:
         self.spheres.append((c, float(p.radius), mid, prim, self._light1(m)))
         self.bounds.append((c[None] - p.radius, c[None] + p.radius))
         if m.is_emissive:
-            self.lights.append((_sides(m), p.area(), m, [(*c, LIGHT_KIND_SPHERE), (p.radius, 0.0, 0.0, 0.0),
-                                                         (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0)], mid, None))
+            self.lights.append((_sides(m), p.area(), m, {"p_kind": (*c, LIGHT_KIND_SPHERE),
+                                                         "u": (p.radius, 0.0, 0.0, 0.0)}, mid, None))
 
     def planar(self, c, u, v, mat, triangle: bool, light: bool):
         mid, m = mat
@@ -224,12 +243,13 @@ class _Builder:
         self.bounds.append((pts.min(0)[None], pts.max(0)[None]))
         area = float(ln[0]) * (0.5 if triangle else 1.0)
         if light and m.is_emissive:
-            self.lights.append((_sides(m), area, m, [(*c, kind), (*u, 0.0), (*v, 0.0), (*n[0], 0.0)], mid, None))
+            self.lights.append((_sides(m), area, m, {"p_kind": (*c, kind), "u": (*u, 0.0), "v": (*v, 0.0),
+                                                     "n": (*n[0], 0.0)}, mid, None))
 
     def plane(self, p, mat):
         mid, _ = mat
         n = np.array(p.normal, dtype=np.float64)
-        self.planes += [(*p.point, mid), (*(n / np.linalg.norm(n)), self._prims(1, bounded=False)[0])]
+        self.planes.append((p.point, n / np.linalg.norm(n), mid, self._prims(1, bounded=False)[0]))
 
     def mesh(self, p, mat):
         mid, m = mat
@@ -244,14 +264,14 @@ class _Builder:
         if m.is_emissive:
             areas = 0.5 * ln
             prob, alias = alias_table(areas)
-            tris = np.zeros((len(t), LIGHT_TRI.stride, 4))
-            tris[:, 0, :3], tris[:, 0, 3] = v0, alias
-            tris[:, 1, :3], tris[:, 1, 3] = u, prob
-            tris[:, 2, :3] = w
+            tris = layout.LIGHT_TRI.zeros(len(t))
+            tris["p_alias"][:, :3], tris["p_alias"][:, 3] = v0, alias
+            tris["u_prob"][:, :3], tris["u_prob"][:, 3] = u, prob
+            tris["v"][:, :3] = w
             # u.xy of the light record: first triangle record (set on layout), count.
             self.lights.append((_sides(m), float(areas.sum()), m,
-                                [(0.0, 0.0, 0.0, LIGHT_KIND_MESH), (0.0, float(len(t)), 0.0, 0.0),
-                                 (0.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 0.0)], mid, tris))
+                                {"p_kind": (0.0, 0.0, 0.0, LIGHT_KIND_MESH), "u": (0.0, float(len(t)), 0.0, 0.0)},
+                                mid, tris))
 
 
 def _sides(m: Material) -> float:
@@ -260,15 +280,15 @@ def _sides(m: Material) -> float:
 
 def _sphere_records(spheres):
     """SPHERE records (plain section) and PLANAR-shaped BVH items of spheres."""
-    plain = np.zeros((len(spheres), SPHERE_STRIDE, 4))
-    items = np.zeros((len(spheres), PLANAR_STRIDE, 4))
+    plain = layout.SPHERE.zeros(len(spheres))
+    items = layout.PLANAR.zeros(len(spheres))
     for k, (c, r, mid, prim, light1) in enumerate(spheres):
-        plain[k, 0] = (*c, r)
-        plain[k, 1] = (mid, light1, prim, 0.0)
-        items[k, 0] = (*c, mid)
-        items[k, 1] = (r, 0.0, 0.0, light1)
-        items[k, 2] = (0.0, 0.0, 0.0, prim)
-        items[k, 3] = (0.0, 0.0, 0.0, ITEM_SPHERE)
+        plain[k]["center_radius"] = (*c, r)
+        plain[k]["mat"] = (mid, light1, prim, 0.0)
+        items[k]["corner_mat"] = (*c, mid)
+        items[k]["n_light"] = (r, 0.0, 0.0, light1)
+        items[k]["wu_prim"] = (0.0, 0.0, 0.0, prim)
+        items[k]["wv_kind"] = (0.0, 0.0, 0.0, ITEM_SPHERE)
     return plain, items
 
 
@@ -309,9 +329,12 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     use_bvh = use_bvh and b.n_bounded > 0
 
     sphere_plain, sphere_items = _sphere_records(b.spheres)
-    quads = np.concatenate(b.blocks[KIND_QUAD]) if b.blocks[KIND_QUAD] else np.zeros((0, 4, 4))
-    tris = np.concatenate(b.blocks[KIND_TRIANGLE]) if b.blocks[KIND_TRIANGLE] else np.zeros((0, 4, 4))
-    planes = np.array(b.planes, dtype=np.float64).reshape(-1, 4)
+    quads = np.concatenate(b.blocks[KIND_QUAD]) if b.blocks[KIND_QUAD] else layout.PLANAR.zeros(0)
+    tris = np.concatenate(b.blocks[KIND_TRIANGLE]) if b.blocks[KIND_TRIANGLE] else layout.PLANAR.zeros(0)
+    planes = layout.PLANE.zeros(len(b.planes))
+    for rec, (point, n, mid, prim) in zip(planes, b.planes):
+        rec["point_mat"] = (*point, mid)
+        rec["n"] = (*n, prim)
 
     # Pick lights in proportion to their power: pi * area * mean(Le) per side.
     lights = b.lights
@@ -320,15 +343,19 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     # Walker's alias table over them: light j's record keeps slot j's
     # probability (info.z) and its alias (n.w), for an O(1) pick.
     keep, alias = alias_table(powers) if len(lights) else (np.zeros(0), np.zeros(0, dtype=np.int64))
-    caustics = np.array(_caustic_objects(scene), dtype=np.float64).reshape(-1, 4)
+    caustics = layout.CAUSTIC.zeros(0)
+    objects = _caustic_objects(scene)
+    if objects:
+        caustics = layout.CAUSTIC.zeros(len(objects))
+        caustics["sphere"] = objects
 
     n_mat = len(surfaces)
-    mat_recs = np.array([r for m in surfaces for r in _material_records(m)], dtype=np.float64).reshape(-1, 4)
+    mat_recs = _material_records(list(surfaces))
     if use_bvh:
         # Items in prim order, as the bounds are (spheres, quads and
         # triangles are interleaved in scene order).
         items = np.concatenate([sphere_items, quads, tris]) if len(sphere_items) or len(quads) else tris
-        prim = items[:, 2, 3]
+        prim = items["wu_prim"][:, 3]
         if not (np.diff(prim) > 0).all():
             items = items[np.argsort(prim, kind="stable")]
         lo = np.concatenate([x for x, _ in b.bounds])
@@ -336,15 +363,16 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
         # The few primitives as big as the scene (a room's walls) stay in the
         # plain loops, which test them against all lanes at once and give the
         # walk a near tmax; in the tree their boxes would overlap everything.
-        smooth_prims = np.concatenate([r[:, 2, 3] for r, _ in b.normals]) if b.normals else np.zeros(0)
-        big = _big_primitives(lo, hi, np.isin(items[:, 2, 3], smooth_prims))
-        big_ids = items[big, 2, 3]
-        sphere_plain = sphere_plain[np.isin(sphere_plain[:, 1, 2], big_ids)]
-        quads = quads[np.isin(quads[:, 2, 3], big_ids)]
-        tris = tris[np.isin(tris[:, 2, 3], big_ids)]
+        smooth_prims = np.concatenate([r["wu_prim"][:, 3] for r, _ in b.normals]) if b.normals else np.zeros(0)
+        big = _big_primitives(lo, hi, np.isin(items["wu_prim"][:, 3], smooth_prims))
+        big_ids = items["wu_prim"][big, 3]
+        sphere_plain = sphere_plain[np.isin(sphere_plain["mat"][:, 2], big_ids)]
+        quads = quads[np.isin(quads["wu_prim"][:, 3], big_ids)]
+        tris = tris[np.isin(tris["wu_prim"][:, 3], big_ids)]
         items, lo, hi = items[~big], lo[~big], hi[~big]
-    head = (len(mat_recs) + len(sphere_plain) * SPHERE_STRIDE + PLANAR_STRIDE * (len(quads) + len(tris))
-            + len(planes) + LIGHT_STRIDE * len(lights) + len(caustics))
+    light_recs = layout.LIGHT.zeros(len(lights))  # filled below, once the mesh lights' triangles are placed
+    sections = [mat_recs, sphere_plain, quads, tris, planes, light_recs, caustics]
+    head = sum(len(Rows.rows(x)) for x in sections)
     # The BVH starts on a 64-byte boundary (4 real4 records; scene.h OFF_BVH),
     # so that a node's rows of 8 floats never straddle cache lines.
     pad = (-head) % 4 if use_bvh else 0
@@ -358,61 +386,59 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
             raise SceneError(f"{scene.source}: the BVH is {wide.levels} wide levels deep, more than the kernels' "
                              f"traversal stack holds; try bvh_method='lbvh'")
         # Nodes, then leaf blocks, which hold their items' records whole.
-        leaf_base = head + BVH_NODE.stride * wide.n_nodes
+        leaf_base = head + layout.BVH_NODE.stride * wide.n_nodes
         nodes, leaves = bvh_mod.flatten(tree, wide, head, leaf_base, double=False)
-        nodes = nodes.reshape(-1, 4)
         items = items[tree.order]
-        bvh_end = leaf_base + BVH_LEAF.stride * len(leaves)
+        bvh_end = leaf_base + layout.BVH_LEAF.stride * len(leaves)
     else:
         bvh_end = head
     # Vertex normals: one NORMALS record per smooth triangle, pointed to by
-    # the w of its planar record's last row (which the blocks above share).
+    # its planar record's kind (wv_kind.w, which the blocks above share).
     normals_base = bvh_end
     smooth = bool(b.normals)
     normal_recs = []
     if smooth:
         if use_bvh:
-            slot_prims = items[:, 2, 3].astype(np.int64)
+            slot_prims = items["wu_prim"][:, 3].astype(np.int64)
             prim_to_slot = np.full(b.n_prims, -1, dtype=np.int64)
             prim_to_slot[slot_prims] = np.arange(len(slot_prims))
         k = 0
         for recs, nv in b.normals:
-            idx = normals_base + NORMALS.stride * (k + np.arange(len(recs)))
-            prims = recs[:, 2, 3].astype(np.int64)
+            idx = normals_base + layout.NORMALS.stride * (k + np.arange(len(recs)))
+            prims = recs["wu_prim"][:, 3]
             if use_bvh:
-                items[prim_to_slot[prims], 3, 3] = idx
+                items["wv_kind"][prim_to_slot[prims.astype(np.int64)], 3] = idx
             else:
-                tris[np.searchsorted(tris[:, 2, 3], recs[:, 2, 3]), 3, 3] = idx
-            block = np.zeros((len(recs), NORMALS.stride, 4))
-            block[:, :, :3] = nv
-            normal_recs.append(block.reshape(-1, 4))
+                tris["wv_kind"][np.searchsorted(tris["wu_prim"][:, 3], prims), 3] = idx
+            block = layout.NORMALS.zeros(len(recs))
+            for j, f in enumerate(("n0", "n1", "n2")):
+                block[f][:, :3] = nv[:, j]
+            normal_recs.append(Rows.rows(block))
             k += len(recs)
     normal_recs = np.concatenate(normal_recs) if normal_recs else np.zeros((0, 4))
     if use_bvh:  # the items' records (smooth ones now pointing to their normals) into the leaf blocks
-        nodes = np.concatenate([nodes, bvh_mod.leaf_blocks(tree, leaves, items).reshape(-1, 4)])
+        nodes = np.concatenate([nodes, bvh_mod.leaf_blocks(tree, leaves, items)])
     ltri_base = normals_base + len(normal_recs)
-    light_recs, ltri_recs = [], []
-    for (sides, area, m, recs, mid, ltris), pr, kp, al in zip(lights, probs, keep, alias):
-        recs = [list(r) for r in recs]
+    ltri_recs = []
+    for rec, (sides, area, m, fields, mid, ltris), pr, kp, al in zip(light_recs, lights, probs, keep, alias):
+        for f, v in fields.items():
+            rec[f] = v
         if ltris is not None:
-            recs[1][0] = ltri_base + sum(len(x) for x in ltri_recs)
-            ltri_recs.append(ltris.reshape(-1, 4))
-        recs[3][3] = float(al)
-        light_recs += recs + [(area, pr, kp, mid)]
-    light_recs = np.array(light_recs, dtype=np.float64).reshape(-1, 4)
+            rec["u"][0] = ltri_base + sum(len(x) for x in ltri_recs)
+            ltri_recs.append(Rows.rows(ltris))
+        rec["n"][3] = float(al)
+        rec["info"] = (area, pr, kp, mid)
     ltri_recs = np.concatenate(ltri_recs) if ltri_recs else np.zeros((0, 4))
 
-    plain = [sphere_plain.reshape(-1, 4), quads.reshape(-1, 4), tris.reshape(-1, 4)]
-    records = np.concatenate([mat_recs, *plain, planes, light_recs, caustics, np.zeros((pad, 4)), nodes,
-                              normal_recs, ltri_recs])
+    records = np.concatenate([Rows.rows(x) for x in sections] + [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs])
     n_nodes = wide.n_nodes if use_bvh else 0
-    counts = (n_mat, len(sphere_plain), len(quads), len(tris), len(planes) // PLANE_STRIDE, len(lights), len(caustics), n_nodes)
+    counts = (n_mat, len(sphere_plain), len(quads), len(tris), len(planes), len(lights), len(caustics), n_nodes)
     kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere",
              LIGHT_KIND_MESH: "mesh"}
     lo, hi = scene.bounds(camera=False)
     flux = sum(sides * math.pi * area * max(m.emission) for sides, area, m, *_ in lights)
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
-                       light_kinds=frozenset(kinds[int(r[0][3])] for _, _, _, r, _, _ in lights),
+                       light_kinds=frozenset(kinds[int(f["p_kind"][3])] for _, _, _, f, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,
                        max_radiance=max((max(m.emission) for _, _, m, *_ in lights), default=1.0),
                        smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale)

@@ -15,7 +15,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pyopencl as cl
-import pyopencl.cltypes as clt
 
 from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
 from .program import note_time
@@ -23,7 +22,11 @@ from .program import note_time
 RADIX_BITS = 8
 GRID_CELL_RADII = 2  # grid cells are cubes of this many gather radii (kernels/photon_grid.h)
 MAX_TABLE_BITS = 24
-# Photon-map modes of trace_paths (kernels/trace.cl PM_*).
+# What a trace_paths launch does with the photon map (PhotonMap.lookup turns
+# a mode into the launch record's choices, kernels/path.h): none; merge at
+# vertices with a non-delta part; the map owns the paths through the first
+# one (x) and gathers there (online), or leaves that to a caustic buffer
+# (offline); the offline pre-pass, which fills that buffer.
 PM_OFF, PM_MERGE, PM_OWNED, PM_OFFLINE, PM_PREPASS = 0, 1, 2, 3, 4
 MODES = ("merge", "online", "offline")
 
@@ -177,6 +180,7 @@ class PhotonMap:
         self.k_starts = cl.Kernel(program, "bucket_starts")
         self.k_occ = cl.Kernel(program, "photon_occupancy")
         self.capacity = -1
+        self.launch = None  # the photon pass's launch record buffer
         self.n_chunks = 64 if dctx.is_cpu else 1024  # a multiple of the local size: every chunk work-item exists
         self.launches = {}
         self.kernel_times = {}  # kernel name -> device seconds per launch
@@ -235,9 +239,11 @@ class PhotonMap:
         self._events = []
 
     def build(self, scene_buf, counts, eps_abs, lanes: int, seed: int, settings: PhotonSettings, radius: float):
-        """Trace settings.count photons and build the grid for `radius`.
+        """Trace settings.count photons and build the grid for `radius`
+        (counts: the packed scene's; eps_abs: the ray-origin offset's floor).
         Returns {"stored", "trace_seconds", "grid_seconds", "host_seconds"}
         (device times from profiling events)."""
+        from .engine.launch import RecordBuffer, fill_scene_info, photon_record
         n = int(settings.count)
         if n != self.capacity:
             self._alloc(n)
@@ -246,10 +252,13 @@ class PhotonMap:
         cl.enqueue_fill_buffer(q, self.counter, np.uint32(0), 0, 4)
         events = []
         if n > 0:
-            aim = 0 if settings.aim == "solid_angle" else 1
-            events.append(self._launch("trace_photons", self.k_trace, -(-n // lanes), scene_buf, counts,
-                                       self.real(eps_abs), np.uint32(seed), np.uint32(n), np.uint32(aim),
-                                       *self.raw, self.counter))
+            rec = photon_record(self.real == np.float64)
+            fill_scene_info(rec["scene"], counts, eps_abs)
+            rec["seed"], rec["n_emit"], rec["aim"] = seed, n, 0 if settings.aim == "solid_angle" else 1
+            if self.launch is None:
+                self.launch = RecordBuffer(self.dctx, rec)
+            events.append(self._launch("trace_photons", self.k_trace, -(-n // lanes), scene_buf,
+                                       self.launch.write(rec), *self.raw, self.counter))
         stored = np.zeros(1, dtype=np.uint32)
         cl.enqueue_copy(q, stored, self.counter)
         grid_events = self.build_grid(n, radius)
@@ -309,17 +318,30 @@ class PhotonMap:
         q.finish()
         return events
 
-    def kernel_args(self, settings: PhotonSettings, mode: int):
-        """The trailing arguments of trace_paths for this map."""
-        max_p = settings.max_photons if settings.max_photons > 0 else 0xFFFFFFFF
-        # The merge's pdf is pf cos pi r^2 N (kernels/trace.cl, photon merging).
+    def lookup(self, rec, settings: PhotonSettings, mode: int):
+        """Fill rec, a PhotonLookup record (clpt/layout.py), for a trace_paths
+        launch over this map in mode PM_*: the map's grid, the gather's
+        settings, and what the launch does with them (kernels/path.h)."""
+        # The merge's pdf is pf cos pi r^2 N (kernels/path.h, photon merging).
         p = float(settings.merge_probability)
-        mis_k = math.pi * self.radius ** 2 * max(self.n_emitted, 1) * p
-        return [*self.sorted, self.bucket_start, np.uint32(self.mask), np.uint32(max_p), np.uint32(settings.budget),
-                self.real(self.radius), self.real(settings.cone_k), np.uint32(mode), self.real(mis_k),
-                np.uint32(min(settings.merge_vertices, 2 ** 31)), np.uint32(0 if settings.aim == "solid_angle" else 1),
-                self.real(p),
-                self.occ, np.uint32(self.occ_bits - 1), self.real(self.inv_cell)]
+        rec["mask"], rec["occ_mask"] = self.mask, self.occ_bits - 1
+        rec["max_photons"] = settings.max_photons if settings.max_photons > 0 else 0xFFFFFFFF
+        # The offline pre-pass gathers only a few times per pixel: subsampling
+        # noise would not average out there, so it visits every photon.
+        rec["budget"] = 0xFFFFFFFF if mode == PM_PREPASS else settings.budget
+        rec["radius"], rec["inv_cell"], rec["cone_k"] = self.radius, self.inv_cell, settings.cone_k
+        rec["mis_k"] = math.pi * self.radius ** 2 * max(self.n_emitted, 1) * p
+        rec["merge_p"] = p
+        rec["merge_vertices"] = min(settings.merge_vertices, 2 ** 31)
+        rec["aim"] = 0 if settings.aim == "solid_angle" else 1
+        rec["merge"] = mode == PM_MERGE
+        rec["gather"] = mode in (PM_OWNED, PM_PREPASS)
+        rec["owns"] = mode in (PM_OWNED, PM_OFFLINE, PM_PREPASS)
+        rec["stop_at_x"] = mode == PM_PREPASS
+
+    def buffers(self) -> dict:
+        """trace_paths' photon-map buffers, by argument name (clpt/engine/launch.py PHOTON_ARGS)."""
+        return dict(zip(("ph_pos", "ph_dir", "ph_pow"), self.sorted), bucket_start=self.bucket_start, ph_occ=self.occ)
 
 
 def _device_seconds(events) -> float:
@@ -327,12 +349,6 @@ def _device_seconds(events) -> float:
         return sum(e.profile.end - e.profile.start for e in events) * 1e-9
     except cl.Error:
         return float("nan")
-
-
-def counts_arg(counts):
-    c = list(counts) + [0] * (8 - len(counts))
-    return clt.make_uint8(*c)
-
 
 
 def pilot(renderer, settings: PhotonSettings, *, seed: int) -> tuple[PhotonSettings, dict]:

@@ -33,7 +33,7 @@ from .engine.driver import Driver
 from .engine.executors import DaskExecutor, LocalExecutor
 from .engine.job import DeviceOptions, RenderJob, kernel_photons
 from .engine.schedule import Schedule
-from .features import Features
+from .features import KERNEL_MODES, Experimental, Features
 from .photons import PhotonSettings, pilot
 from .preview import RenderUpdate  # noqa: F401 - part of the API
 from .scene import Scene, SceneError, SettingsError, load_scene
@@ -148,14 +148,15 @@ class Renderer:
     has caustic casters (purely specular objects); False never compiles it.
     bvh: "auto" puts the primitives in a BVH when the scene has at least
     clpt.pack.BVH_MIN_PRIMS of them (plain loops are faster below), "on" or
-    "off" force it; bvh_method: "sah" or "lbvh" (clpt/bvh.py); bvh_walk:
-    "packet" or "lane" (kernels/bvh.h).
+    "off" force it; bvh_method: "sah" or "lbvh" (clpt/bvh.py). experimental:
+    a clpt.features.Experimental, the kernel variants kept for `clpt bench`
+    to compare (renders never need one).
     """
 
     def __init__(self, scene, *, device=None, lanes: int | None = None, local_size: int | None = None,
                  precision: str = "float", kernel: str = "specialized", nee: bool = True,
                  photons: bool | None = None, aux: bool = False, use_cache: bool = True, accumulate: str = "auto",
-                 tiles: bool = False, bvh="auto", bvh_method: str = "lbvh", bvh_walk: str = "packet"):
+                 bvh="auto", bvh_method: str = "lbvh", experimental: Experimental | None = None):
         if isinstance(scene, (str, Path)):
             scene = load_scene(scene)
         if not isinstance(scene, Scene):
@@ -169,8 +170,10 @@ class Renderer:
         if local_size is not None and (isinstance(local_size, bool) or not isinstance(local_size, int)
                                        or local_size < 1):
             raise ValueError(f"local_size must be a positive integer (got {local_size!r})")
-        if kernel not in ("specialized", "generic", "baked"):
-            raise ValueError(f"kernel must be 'specialized', 'generic' or 'baked' (got {kernel!r})")
+        if kernel not in KERNEL_MODES:
+            raise ValueError(f"kernel must be 'specialized' or 'generic' (got {kernel!r})")
+        if experimental is not None and not isinstance(experimental, Experimental):
+            raise TypeError(f"experimental must be a clpt.features.Experimental (got {type(experimental).__name__})")
         if photons is not None and not isinstance(photons, (bool, PhotonSettings)):
             raise TypeError(f"photons must be None, True, False or a PhotonSettings (got {type(photons).__name__})")
         # A PhotonSettings is render()'s default for this Renderer (and compiles the photon code).
@@ -181,7 +184,8 @@ class Renderer:
         self._twins = {}
         self.options = DeviceOptions(lanes=lanes, precision=precision, kernel=kernel, nee=nee, photons=photons,
                                      aux=aux, use_cache=use_cache, accumulate=accumulate, local_size=local_size,
-                                     tiles=tiles, bvh=bvh, bvh_method=bvh_method, bvh_walk=bvh_walk)
+                                     bvh=bvh, bvh_method=bvh_method,
+                                     experimental=(experimental or Experimental()).check())
         t0 = time.perf_counter()
         self.packed = self.options.pack(scene)
         self.pack_seconds = time.perf_counter() - t0

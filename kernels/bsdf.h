@@ -6,6 +6,10 @@
 // absorption branch is left out (the lobe probabilities renormalized).
 // Directions follow pbrt: d is the incoming ray direction, wi points away
 // from the surface, n is the shading normal on the side of -d.
+// Camera paths and photon paths sample the same lobes with bsdf_sample; a
+// new lobe is a case in bsdf_sample, bsdf_eval and bsdf_pdf (non-delta) or
+// in bsdf_sample alone (delta), its parameters in clpt/layout.py's MATERIAL
+// record and material_fetch (scene.h), and a CLPT_HAS_<lobe> flag.
 
 // Lobe probabilities of m at this depth (absorption allowed or not).
 typedef struct { vreal d, s, r, t; } LobeProbs;
@@ -67,4 +71,87 @@ inline V3 dielectric_sample(V3 d, V3 n, vmask front, vreal ior, vreal u, vmask *
     *reflected = refl;
     *eta = e;
     return v3_sel(refract_dir(d, n, cos_i, cos_t, e), v3_reflect(d, n), refl);
+}
+
+// --- sampling a lobe --------------------------------------------------------------
+// Camera paths carry radiance, photons carry flux (pbrt's TransportMode):
+// radiance is scaled by 1/eta^2 across a refraction (pbrt, sec. 9.5.2),
+// flux is not.
+#define TRANSPORT_RADIANCE 0
+#define TRANSPORT_IMPORTANCE 1
+
+typedef struct {
+    V3 wi;          // unit direction of the scattered ray
+    V3 weight;      // f cos / pdf of the chosen lobe, over the lobe's probability
+    vreal pdf;      // solid-angle pdf of wi under the whole non-delta mixture; 0 after a delta lobe
+    vmask chosen;   // a lobe was chosen (not absorbed; a Phong direction above the surface)
+    vmask delta;    // ... and it is the mirror or refraction
+    vmask up;       // wi leaves on the side of n (not refracted through)
+} BsdfSample;
+
+// A lobe of m chosen by Russian roulette over pr (u.lobe), and a direction
+// in it, at a vertex with shading normal n facing -d (front: d arrives from
+// outside). `alive` masks the lanes sampled. With nondelta 0 (a constant
+// where this is inlined: photons, which stop at the first non-delta vertex)
+// only the mirror and refraction are compiled.
+CLPT_INLINE BsdfSample bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask front, vmask alive, BsdfU u,
+                                   int mode, int nondelta)
+{
+    BsdfSample bs;
+    // --- Russian roulette over the lobes --------------------------------------
+    vreal c = u.lobe;
+    vmask is_d = c < pr.d;
+    vmask is_s = !is_d && c < pr.d + pr.s;
+    vmask is_r = !is_d && !is_s && c < pr.d + pr.s + pr.r;
+    vmask is_t = !is_d && !is_s && !is_r && c < pr.d + pr.s + pr.r + pr.t;
+    V3 wi = v3_reflect(d, n);
+    V3 w = v3_scale(m->kr, R(1) / pr.r);
+    bs.up = alive;
+    if (nondelta) {
+        // --- diffuse: cosine-weighted; f cos / pdf = kd ---------------------------
+        V3 lc = sample_cosine_hemisphere(u.u1, u.u2);
+        wi = frame_to_world(n, lc.x, lc.y, lc.z);
+        w = v3_scale(m->kd, R(1) / pr.d);
+#if CLPT_HAS_PHONG
+        // --- Phong lobe around the mirror direction --------------------------------
+        // f = ks (n+2)/(2 pi) cos^n(alpha), pdf = (n+1)/(2 pi) cos^n(alpha):
+        // f cos_i / pdf = ks (n+2)/(n+1) cos_i; directions below the surface are lost.
+        if (VANY(is_s)) {
+            V3 rdir = v3_reflect(d, n);
+            V3 ll = sample_phong_lobe(u.u1, u.u2, m->shininess);
+            V3 ws = frame_to_world(rdir, ll.x, ll.y, ll.z);
+            vreal cos_i = v3_dot(ws, n);
+            vreal k = (m->shininess + R(2)) / (m->shininess + R(1)) * fmax(cos_i, R(0)) / pr.s;
+            wi = v3_sel(wi, ws, is_s);
+            w = v3_sel(w, v3_scale(m->ks, k), is_s);
+            is_s = is_s && cos_i > R(0);
+        }
+#endif
+    }
+#if CLPT_HAS_MIRROR
+    // --- perfect mirror ------------------------------------------------------------
+    wi = v3_sel(wi, v3_reflect(d, n), is_r);
+    w = v3_sel(w, v3_scale(m->kr, R(1) / pr.r), is_r);
+#endif
+#if CLPT_HAS_GLASS
+    // --- dielectric: Fresnel picks reflection or refraction ----------------------
+    // eta = n_t / n_i: entering through the front face, or leaving through the back.
+    if (VANY(is_t)) {
+        vmask refl;
+        vreal eta;
+        V3 wt = dielectric_sample(d, n, front, m->ior, u.fresnel, &refl, &eta);
+        wi = v3_sel(wi, wt, is_t);
+        vreal k = mode == TRANSPORT_RADIANCE ? VSEL(R(1) / (eta * eta), (vreal)R(1), refl) / pr.t : R(1) / pr.t;
+        w = v3_sel(w, v3_scale(m->kt, k), is_t);
+        bs.up = bs.up && !(is_t && !refl);
+    }
+#endif
+    bs.chosen = is_d || is_s || is_r || is_t;
+    bs.delta = is_r || is_t;
+    bs.wi = v3_normalize(wi);
+    bs.weight = w;
+    // The pdf of the direction under the whole non-delta mixture (what light
+    // sampling's weight is measured against), not only the chosen lobe's.
+    bs.pdf = nondelta ? VSEL((vreal)R(0), bsdf_pdf(m, pr, d, n, bs.wi), is_d || is_s) : (vreal)R(0);
+    return bs;
 }

@@ -11,13 +11,14 @@
 // on a 64-byte boundary, so no node or leaf straddles more cache lines
 // than it fills.
 //
-// Two walks (CLPT_BVH_LANE_WALK chooses; README "BVH" has the measurements):
-//   packet (0)  all CLPT_LANES rays of the work-item walk the tree together
+// Two walks, and the hybrid of them is the default (CLPT_BVH_PACKETS = 1;
+// 0, every ray alone, is kept for `clpt bench-bvh --walks` to compare;
+// README "Meshes and the BVH" has the measurements):
+//   packet      all CLPT_LANES rays of the work-item walk the tree together
 //               where they are coherent (all active, one origin: camera
 //               rays), each child's box tested against every lane at once,
-//               a child entered if any lane enters it, the nearest first;
-//               other rays take the per-lane walk.
-//   per lane (1) each lane's ray walks alone with its own stack: a node's
+//               a child entered if any lane enters it, the nearest first.
+//   per lane    each lane's ray walks alone with its own stack: a node's
 //               8 boxes are tested against the one ray in one vector
 //               operation, and a leaf's 4 items likewise (Embree's way);
 //               the nearest child is entered first, the others pushed with
@@ -70,20 +71,26 @@ typedef uint bkeyel;
 #define BVH_I8(m) (m)
 #endif
 
-// Row `row` (8 reals) of the node or leaf block at record rec.
-inline breal8 bvh_row(const Scene *sc, uint rec, int row)
+// Field `field` (BVH_*: a row of 8 reals) of the node at record node.
+inline breal8 bvh_row(const Scene *sc, uint node, uint field)
 {
 #if CLPT_DOUBLE
-    return vload8(row, (SCENE_SPACE const double *)(sc->rec + rec));
+    return vload8(0, (__global const double *)(sc->rec + node + field));
 #else
-    return vload8(row, (SCENE_SPACE const float *)(sc->rec + rec));
+    return vload8(0, (__global const float *)(sc->rec + node + field));
 #endif
 }
 
-// Row `row` (BVHL_WIDTH reals) of a leaf block.
-inline lreal bvh_lrow(const Scene *sc, uint blk, int row)
+// Field `field` (BVHL_*: a row of BVHL_WIDTH reals, one per item) of a leaf block.
+inline lreal bvh_lrow(const Scene *sc, uint blk, uint field)
 {
-    return scene_rec(sc, blk + row);
+    return scene_rec(sc, blk + field);
+}
+
+// Item k's value of field `field` of a leaf block.
+inline real bvh_leaf_el(const Scene *sc, uint blk, uint field, int k)
+{
+    return ((__global const real *)(sc->rec + blk + field))[k];
 }
 
 inline real bvh_min4(real4 v)
@@ -114,17 +121,15 @@ inline vreal bvh_enter(real4 lo, real4 hi, V3 o, V3 inv, vreal tmax)
 }
 
 
-// Item k of the leaf block at blk as the PlanarRec rows p, n, wu, wv.
+// Item k of the leaf block at blk as the PLANAR rows p, n, wu, wv.
 inline void bvh_leaf_item(const Scene *sc, uint blk, int k, real4 *p, real4 *n, real4 *wu, real4 *wv)
 {
-    real4 r[16];
-#pragma unroll
-    for (int i = 0; i < 16; i++)
-        r[i] = bvh_lrow(sc, blk, i);
-    *p = (real4)(BVH_EL(r[0], k), BVH_EL(r[1], k), BVH_EL(r[2], k), BVH_EL(r[13], k));
-    *n = (real4)(BVH_EL(r[3], k), BVH_EL(r[4], k), BVH_EL(r[5], k), BVH_EL(r[14], k));
-    *wu = (real4)(BVH_EL(r[6], k), BVH_EL(r[7], k), BVH_EL(r[8], k), BVH_EL(r[15], k));
-    *wv = (real4)(BVH_EL(r[9], k), BVH_EL(r[10], k), BVH_EL(r[11], k), BVH_EL(r[12], k));
+#define LEAF_EL(f) bvh_leaf_el(sc, blk, f, k)
+    *p = (real4)(LEAF_EL(BVHL_PX), LEAF_EL(BVHL_PY), LEAF_EL(BVHL_PZ), LEAF_EL(BVHL_MAT));
+    *n = (real4)(LEAF_EL(BVHL_NX), LEAF_EL(BVHL_NY), LEAF_EL(BVHL_NZ), LEAF_EL(BVHL_LIGHT));
+    *wu = (real4)(LEAF_EL(BVHL_UX), LEAF_EL(BVHL_UY), LEAF_EL(BVHL_UZ), LEAF_EL(BVHL_PRIM));
+    *wv = (real4)(LEAF_EL(BVHL_VX), LEAF_EL(BVHL_VY), LEAF_EL(BVHL_VZ), LEAF_EL(BVHL_KIND));
+#undef LEAF_EL
 }
 
 // Item k of a leaf against every lane: its records and the hit distances
@@ -178,9 +183,9 @@ inline vmask bvh_leaf_occluded(const Scene *sc, uint blk, V3 o, V3 d, vreal tmax
 // and the hi plane for a negative one (neg): with no zero directions (bvh_safe_inv) the slab ends need no min/max to order them.
 INLINE_VEC3 breal8 bvh_node_enter1(const Scene *sc, uint node, real3 o, real3 inv, int3 neg, real tmax)
 {
-    breal8 lx = bvh_row(sc, node, 0), hx = bvh_row(sc, node, 1);
-    breal8 ly = bvh_row(sc, node, 2), hy = bvh_row(sc, node, 3);
-    breal8 lz = bvh_row(sc, node, 4), hz = bvh_row(sc, node, 5);
+    breal8 lx = bvh_row(sc, node, BVH_LO_X), hx = bvh_row(sc, node, BVH_HI_X);
+    breal8 ly = bvh_row(sc, node, BVH_LO_Y), hy = bvh_row(sc, node, BVH_HI_Y);
+    breal8 lz = bvh_row(sc, node, BVH_LO_Z), hz = bvh_row(sc, node, BVH_HI_Z);
     // Vector blends on the ray's (fixed) signs, not branches.
     bmask8 mx = (bmask8)(-neg.x), my = (bmask8)(-neg.y), mz = (bmask8)(-neg.z);
     breal8 nx = (select(lx, hx, mx) - o.x) * inv.x, fx = (select(hx, lx, mx) - o.x) * inv.x;
@@ -188,7 +193,7 @@ INLINE_VEC3 breal8 bvh_node_enter1(const Scene *sc, uint node, real3 o, real3 in
     breal8 nz = (select(lz, hz, mz) - o.z) * inv.z, fz = (select(hz, lz, mz) - o.z) * inv.z;
     breal8 tn = max(max(nx, ny), max(nz, (breal8)R(0)));
     breal8 tf = min(min(fx, fy), fz) * R(1 + 4 * REAL_EPS);
-    bmask8 hit = tn <= min(tf, (breal8)tmax) && bvh_row(sc, node, 7) >= R(0);
+    bmask8 hit = tn <= min(tf, (breal8)tmax) && bvh_row(sc, node, BVH_COUNT) >= R(0);
     return select((breal8)R(INFINITY), tn, hit);
 }
 
@@ -206,14 +211,14 @@ inline real bvh_safe_inv(real x)
 // Returns whether one was.
 INLINE_VEC3 int bvh_leaf1(const Scene *sc, uint blk, real3 o, real3 d, real *tmax, int *best, real *a_out, real *b_out)
 {
-    lreal px = bvh_lrow(sc, blk, 0), py = bvh_lrow(sc, blk, 1), pz = bvh_lrow(sc, blk, 2);
-    lreal nx = bvh_lrow(sc, blk, 3), ny = bvh_lrow(sc, blk, 4), nz = bvh_lrow(sc, blk, 5);
+    lreal px = bvh_lrow(sc, blk, BVHL_PX), py = bvh_lrow(sc, blk, BVHL_PY), pz = bvh_lrow(sc, blk, BVHL_PZ);
+    lreal nx = bvh_lrow(sc, blk, BVHL_NX), ny = bvh_lrow(sc, blk, BVHL_NY), nz = bvh_lrow(sc, blk, BVHL_NZ);
     lreal kind = bvh_lrow(sc, blk, BVHL_KIND);
     lreal opx = o.x - px, opy = o.y - py, opz = o.z - pz;
     lreal t = -(opx * nx + opy * ny + opz * nz) / (d.x * nx + d.y * ny + d.z * nz);
     lreal qx = mad((lreal)d.x, t, opx), qy = mad((lreal)d.y, t, opy), qz = mad((lreal)d.z, t, opz);
-    lreal a = qx * bvh_lrow(sc, blk, 6) + qy * bvh_lrow(sc, blk, 7) + qz * bvh_lrow(sc, blk, 8);
-    lreal b = qx * bvh_lrow(sc, blk, 9) + qy * bvh_lrow(sc, blk, 10) + qz * bvh_lrow(sc, blk, 11);
+    lreal a = qx * bvh_lrow(sc, blk, BVHL_UX) + qy * bvh_lrow(sc, blk, BVHL_UY) + qz * bvh_lrow(sc, blk, BVHL_UZ);
+    lreal b = qx * bvh_lrow(sc, blk, BVHL_VX) + qy * bvh_lrow(sc, blk, BVHL_VY) + qz * bvh_lrow(sc, blk, BVHL_VZ);
     lmask tri = kind >= R(0) || kind == (real)ITEM_FLAT_TRIANGLE;  // >= 0: a smooth triangle
     lmask in = a >= R(0) && b >= R(0) && ((tri && a + b <= R(1)) || (kind == (real)ITEM_QUAD && a <= R(1) && b <= R(1)));
     lreal tt = select((lreal)R(INFINITY), t, in && t > R(0));
@@ -274,7 +279,7 @@ INLINE_VEC3 int bvh_walk1(const Scene *sc, real3 o, real3 d, real tmax, int any,
             bkeyel kmin = min(k2.x, k2.y);
             if (kmin < BVH_KEY_INF) {
                 // Enter the nearest child; push the others hit.
-                breal8 ptr = bvh_row(sc, cur, 6), cnt = bvh_row(sc, cur, 7);
+                breal8 ptr = bvh_row(sc, cur, BVH_PTR), cnt = bvh_row(sc, cur, BVH_COUNT);
                 uint8 pk = convert_uint8(ptr) | (as_uint8(BVH_I8(cnt > R(0))) & (uint8)BVH_LEAF_BIT);
                 int8 hits = -BVH_I8(tn < R(INFINITY));
                 int kn = (int)(kmin & 7);
@@ -350,71 +355,80 @@ inline vmask bvh_lanes_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask o
 }
 
 // --- the packet walk: every lane against each child box ----------------------
-// LEAF(blk) tests a leaf block's items with the lanes' vector tests;
-// TMAX is the per-lane distance beyond which boxes are not entered (lanes
-// with nothing left to find have it at -1); DONE ends the walk early.
-#define BVH_PACKET_WALK(TMAX, LEAF, DONE)                                                           \
-    V3 inv = v3(R(1) / d.x, R(1) / d.y, R(1) / d.z);                                                \
-    uint stack[BVH_STACK];                                                                          \
-    real stack_t[BVH_STACK];                                                                        \
-    int sp = 0;                                                                                     \
-    uint cur = OFF_BVH;                                                                             \
-    for (;;) {                                                                                      \
-        int go = 0;                                                                                 \
-        if (cur & BVH_LEAF_BIT) {                                                                   \
-            LEAF(cur & ~BVH_LEAF_BIT);                                                              \
-            if (DONE) break;                                                                        \
-        } else {                                                                                    \
-            breal8 lx = bvh_row(sc, cur, 0), hx = bvh_row(sc, cur, 1), ly = bvh_row(sc, cur, 2);    \
-            breal8 hy = bvh_row(sc, cur, 3), lz = bvh_row(sc, cur, 4), hz = bvh_row(sc, cur, 5);    \
-            breal8 ptr = bvh_row(sc, cur, 6), cnt = bvh_row(sc, cur, 7);                            \
-            breal8 tk8;                                                                             \
-            _Pragma("unroll")                                                                       \
-            for (int k = 0; k < 8; k++) {                                                           \
-                real4 lo = (real4)(BVH_EL(lx, k), BVH_EL(ly, k), BVH_EL(lz, k), R(0));              \
-                real4 hi = (real4)(BVH_EL(hx, k), BVH_EL(hy, k), BVH_EL(hz, k), R(0));              \
-                vreal tk = bvh_enter(lo, hi, o, inv, TMAX);                                         \
-                BVH_EL(tk8, k) = BVH_EL(cnt, k) >= R(0) ? vmin_lane(tk) : R(INFINITY);           \
-            }                                                                                       \
-            real tmin = bvh_min8(tk8);                                                              \
-            if (tmin < R(INFINITY)) {                                                               \
-                int taken = 0;                                                                      \
-                uint next = 0;                                                                      \
-                _Pragma("unroll")                                                                   \
-                for (int k = 0; k < 8; k++) {                                                       \
-                    real tk = BVH_EL(tk8, k);                                                       \
-                    uint p = (uint)BVH_EL(ptr, k) | (BVH_EL(cnt, k) > R(0) ? BVH_LEAF_BIT : 0u);   \
-                    int near = !taken && tk == tmin;                                                \
-                    next = near ? p : next;                                                         \
-                    taken |= near;                                                                  \
-                    stack[sp] = p;                                                                  \
-                    stack_t[sp] = tk;                                                               \
-                    sp += !near && tk < R(INFINITY);                                                \
-                }                                                                                   \
-                cur = next;                                                                         \
-                go = 1;                                                                             \
-            }                                                                                       \
-        }                                                                                           \
-        if (!go) {                                                                                  \
-            if (sp == 0) break;                                                                     \
-            cur = stack[--sp];                                                                      \
-        }                                                                                           \
+// One walk for both queries (any: a constant where it is inlined). The
+// closest hit (any = 0) tests leaves with the lanes' vector tests into *h and
+// enters boxes nearer than h->t; any hit (any = 1) or's the lanes a leaf
+// blocks before tmax into *occ, enters boxes only for lanes still open
+// (settled lanes take tmax -1) and ends once every lane is settled.
+CLPT_INLINE void bvh_packet_walk(const Scene *sc, V3 o, V3 d, int any, Hit *h, vreal tmax, vmask *occ)
+{
+    V3 inv = v3(R(1) / d.x, R(1) / d.y, R(1) / d.z);
+    vreal open_tmax = any ? VSEL(tmax, (vreal)R(-1), *occ) : tmax;
+    uint stack[BVH_STACK];
+    real stack_t[BVH_STACK];
+    int sp = 0;
+    uint cur = OFF_BVH;
+    for (;;) {
+        int go = 0;
+        if (cur & BVH_LEAF_BIT) {
+            uint blk = cur & ~BVH_LEAF_BIT;
+            if (any) {
+                *occ = bvh_leaf_occluded(sc, blk, o, d, tmax, *occ);
+                open_tmax = VSEL(tmax, (vreal)R(-1), *occ);
+                if (VALL(*occ))
+                    break;
+            } else {
+                bvh_leaf_closest(sc, blk, o, d, h);
+            }
+        } else {
+            breal8 lx = bvh_row(sc, cur, BVH_LO_X), hx = bvh_row(sc, cur, BVH_HI_X);
+            breal8 ly = bvh_row(sc, cur, BVH_LO_Y), hy = bvh_row(sc, cur, BVH_HI_Y);
+            breal8 lz = bvh_row(sc, cur, BVH_LO_Z), hz = bvh_row(sc, cur, BVH_HI_Z);
+            breal8 ptr = bvh_row(sc, cur, BVH_PTR), cnt = bvh_row(sc, cur, BVH_COUNT);
+            breal8 tk8;
+#pragma unroll
+            for (int k = 0; k < 8; k++) {
+                real4 lo = (real4)(BVH_EL(lx, k), BVH_EL(ly, k), BVH_EL(lz, k), R(0));
+                real4 hi = (real4)(BVH_EL(hx, k), BVH_EL(hy, k), BVH_EL(hz, k), R(0));
+                vreal tk = bvh_enter(lo, hi, o, inv, any ? open_tmax : h->t);
+                BVH_EL(tk8, k) = BVH_EL(cnt, k) >= R(0) ? vmin_lane(tk) : R(INFINITY);
+            }
+            real tmin = bvh_min8(tk8);
+            if (tmin < R(INFINITY)) {
+                int taken = 0;
+                uint next = 0;
+#pragma unroll
+                for (int k = 0; k < 8; k++) {
+                    real tk = BVH_EL(tk8, k);
+                    uint p = (uint)BVH_EL(ptr, k) | (BVH_EL(cnt, k) > R(0) ? BVH_LEAF_BIT : 0u);
+                    int near = !taken && tk == tmin;
+                    next = near ? p : next;
+                    taken |= near;
+                    stack[sp] = p;
+                    stack_t[sp] = tk;
+                    sp += !near && tk < R(INFINITY);
+                }
+                cur = next;
+                go = 1;
+            }
+        }
+        if (!go) {
+            if (sp == 0)
+                break;
+            cur = stack[--sp];
+        }
     }
+}
 
 inline void bvh_packet_closest(const Scene *sc, V3 o, V3 d, Hit *h)
 {
-#define BVH_LEAF_CLOSEST(blk) bvh_leaf_closest(sc, blk, o, d, h)
-    BVH_PACKET_WALK(h->t, BVH_LEAF_CLOSEST, 0)
-#undef BVH_LEAF_CLOSEST
+    vmask none = (vreal)R(0) != (vreal)R(0);
+    bvh_packet_walk(sc, o, d, 0, h, (vreal)R(0), &none);
 }
 
 inline vmask bvh_packet_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
 {
-    vreal tm = VSEL(tmax, (vreal)R(-1), occ);
-#define BVH_LEAF_OCCLUDED(blk) \
-    do { occ = bvh_leaf_occluded(sc, blk, o, d, tmax, occ); tm = VSEL(tmax, (vreal)R(-1), occ); } while (0)
-    BVH_PACKET_WALK(tm, BVH_LEAF_OCCLUDED, VALL(occ))
-#undef BVH_LEAF_OCCLUDED
+    bvh_packet_walk(sc, o, d, 1, 0, tmax, &occ);
     return occ;
 }
 
@@ -433,7 +447,7 @@ inline int bvh_coherent(V3 o, vmask active)
 // Closest hits of the active lanes (the others' h is left as it is).
 void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h, vmask active)
 {
-#if !CLPT_BVH_LANE_WALK
+#if CLPT_BVH_PACKETS
     if (bvh_coherent(o, active)) {
         bvh_packet_closest(sc, o, d, h);
         return;
@@ -446,7 +460,7 @@ void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h, vmask active)
 
 vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ)
 {
-#if !CLPT_BVH_LANE_WALK
+#if CLPT_BVH_PACKETS
     if (bvh_coherent(o, !occ))
         return bvh_packet_occluded(sc, o, d, tmax, occ);
 #endif

@@ -2,13 +2,9 @@
 // as 0 or 1 (or a count), tested with #if. A missing flag is a build error
 // here rather than a silently disabled feature.
 
-
-#if !defined(CLPT_TILE_W)
-#error "clpt: CLPT_TILE_W must be defined (1: lanes take a row of pixels)"
-#endif
 #if !defined(CLPT_LANES) || !defined(CLPT_DOUBLE) || !defined(CLPT_ACCUM_DOUBLE) || !defined(CLPT_GENERIC) \
-    || !defined(CLPT_BAKED) || !defined(CLPT_NEE)
-#error "clpt: CLPT_LANES, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC, CLPT_BAKED and CLPT_NEE must be defined"
+    || !defined(CLPT_NEE)
+#error "clpt: CLPT_LANES, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC and CLPT_NEE must be defined"
 #endif
 #if CLPT_DOUBLE && !CLPT_ACCUM_DOUBLE
 #error "clpt: double-precision kernels accumulate in double"
@@ -26,8 +22,8 @@
 #if !defined(CLPT_LUMA_R) || !defined(CLPT_OFFSET_REL_FLOAT)
 #error "clpt: the generated constants (clpt/constants.py) must come first"
 #endif
-#if !defined(CLPT_HAS_BVH) || !defined(CLPT_HAS_SMOOTH) || !defined(CLPT_BVH_LANE_WALK)
-#error "clpt: CLPT_HAS_BVH, CLPT_HAS_SMOOTH and CLPT_BVH_LANE_WALK must be defined"
+#if !defined(CLPT_HAS_BVH) || !defined(CLPT_HAS_SMOOTH) || !defined(CLPT_BVH_PACKETS)
+#error "clpt: CLPT_HAS_BVH, CLPT_HAS_SMOOTH and CLPT_BVH_PACKETS must be defined"
 #endif
 #if !defined(CLPT_PHOTONS) || !defined(CLPT_AUX)
 #error "clpt: CLPT_PHOTONS and CLPT_AUX must be defined"
@@ -36,10 +32,4 @@
     || !defined(CLPT_NUM_TRIANGLES) || !defined(CLPT_NUM_PLANES) || !defined(CLPT_NUM_LIGHTS) \
     || !defined(CLPT_NUM_CAUSTICS) || !defined(CLPT_NUM_NODES))
 #error "clpt: a specialized build needs every CLPT_NUM_* count"
-#endif
-
-#if CLPT_BAKED
-#define SCENE_SPACE __constant
-#else
-#define SCENE_SPACE __global
 #endif

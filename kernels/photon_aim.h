@@ -14,6 +14,11 @@ typedef struct {
     vmask valid;
 } AimSample;
 
+inline real4 caster_sphere(const Scene *sc, uint j)
+{
+    return scene_rec(sc, OFF_CAUSTICS + CAUSTIC_STRIDE * j + CAUSTIC_SPHERE);
+}
+
 // Cone from y around caster obj's bounding sphere (the whole sphere of
 // directions, omc = 2, when y is inside it or the caster is unbounded), and
 // the caster's pick weight.
@@ -22,8 +27,7 @@ inline vreal caster_cone(real4 obj, V3 y, V3 n, vmask two_sided, uint aim_mode, 
     V3 dc = v3_sub(v3_splat(obj), y);
     vreal d2 = v3_dot(dc, dc);
     vmask full = (obj.w < R(0)) || d2 <= obj.w * obj.w;
-    vreal sin2 = fmin(obj.w * obj.w / d2, R(1));
-    *omc = VSEL(sin2 / (R(1) + vsafe_sqrt(R(1) - sin2)), (vreal)R(2), full);  // 1 - cos(theta_max)
+    *omc = VSEL(sphere_cone_omc(obj.w * obj.w, d2), (vreal)R(2), full);  // 1 - cos(theta_max)
     *axis = v3_scale(dc, vrsqrt(d2));
     if (aim_mode != 0)
         return (vreal)R(1);
@@ -45,7 +49,7 @@ inline vreal aim_pdf(const Scene *sc, V3 y, V3 n, vmask two_sided, uint aim_mode
     vreal omc;
     vreal total = (vreal)R(0), pdf = (vreal)R(0);
     for (uint j = 0; j < NUM_CAUSTICS; j++) {
-        vreal wj = caster_cone(scene_rec(sc, OFF_CAUSTICS + j), y, n, two_sided, aim_mode, &axis, &omc);
+        vreal wj = caster_cone(caster_sphere(sc, j), y, n, two_sided, aim_mode, &axis, &omc);
         vmask inside = omc >= R(2) || v3_dot(w, axis) >= R(1) - omc;
         total += wj;
         pdf += VSEL((vreal)R(0), wj * uniform_cone_pdf(omc), inside && wj > R(0));
@@ -61,13 +65,13 @@ inline AimSample aim_at_casters(const Scene *sc, V3 y, V3 n, vmask two_sided, ui
     vreal omc;
     vreal total = (vreal)R(0);
     for (uint j = 0; j < NUM_CAUSTICS; j++)
-        total += caster_cone(scene_rec(sc, OFF_CAUSTICS + j), y, n, two_sided, aim_mode, &axis, &omc);
+        total += caster_cone(caster_sphere(sc, j), y, n, two_sided, aim_mode, &axis, &omc);
     // Pick a caster by weight, and a direction uniform in its cone.
     vreal pick = u0 * total, acc = (vreal)R(0);
     vmask taken = total != total;
     a.w = v3_zero();
     for (uint j = 0; j < NUM_CAUSTICS; j++) {
-        vreal w = caster_cone(scene_rec(sc, OFF_CAUSTICS + j), y, n, two_sided, aim_mode, &axis, &omc);
+        vreal w = caster_cone(caster_sphere(sc, j), y, n, two_sided, aim_mode, &axis, &omc);
         acc += w;
         vmask sel = !taken && w > R(0) && (pick < acc || j + 1 == NUM_CAUSTICS);
         taken = taken || sel;
@@ -92,7 +96,7 @@ inline vreal light_photon_pdf(const Scene *sc, vreal light1, V3 y, V3 ng, V3 w, 
     for (uint i = 0; i < NUM_LIGHTS; i++) {
         vmask is = light1 == (real)(i + 1);
         if (!VANY(is)) continue;
-        real4 info = scene_rec(sc, OFF_LIGHTS + LIGHT_STRIDE * i + 4);  // area, pick probability, alias probability, material
+        real4 info = scene_rec(sc, OFF_LIGHTS + LIGHT_STRIDE * i + LIGHT_INFO);  // area, pick probability, ...
         p_area = VSEL(p_area, (vreal)(info.y / info.x), is);
     }
     vreal c = fabs(v3_dot(ng, w));

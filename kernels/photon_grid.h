@@ -57,10 +57,27 @@ typedef struct {
     uint max_photons;             // most photons a gather uses (the paper's cap)
     uint budget;                  // most photons visited per row of cells (subsampled above)
     real radius, inv_cell, cone_k;
-    real mis_k;                   // pi r^2 N photons: the merge's pdf is pf cos mis_k (trace.cl)
+    real mis_k;                   // pi r^2 N photons: the merge's pdf is pf cos mis_k (path.h)
     __global const uint *occ;     // occupancy bits (grid.cl photon_occupancy)
     uint occ_mask;                // bits in the table - 1
 } PhotonMap;
+
+// The photon map of a launch: its buffers and the launch record's settings.
+// The offline pre-pass gathers only a few times per pixel: subsampling noise
+// would not average out there, so the host gives it an unbounded budget.
+inline PhotonMap photon_map_make(const PhotonLookup *pl, __global const float4 *pos, __global const float4 *dir,
+                                 __global const float4 *pow, __global const uint *bucket_start,
+                                 __global const uint *occ)
+{
+    PhotonMap pm;
+    pm.pos = pos; pm.dir = dir; pm.pow = pow;
+    pm.bucket_start = bucket_start;
+    pm.mask = pl->mask; pm.max_photons = pl->max_photons; pm.budget = pl->budget;
+    pm.radius = pl->radius; pm.inv_cell = pl->inv_cell; pm.cone_k = pl->cone_k;
+    pm.mis_k = pl->mis_k;
+    pm.occ = occ; pm.occ_mask = pl->occ_mask;
+    return pm;
+}
 
 #if CLPT_LANES == 1
 #define VAS_UINT(x) as_uint(x)

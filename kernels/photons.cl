@@ -1,53 +1,52 @@
 // photons.cl: trace_photons, the caustic photon pass.
 //
-// Each photon leaves a light (picked by power, a point uniform by area) in a
-// direction aimed at the caustic casters (purely specular objects, scene
-// records after the lights: bounding sphere centre and radius, radius < 0
-// for an unbounded one). aim_mode 0 picks a caster in proportion to the solid
-// angle of its bounding cone weighted by the largest cosine at the light
-// inside it; aim_mode 1 picks casters equally, as in the paper. The direction
-// is uniform in the chosen cone, and its pdf is the mixture over every cone
-// that contains it, so the photons' flux stays unbiased either way:
+// Each photon leaves a light (lights.h: picked by power, a point uniform by
+// area) in a direction aimed at the caustic casters (photon_aim.h: purely
+// specular objects, scene records after the lights: bounding sphere centre
+// and radius, radius < 0 for an unbounded one). aim_mode 0 picks a caster in
+// proportion to the solid angle of its bounding cone weighted by the largest
+// cosine at the light inside it; aim_mode 1 picks casters equally, as in the
+// paper. The direction is uniform in the chosen cone, and its pdf is the
+// mixture over every cone that contains it, so the photons' flux stays
+// unbiased either way:
 //   flux = Le |cos| / (pdf_area pdf_sa) / n_emit.
 // Photons follow mirror/refraction choices by Russian roulette over kr, kt
-// and absorption, and are stored at the first surface with a diffuse or
-// Phong part after at least one specular bounce (L S+ D), then stop.
+// and absorption (bsdf.h bsdf_sample, the lobes camera paths sample), and are
+// stored at the first surface with a diffuse or Phong part after at least
+// one specular bounce (L S+ D), then stop. Random numbers: sampler.h.
 //
 // Launch: one work-item per CLPT_LANES photons (index gid * CLPT_LANES +
 // lane); any local size. Photon i is written to slot i, stored or not
 // (pos.w > 0 marks a stored one), so the result does not depend on timing.
-// Buffers: scene in; ph_pos (xyz, specular bounces), ph_dir (direction of
-// travel, light-side pdf factor pf), ph_pow (flux) out; n_stored in/out (atomic).
+// Buffers: scene, launch (clpt/layout.py PhotonLaunch) in; ph_pos (xyz,
+// specular bounces), ph_dir (direction of travel, light-side pdf factor pf),
+// ph_pow (flux) out; n_stored in/out (atomic).
 
 #define PHOTON_MAX_BOUNCES 64
-#define PHOTON_SEED_SALT 0x5bd1e995u
 
-__kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_abs, uint seed, uint n_emit,
-                            uint aim_mode, __global float4 *ph_pos, __global float4 *ph_dir, __global float4 *ph_pow,
-                            __global uint *n_stored)
+__kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch *launch, __global float4 *ph_pos,
+                            __global float4 *ph_dir, __global float4 *ph_pow, __global uint *n_stored)
 {
-    Scene scd = scene_make(scene, counts, eps_abs);
+    const PhotonLaunch L = *launch;
+    Scene scd = scene_make(scene, L.scene);
     const Scene *sc = &scd;
 
     uint gid = get_global_id(0);
-    vuint idx = (vuint)(gid * CLPT_LANES) + VLANE_IDS;
     uint first = gid * CLPT_LANES;
-    vmask live = VREAL(VLANE_IDS) < (real)(first < n_emit ? min(n_emit - first, (uint)CLPT_LANES) : 0u);
-    uint pseed = seed ^ PHOTON_SEED_SALT;  // photon streams apart from the camera's
-    vuint zero_u = (vuint)0u;
+    vmask live = VREAL(VLANE_IDS) < (real)(first < L.n_emit ? min(L.n_emit - first, (uint)CLPT_LANES) : 0u);
+    PhotonSampler sp = photon_sampler_make(L.seed, (vuint)first + VLANE_IDS);
 
     // --- emission ---------------------------------------------------------------
-    Rand4 r0 = rng_uniform4(pseed, idx, zero_u, zero_u);
-    Rand4 r1 = rng_uniform4(pseed, idx, zero_u, zero_u + 1u);
-    LightPoint lp = light_sample_point(sc, r0.a, r0.b, r0.c);
-    AimSample aim = aim_at_casters(sc, lp.p, lp.n, lp.two_sided, aim_mode, r0.d, r1.a, r1.b);
+    EmitU ue = sample_photon_emission(&sp);
+    LightSample lp = light_sample(sc, v3_zero(), ue.light, 0);
+    AimSample aim = aim_at_casters(sc, lp.p, lp.n, lp.two_sided, L.aim, ue.caster, ue.u1, ue.u2);
     vreal cos_y = v3_dot(aim.w, lp.n);
     vmask emits = cos_y > R(0) || (lp.two_sided && cos_y < R(0));
     live = live && aim.valid && emits && lp.pdf_area > R(0);
     // pf = p_area p_dir / |cos|, the light-side pdf factor of the photon's
     // multiple-importance weight (photon_aim.h); flux = Le / (pf n_emit).
     vreal pf = lp.pdf_area * aim.pdf / fabs(cos_y);
-    vreal k = R(1) / (pf * (real)n_emit);
+    vreal k = R(1) / (pf * (real)L.n_emit);
     V3 flux = v3_scale(lp.Le, VSEL((vreal)R(0), k, live));
     V3 o = offset_origin(sc, lp.p, v3_sel(v3_neg(lp.n), lp.n, cos_y > R(0)), lp.err);
     V3 d = aim.w;
@@ -75,28 +74,14 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
         V3 n = v3_sel(v3_neg(h.ng), h.ng, front);
         V3 ng_side = n;
         n = hit_shading_normal(sc, &h, ng_side);
-        Rand4 rb = rng_uniform4(pseed, idx, zero_u, zero_u + (2u + b));
-        // Russian roulette over the delta lobes; absorption takes the rest.
-        vmask is_r = rb.a < m.p_r;
-        vmask is_t = !is_r && rb.a < m.p_r + m.p_t;
-        V3 wi = v3_reflect(d, n);
-        V3 w = v3_scale(m.kr, R(1) / m.p_r);
-        vmask up = live;
-#if CLPT_HAS_GLASS
-        if (VANY(is_t)) {
-            vmask refl;
-            vreal eta;
-            V3 wt = dielectric_sample(d, n, front, m.ior, rb.b, &refl, &eta);
-            wi = v3_sel(wi, wt, is_t);
-            w = v3_sel(w, v3_scale(m.kt, R(1) / m.p_t), is_t);  // flux does not scale with eta^2
-            up = up && !(is_t && !refl);
-        }
-#endif
-        live = live && (is_r || is_t);
-        flux = v3_sel(flux, v3_mul(flux, w), live);
-        V3 wn = v3_normalize(wi);
-        o = v3_sel(o, offset_scattered(sc, x, v3_sel(v3_neg(n), n, up), wn, h.err), live);
-        d = v3_sel(d, wn, live);
+        // Russian roulette over the delta lobes, absorption always allowed;
+        // flux, not radiance, crosses a refraction.
+        BsdfSample bs = bsdf_sample(&m, lobe_probs(&m, live && !live), d, n, front, live,
+                                    sample_photon_bounce(&sp, b), TRANSPORT_IMPORTANCE, 0);
+        live = live && bs.chosen;
+        flux = v3_sel(flux, v3_mul(flux, bs.weight), live);
+        o = v3_sel(o, offset_scattered(sc, x, v3_sel(v3_neg(n), n, bs.up), bs.wi, h.err), live);
+        d = v3_sel(d, bs.wi, live);
         keep_geometric_side(sc, &o, &d, x, n, ng_side, live && h.nrm >= R(0), h.err);
         bounces = bounces + R(1);
     }
@@ -105,7 +90,7 @@ __kernel void trace_photons(__global const real4 *scene, uint8 counts, real eps_
     atomic_add(n_stored, vpopcount(stored));
     for (int l = 0; l < CLPT_LANES; l++) {
         uint i = first + l;
-        if (i >= n_emit)
+        if (i >= L.n_emit)
             break;
         int st = VLANE_M(stored, l) != 0;
         ph_pos[i] = (float4)(VLANE_R(s_pos.x, l), VLANE_R(s_pos.y, l), VLANE_R(s_pos.z, l),

@@ -67,6 +67,14 @@ inline V3 sample_uniform_cone(vreal u1, vreal u2, vreal omc)
     return spherical_local(R(1) - k, vsafe_sqrt(k * (R(2) - k)), u2);
 }
 inline vreal uniform_cone_pdf(vreal omc) { return R(0.5 * M_1_PI) / omc; }
+// 1 - cos(theta_max) of the cone a sphere of squared radius r2 subtends from
+// squared distance d2 to its centre, without cancellation for small cones
+// (1 at and inside the sphere).
+inline vreal sphere_cone_omc(real r2, vreal d2)
+{
+    vreal sin2 = fmin(r2 / d2, R(1));
+    return sin2 / (R(1) + vsafe_sqrt(R(1) - sin2));
+}
 
 // --- uniform point on a triangle, as barycentrics (b1, b2) of edges e1, e2 --
 inline void sample_uniform_triangle(vreal u1, vreal u2, vreal *b1, vreal *b2)

@@ -1,15 +1,17 @@
 // scene.h: the packed scene and ray queries against it.
 //
-// The scene is one array of real4 records (float4, or double4 when
+// The scene is one array of real4 rows (float4, or double4 when
 // CLPT_DOUBLE), in sections whose order clpt/pack.py defines and whose
-// records clpt/layout.py defines (its generated typedefs and *_STRIDE /
-// field constants are stitched in before this file):
-//   materials  MaterialRec     spheres  SphereRec    quads, triangles  PlanarRec
-//   planes     PlaneRec        lights   LightRec     caustics  CausticRec
-//   then, when the scene has a BVH (NUM_NODES > 0): BVH nodes (BvhNode),
-//   leaf blocks (BvhLeaf: their items' PlanarRec fields, spheres among them),
-//   vertex normals (NormalsRec)
-//   and mesh-light triangles (LightTriRec); pointers into these are absolute
+// records clpt/layout.py defines (its generated <PREFIX>_STRIDE and
+// <PREFIX>_<FIELD> row constants are stitched in before this file; a field
+// is always read by its constant, scene_rec(sc, r + LIGHT_INFO), never at a
+// number):
+//   materials  MAT_*       spheres  SPHERE_*    quads, triangles  PLANAR_*
+//   planes     PLANE_*     lights   LIGHT_*     caustics  CAUSTIC_*
+//   then, when the scene has a BVH (NUM_NODES > 0): BVH nodes (BVH_*),
+//   leaf blocks (BVHL_*: their items' PLANAR fields, spheres among them),
+//   vertex normals (NORMALS_*)
+//   and mesh-light triangles (LTRI_*); pointers into these are absolute
 //   record indices stored as reals.
 // Caustics are bounding spheres (centre.xyz, radius; radius < 0 if
 // unbounded) of each purely specular object, for aiming photons.
@@ -19,7 +21,8 @@
 // Material ids are small integers stored as floats (exact below 2^24).
 //
 // Section sizes come from CLPT_NUM_* (specialized builds: loops with compile-
-// time trip counts) or, when CLPT_GENERIC, from the Scene counts at run time.
+// time trip counts) or, when CLPT_GENERIC, from the launch's SceneInfo at run
+// time.
 
 #define LIGHT_KIND_QUAD KIND_QUAD
 #define LIGHT_KIND_TRIANGLE KIND_TRIANGLE
@@ -27,20 +30,19 @@
 #define LIGHT_KIND_MESH KIND_MESH
 
 typedef struct {
-    SCENE_SPACE const real4 *rec;
-    uint n_materials, n_spheres, n_quads, n_triangles, n_planes, n_lights, n_caustics, n_nodes;
-    real eps_abs;  // absolute part of the ray-origin offset (scene size * k eps)
+    __global const real4 *rec;
+    SceneInfo info;  // section sizes; eps_abs: the absolute part of the ray-origin offset
 } Scene;
 
 #if CLPT_GENERIC
-#define NUM_MATERIALS (sc->n_materials)
-#define NUM_SPHERES (sc->n_spheres)
-#define NUM_QUADS (sc->n_quads)
-#define NUM_TRIANGLES (sc->n_triangles)
-#define NUM_PLANES (sc->n_planes)
-#define NUM_LIGHTS (sc->n_lights)
-#define NUM_CAUSTICS (sc->n_caustics)
-#define NUM_NODES (sc->n_nodes)
+#define NUM_MATERIALS (sc->info.materials)
+#define NUM_SPHERES (sc->info.spheres)
+#define NUM_QUADS (sc->info.quads)
+#define NUM_TRIANGLES (sc->info.triangles)
+#define NUM_PLANES (sc->info.planes)
+#define NUM_LIGHTS (sc->info.lights)
+#define NUM_CAUSTICS (sc->info.caustics)
+#define NUM_NODES (sc->info.nodes)
 #else
 #define NUM_MATERIALS CLPT_NUM_MATERIALS
 #define NUM_SPHERES CLPT_NUM_SPHERES
@@ -63,20 +65,12 @@ typedef struct {
 
 inline real4 scene_rec(const Scene *sc, uint i) { return sc->rec[i]; }
 
-// The scene a kernel reads: its records (the baked constants, or the buffer)
-// and the section sizes (counts: materials, spheres, quads, triangles,
-// planes, lights, caustic casters, BVH nodes).
-inline Scene scene_make(__global const real4 *records, uint8 counts, real eps_abs)
+// The scene a kernel reads: its records and the launch's SceneInfo.
+inline Scene scene_make(__global const real4 *records, SceneInfo info)
 {
     Scene s;
-#if CLPT_BAKED
-    s.rec = clpt_scene;
-#else
     s.rec = records;
-#endif
-    s.n_materials = counts.s0; s.n_spheres = counts.s1; s.n_quads = counts.s2; s.n_triangles = counts.s3;
-    s.n_planes = counts.s4; s.n_lights = counts.s5; s.n_caustics = counts.s6; s.n_nodes = counts.s7;
-    s.eps_abs = eps_abs;
+    s.info = info;
     return s;
 }
 
@@ -100,7 +94,7 @@ inline real max_abs4(real4 p) { return fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z)
 
 inline vreal offset_distance(const Scene *sc, V3 p, vreal err)
 {
-    return (max_abs3(p) + err) * OFFSET_REL + sc->eps_abs;
+    return (max_abs3(p) + err) * OFFSET_REL + sc->info.eps_abs;
 }
 
 inline V3 offset_origin(const Scene *sc, V3 p, V3 n_side, vreal err)
@@ -145,19 +139,9 @@ inline vreal intersect_planar_recs(real4 p, real4 n, real4 wu, real4 wv, V3 o, V
     return VSEL((vreal)R(INFINITY), t, in && t > R(0));
 }
 
-// The same, for the primitive at records i..i+3.
-inline vreal intersect_planar(const Scene *sc, uint i, V3 o, V3 d, int planar_tri, real4 *n_out)
+inline vreal intersect_plane(const Scene *sc, uint r, V3 o, V3 d)
 {
-    real4 n = scene_rec(sc, i + 1);
-    vreal a, b;
-    *n_out = n;
-    return intersect_planar_recs(scene_rec(sc, i), n, scene_rec(sc, i + 2), scene_rec(sc, i + 3), o, d, planar_tri,
-                                 &a, &b);
-}
-
-inline vreal intersect_plane(const Scene *sc, uint i, V3 o, V3 d)
-{
-    real4 p = scene_rec(sc, i), n = scene_rec(sc, i + 1);
+    real4 p = scene_rec(sc, r + PLANE_POINT_MAT), n = scene_rec(sc, r + PLANE_N);
     vreal t = -v3_dot4(v3_sub4(o, p), n) / v3_dot4(d, n);
     return VSEL((vreal)R(INFINITY), t, t > R(0));
 }
@@ -236,19 +220,6 @@ inline void hit_sphere(Hit *h, vreal t, vmask closer, real4 cr, V3 o, V3 d, real
     h->err = VSEL(h->err, (vreal)(max_abs4(cr) + cr.w), closer);
 }
 
-// Closest hit among the quads (tri = 0) or triangles (tri = 1) at records
-// off.., updating h where nearer.
-inline void closest_planar(const Scene *sc, uint off, uint count, int tri, V3 o, V3 d, Hit *h)
-{
-    for (uint i = 0; i < count; i++) {
-        uint r = off + PLANAR_STRIDE * i;
-        real4 p = scene_rec(sc, r), n = scene_rec(sc, r + 1), wu = scene_rec(sc, r + 2), wv = scene_rec(sc, r + 3);
-        vreal a, b;
-        vreal t = intersect_planar_recs(p, n, wu, wv, o, d, tri, &a, &b);
-        hit_planar(h, t, t < h->t, p, n, wu, wv, a, b);
-    }
-}
-
 // The BVH (bvh.h, after this file): closest hit and shadow queries over
 // every sphere, quad and triangle of scenes large enough to have one.
 #if CLPT_HAS_BVH
@@ -256,53 +227,106 @@ void bvh_closest(const Scene *sc, V3 o, V3 d, Hit *h, vmask active);
 vmask bvh_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask occ);
 #endif
 
-// Closest hits; lanes outside `active` may be left without one (the BVH
-// does not walk them).
-inline Hit scene_intersect_active(const Scene *sc, V3 o, V3 d, vmask active)
+// --- the walk over the scene's sections --------------------------------------------
+// One walk serves both queries: the closest hit (any = 0), taken into *h,
+// and any hit (any = 1): the lanes whose segment o + t d, 0 < t < tmax, is
+// blocked, returned, the walk ending early once every tested lane is. `any`
+// is a constant at both call sites, so each query compiles to its own plain
+// loops. Lanes outside `active` may be left without a hit (the BVH does not
+// walk them); untested lanes count as settled.
+
+// The quads (tri = 0) or triangles (tri = 1) of one section: rows off...
+CLPT_INLINE void walk_planar(const Scene *sc, uint off, uint count, int tri, V3 o, V3 d, vreal tmax, int any,
+                             Hit *h, vmask *occ)
 {
-    Hit h = hit_none();
+    for (uint i = 0; i < count; i++) {
+        uint r = off + PLANAR_STRIDE * i;
+        real4 p = scene_rec(sc, r + PLANAR_CORNER_MAT), n = scene_rec(sc, r + PLANAR_N_LIGHT);
+        real4 wu = scene_rec(sc, r + PLANAR_WU_PRIM), wv = scene_rec(sc, r + PLANAR_WV_KIND);
+        vreal a, b;
+        vreal t = intersect_planar_recs(p, n, wu, wv, o, d, tri, &a, &b);
+        if (any)
+            *occ = *occ || t < tmax;
+        else
+            hit_planar(h, t, t < h->t, p, n, wu, wv, a, b);
+    }
+}
+
+CLPT_INLINE vmask scene_walk(const Scene *sc, V3 o, V3 d, vreal tmax, vmask active, int any, Hit *h)
+{
+    vmask occ = !active;
 #if CLPT_HAS_SPHERES
     for (uint i = 0; i < NUM_SPHERES; i++) {
         uint r = OFF_SPHERES + SPHERE_STRIDE * i;
-        real4 cr = scene_rec(sc, r), sm = scene_rec(sc, r + 1);
+        real4 cr = scene_rec(sc, r + SPHERE_CENTER_RADIUS);
         vreal t = intersect_sphere(cr, o, d);
-        hit_sphere(&h, t, t < h.t, cr, o, d, sm.x, sm.y, sm.z);
+        if (any) {
+            occ = occ || t < tmax;
+        } else {
+            real4 sm = scene_rec(sc, r + SPHERE_MAT);
+            hit_sphere(h, t, t < h->t, cr, o, d, sm.x, sm.y, sm.z);
+        }
     }
+    if (any && VALL(occ)) return active;
 #endif
 #if CLPT_HAS_QUADS
-    closest_planar(sc, OFF_QUADS, NUM_QUADS, 0, o, d, &h);
+    walk_planar(sc, OFF_QUADS, NUM_QUADS, 0, o, d, tmax, any, h, &occ);
+    if (any && VALL(occ)) return active;
 #endif
 #if CLPT_HAS_TRIANGLES
-    closest_planar(sc, OFF_TRIANGLES, NUM_TRIANGLES, 1, o, d, &h);
+    walk_planar(sc, OFF_TRIANGLES, NUM_TRIANGLES, 1, o, d, tmax, any, h, &occ);
 #endif
 #if CLPT_HAS_BVH
-    if (NUM_NODES > 0)
-        bvh_closest(sc, o, d, &h, active);
+    if (NUM_NODES > 0) {
+        if (!any)
+            bvh_closest(sc, o, d, h, active);
+        else if (!VALL(occ))
+            occ = bvh_occluded(sc, o, d, tmax, occ);
+    }
 #endif
 #if CLPT_HAS_PLANES
     for (uint i = 0; i < NUM_PLANES; i++) {
         uint r = OFF_PLANES + PLANE_STRIDE * i;
         vreal t = intersect_plane(sc, r, o, d);
-        vmask closer = t < h.t;
-        real4 pn = scene_rec(sc, r + 1);
-        h.t = VSEL(h.t, t, closer);
-        h.ng = v3_sel4(h.ng, pn, closer);
-        h.mat = VSEL(h.mat, (vreal)scene_rec(sc, r).w, closer);
-        h.light = VSEL(h.light, (vreal)R(0), closer);
-        h.err = VSEL(h.err, (vreal)max_abs4(scene_rec(sc, r)), closer);
-        h.prim = VSEL(h.prim, (vreal)pn.w, closer);
-        h.bu = VSEL(h.bu, (vreal)R(0), closer);
-        h.bv = VSEL(h.bv, (vreal)R(0), closer);
-        h.nrm = VSEL(h.nrm, (vreal)R(-1), closer);
+        if (any) {
+            occ = occ || t < tmax;
+            continue;
+        }
+        vmask closer = t < h->t;
+        real4 pp = scene_rec(sc, r + PLANE_POINT_MAT), pn = scene_rec(sc, r + PLANE_N);
+        h->t = VSEL(h->t, t, closer);
+        h->ng = v3_sel4(h->ng, pn, closer);
+        h->mat = VSEL(h->mat, (vreal)pp.w, closer);
+        h->light = VSEL(h->light, (vreal)R(0), closer);
+        h->err = VSEL(h->err, (vreal)max_abs4(pp), closer);
+        h->prim = VSEL(h->prim, (vreal)pn.w, closer);
+        h->bu = VSEL(h->bu, (vreal)R(0), closer);
+        h->bv = VSEL(h->bv, (vreal)R(0), closer);
+        h->nrm = VSEL(h->nrm, (vreal)R(-1), closer);
     }
 #endif
-    h.err = h.err + max_abs3(o);
+    if (!any)
+        h->err = h->err + max_abs3(o);
+    return occ && active;
+}
+
+// Closest hits; lanes outside `active` may be left without one.
+inline Hit scene_intersect_active(const Scene *sc, V3 o, V3 d, vmask active)
+{
+    Hit h = hit_none();
+    scene_walk(sc, o, d, (vreal)R(0), active, 0, &h);
     return h;
 }
 
 inline Hit scene_intersect(const Scene *sc, V3 o, V3 d)
 {
     return scene_intersect_active(sc, o, d, (vreal)R(0) == (vreal)R(0));
+}
+
+// Mask of lanes (among `test`) whose segment o + t d, 0 < t < tmax, is blocked.
+inline vmask scene_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask test)
+{
+    return scene_walk(sc, o, d, tmax, test, 1, 0);
 }
 
 // --- shading normals -----------------------------------------------------------
@@ -322,7 +346,8 @@ inline V3 hit_shading_normal(const Scene *sc, const Hit *h, V3 n_side)
         if (k >= R(0)) {
             uint r = (uint)k;
             real a = VLANE_R(bu, l), b = VLANE_R(bv, l);
-            real4 s = (R(1) - a - b) * scene_rec(sc, r) + a * scene_rec(sc, r + 1) + b * scene_rec(sc, r + 2);
+            real4 s = (R(1) - a - b) * scene_rec(sc, r + NORMALS_N0) + a * scene_rec(sc, r + NORMALS_N1)
+                      + b * scene_rec(sc, r + NORMALS_N2);
             VLANE_R(ns.x, l) = s.x;
             VLANE_R(ns.y, l) = s.y;
             VLANE_R(ns.z, l) = s.z;
@@ -354,43 +379,6 @@ inline void keep_geometric_side(const Scene *sc, V3 *o, V3 *d, V3 x, V3 ns_side,
 #endif
 }
 
-// --- shadow rays -----------------------------------------------------------------
-// Mask of lanes (among `test`) whose segment o + t d, 0 < t < tmax, is blocked.
-// Stops early once every tested lane is known to be blocked.
-inline vmask scene_occluded(const Scene *sc, V3 o, V3 d, vreal tmax, vmask test)
-{
-    vmask occ = !test;  // untested lanes count as settled
-#if CLPT_HAS_SPHERES
-    for (uint i = 0; i < NUM_SPHERES; i++) {
-        vreal t = intersect_sphere(scene_rec(sc, OFF_SPHERES + SPHERE_STRIDE * i), o, d);
-        occ = occ || t < tmax;
-    }
-    if (VALL(occ)) return test;
-#endif
-#if CLPT_HAS_QUADS
-    for (uint i = 0; i < NUM_QUADS; i++) {
-        real4 n;
-        occ = occ || intersect_planar(sc, OFF_QUADS + PLANAR_STRIDE * i, o, d, 0, &n) < tmax;
-    }
-    if (VALL(occ)) return test;
-#endif
-#if CLPT_HAS_TRIANGLES
-    for (uint i = 0; i < NUM_TRIANGLES; i++) {
-        real4 n;
-        occ = occ || intersect_planar(sc, OFF_TRIANGLES + PLANAR_STRIDE * i, o, d, 1, &n) < tmax;
-    }
-#endif
-#if CLPT_HAS_PLANES
-    for (uint i = 0; i < NUM_PLANES; i++)
-        occ = occ || intersect_plane(sc, OFF_PLANES + PLANE_STRIDE * i, o, d) < tmax;
-#endif
-#if CLPT_HAS_BVH
-    if (NUM_NODES > 0 && !VALL(occ))
-        occ = bvh_occluded(sc, o, d, tmax, occ);
-#endif
-    return occ && test;
-}
-
 // --- materials -------------------------------------------------------------------
 typedef struct {
     V3 kd, ks, kr, kt, Le;
@@ -413,19 +401,19 @@ inline Material material_fetch(const Scene *sc, vreal id)
         uint r = MAT_STRIDE * i;
         vmask is = id == (real)i;
         if (!VANY(is)) continue;
-        real4 a = scene_rec(sc, r), f = scene_rec(sc, r + 4), g = scene_rec(sc, r + 5);
+        real4 a = scene_rec(sc, r + MAT_KD_PD), f = scene_rec(sc, r + MAT_LE_SIDES), g = scene_rec(sc, r + MAT_PARAMS);
         m.kd = v3_sel4(m.kd, a, is); m.p_d = VSEL(m.p_d, (vreal)a.w, is);
 #if CLPT_HAS_PHONG
-        real4 b = scene_rec(sc, r + 1);
+        real4 b = scene_rec(sc, r + MAT_KS_PS);
         m.ks = v3_sel4(m.ks, b, is); m.p_s = VSEL(m.p_s, (vreal)b.w, is);
         m.shininess = VSEL(m.shininess, (vreal)g.x, is);
 #endif
 #if CLPT_HAS_MIRROR
-        real4 c = scene_rec(sc, r + 2);
+        real4 c = scene_rec(sc, r + MAT_KR_PR);
         m.kr = v3_sel4(m.kr, c, is); m.p_r = VSEL(m.p_r, (vreal)c.w, is);
 #endif
 #if CLPT_HAS_GLASS
-        real4 e = scene_rec(sc, r + 3);
+        real4 e = scene_rec(sc, r + MAT_KT_PT);
         m.kt = v3_sel4(m.kt, e, is); m.p_t = VSEL(m.p_t, (vreal)e.w, is);
         m.ior = VSEL(m.ior, (vreal)g.y, is);
 #endif

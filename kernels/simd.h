@@ -123,6 +123,11 @@ inline uint vpopcount(vmask m)
 // compiler may decline in a large kernel: the generic build of a photon
 // scene called bvh_walk1 out of line and walked shuffled rays.
 #define INLINE_VEC3 inline __attribute__((always_inline))
+// Always inlined for another reason: a function with a constant mode
+// parameter (scene_walk's closest or any hit, bsdf_sample's transport mode)
+// becomes one plain function per mode only where it is inlined, and a path
+// event is one function for reading, not for the compiler to call.
+#define CLPT_INLINE inline __attribute__((always_inline))
 
 // --- three-component vectors of lanes (structure of arrays) ----------------
 typedef struct { vreal x, y, z; } V3;

@@ -40,14 +40,14 @@ def dctx(device_spec):
 class Probe:
     """The probe program for one lane width and precision."""
 
-    def __init__(self, dctx, lanes, double, accum_double=True, bvh_walk="packet"):
+    def __init__(self, dctx, lanes, double, accum_double=True, bvh_walk="hybrid"):
         self.dctx = dctx
         self.lanes = lanes
         self.real = np.float64 if double else np.float32
         feats = Features(lanes=lanes, double=double, accum_double=accum_double, mode="generic", bvh_walk=bvh_walk)
-        from clpt.layout import SCENE_RECORDS
+        from clpt.layout import launch_records
         fields = " ".join(f"PROBE_SIZE({r.name})" + "".join(f" PROBE_FIELD({r.name}, {f})" for f, _ in r.fields)
-                          for r in SCENE_RECORDS)
+                          for r in launch_records())
         src = program.stitch(["photons.cl", "grid.cl", "filter.cl", str(TESTS / "kernels" / "probes.cl")],
                              {"<probe record fields>": f"#define PROBE_RECORD_FIELDS {fields}\n"},
                              after=program.LIBRARY_FILES[-1])
@@ -81,18 +81,20 @@ class Probe:
         return [o[:n] for o in outs]
 
     def scene_args(self, packed):
-        import pyopencl.cltypes as clt
+        """The records and the SceneInfo (no offset floor) the probes take."""
+        from clpt.engine.launch import scene_info
         recs = np.ascontiguousarray(packed.records, dtype=self.real)
-        buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=recs)
-        c = packed.counts
-        return (buf, clt.make_uint8(c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]))
+        mf = cl.mem_flags
+        buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
+        info = np.ascontiguousarray(scene_info(packed.counts, 0.0, self.real == np.float64))
+        return (buf, cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=info))
 
 
 @pytest.fixture(scope="session")
 def probes(dctx):
     cache = {}
 
-    def get(lanes=1, double=False, accum_double=True, bvh_walk="packet"):
+    def get(lanes=1, double=False, accum_double=True, bvh_walk="hybrid"):
         key = (lanes, double, accum_double, bvh_walk)
         if key not in cache:
             cache[key] = Probe(dctx, lanes, double, accum_double, bvh_walk)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import clpt
-from clpt import bvh
+from clpt import bvh, layout
 from clpt.pack import pack_scene
 from meshgen import grid, uv_sphere
 
@@ -35,16 +35,15 @@ def _rays(packed_off, rng, n):
     o1 = rng.uniform(lo, hi, (n, 3))
     d1 = rng.normal(size=(n, 3))
     # Born on a primitive: a point of a random triangle of the plain loop's records.
-    k = _tri_offset(packed_off)
-    tris = packed_off.records[k:k + 4 * packed_off.count("triangles")].reshape(-1, 4, 4)
+    tris = packed_off.section("triangles")
     pick = rng.integers(0, len(tris), n)
     a, b = rng.uniform(size=(2, n))
     flip = a + b > 1
     a, b = np.where(flip, 1 - a, a), np.where(flip, 1 - b, b)
-    corner = tris[pick, 0, :3]
-    nrm = tris[pick, 1, :3]
+    corner = tris["corner_mat"][pick, :3]
+    nrm = tris["n_light"][pick, :3]
     # Recover the edges from the dual vectors: u, v solve [wu; wv; n] [u v n] = I.
-    m = np.stack([tris[pick, 2, :3], tris[pick, 3, :3], nrm], axis=1)
+    m = np.stack([tris["wu_prim"][pick, :3], tris["wv_kind"][pick, :3], nrm], axis=1)
     inv = np.linalg.inv(m)
     u, v = inv[:, :, 0], inv[:, :, 1]
     o2 = corner + a[:, None] * u + b[:, None] * v
@@ -57,17 +56,12 @@ def _rays(packed_off, rng, n):
     return o, d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def _tri_offset(p):
-    from clpt.pack import MAT_STRIDE, PLANAR_STRIDE, SPHERE_STRIDE
-    return MAT_STRIDE * p.count("materials") + SPHERE_STRIDE * p.count("spheres") + PLANAR_STRIDE * p.count("quads")
-
-
 def _query(probe, packed, o, d, tmax):
     args = probe.scene_args(packed)
     return probe.run("probe_hit", [o[:, 0], o[:, 1], o[:, 2], d[:, 0], d[:, 1], d[:, 2], tmax], 9, prefix=args)
 
 
-@pytest.mark.parametrize("method,walk", [("sah", "packet"), ("lbvh", "packet"), ("sah", "lane")])
+@pytest.mark.parametrize("method,walk", [("sah", "hybrid"), ("lbvh", "hybrid"), ("sah", "lane")])
 @pytest.mark.parametrize("lanes,double", [(1, False), (8, False), (8, True)])
 def test_bvh_equals_brute_force(probes, method, walk, lanes, double):
     scene = _scene()
@@ -164,10 +158,11 @@ def test_flatten_rounds_boxes_outwards():
     tree = bvh.build(lo, hi)
     wide = bvh.collapse(tree)
     recs, leaves = bvh.flatten(tree, wide, node_base=10, leaf_base=26, double=False)
-    assert recs.shape == (1, 16, 4)
-    rows = recs.reshape(8, 8)  # lo.x hi.x lo.y hi.y lo.z hi.z ptr count, one column a child
-    assert (rows[0:6:2, 0].astype(np.float32) <= lo[0]).all() and (rows[1:6:2, 0].astype(np.float32) >= hi[0]).all()
-    assert rows[6, 0] == 26 and rows[7, 0] == 1 and (rows[7, 1:] == -1).all()  # a leaf root, empty slots
+    assert recs.shape == (16, 4)
+    node = layout.BVH_NODE.view(recs)[0]  # one column a child
+    assert all(node[f"lo_{a}"][0].astype(np.float32) <= lo[0, k] for k, a in enumerate("xyz"))
+    assert all(node[f"hi_{a}"][0].astype(np.float32) >= hi[0, k] for k, a in enumerate("xyz"))
+    assert node["ptr"][0] == 26 and node["count"][0] == 1 and (node["count"][1:] == -1).all()  # a leaf root, empty slots
 
 
 @pytest.mark.parametrize("method", bvh.METHODS)

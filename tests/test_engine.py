@@ -15,7 +15,7 @@ from clpt.engine.accum import Accumulator
 from clpt.engine.driver import Driver, lane_group_max
 from clpt.engine.executors import LocalExecutor
 from clpt.engine.job import RenderJob, WorkItem
-from clpt.engine.launch import AUX_ARGS, PHOTON_ARGS, TRACE_ARGS
+from clpt.engine.launch import AUX_ARGS, PHOTON_ARGS, PHOTON_PASS_ARGS, TRACE_ARGS
 from clpt.engine.schedule import Schedule
 from clpt.photons import PhotonSettings
 from clpt.render import RenderStats
@@ -294,13 +294,20 @@ def test_lane_group_max():
 
 # --- trace_paths' arguments ---------------------------------------------------------------------------
 
-def test_trace_args_match_the_kernel_signature():
-    src = (kernel_dir() / "trace.cl").read_text()
-    sig = src[src.index("__kernel void trace_paths("):]
+def _kernel_params(file, kernel):
+    src = (kernel_dir() / file).read_text()
+    sig = src[src.index(f"__kernel void {kernel}("):]
     sig = sig[:sig.index(")\n{")]
     sig = re.sub(r"#if \w+|#endif", "", sig)
-    names = [re.findall(r"(\w+)\s*$", p.strip())[0] for p in sig[sig.index("(") + 1:].split(",") if p.strip()]
-    assert tuple(names) == TRACE_ARGS + AUX_ARGS + PHOTON_ARGS
+    return tuple(re.findall(r"(\w+)\s*$", p.strip())[0] for p in sig[sig.index("(") + 1:].split(",") if p.strip())
+
+
+def test_kernel_args_match_the_kernel_signatures():
+    """The host's argument lists are the kernels' parameters, in order; and
+    trace_paths keeps to at most 12 (everything by value is its launch record)."""
+    assert _kernel_params("trace.cl", "trace_paths") == TRACE_ARGS + AUX_ARGS + PHOTON_ARGS
+    assert len(TRACE_ARGS + AUX_ARGS + PHOTON_ARGS) <= 12
+    assert _kernel_params("photons.cl", "trace_photons") == PHOTON_PASS_ARGS
 
 
 class FlakyWorker(FakeWorker):

@@ -147,9 +147,9 @@ def assert_clean(rc, stderr, reports, what):
 # filter on (--denoise cone: filter_firefly, filter_cone). Oclgrind reports
 # a native float width of 1, so the plain cases run 1 lane in work-groups of
 # 16 (CLPT_TUNE=query); the variants add a GPU's work-groups of 64, PoCL's
-# 16 lanes (the vector code, the BVH's packet walk, 2-D tiles), the other
-# photon modes, photon maps rebuilt each sample with capped and subsampled
-# gathers, double precision, the generic and baked kernels, and adaptive
+# 16 lanes (the vector code, the BVH's packet walk, the per-lane walk alone),
+# the other photon modes, photon maps rebuilt each sample with capped and
+# subsampled gathers, double precision, the generic kernel, and adaptive
 # sampling's pixel lists.
 
 W, H, SPP = 7, 5, 2
@@ -169,7 +169,7 @@ def _cases():
         ("gpu-like", "mesh_glass_knot", ["--lanes", "1", "--local-size", "64"], {}, None),
         ("16-lanes", "cornell_box_caustics", ["--lanes", "16"], NO_OPT, None),
         ("16-lanes", "mesh_lights", ["--lanes", "16"], NO_OPT, None),
-        ("16-lanes-tiles-lane-walk", "mesh_lights", [], NO_OPT, {"lanes": 16, "tiles": True, "bvh_walk": "lane"}),
+        ("16-lanes-lane-walk", "mesh_lights", [], NO_OPT, {"lanes": 16, "bvh_walk": "lane"}),
         ("offline", "cornell_box_caustics", ["--photon-mode", "offline", "--offline-spp", "1", *FEW_PHOTONS], {},
          None),
         ("online", "cornell_box_caustics", ["--photon-mode", "online", *FEW_PHOTONS], {}, None),
@@ -178,19 +178,21 @@ def _cases():
          ["--spp", "3", "--spp-per-map", "1", "--photon-budget", "1", "--max-photons", "2"], {}, None),
         ("double", "cornell_box_caustics", ["--precision", "double"], {}, None),
         ("generic", "cornell_box_caustics", ["--kernel", "generic"], {}, None),
-        ("baked", "cornell_box_caustics", ["--kernel", "baked"], {}, None),
         ("adaptive", "cornell_box", ["--adaptive", "error", "--min-spp", "2", "--spp", "4"], {}, None),
     ]
     out += [pytest.param(scene, extra, env, api, id=f"{scene}-{name}") for name, scene, extra, env, api in variants]
     return out
 
 
-# Renderer options the command line does not have (tiles, the BVH walk): the API.
+# Renderer options the command line does not have (the BVH walk, an Experimental): the API.
 _API_RENDER = """
 import json
 import clpt
 from clpt.denoise import FilterSettings
+from clpt.features import Experimental
 scene, w, h, spp, kw = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), json.loads(sys.argv[5])
+if "bvh_walk" in kw:
+    kw["experimental"] = Experimental(bvh_walk=kw.pop("bvh_walk"))
 res = clpt.Renderer(scene, device="oclgrind", aux=True, **kw).render(spp, width=w, height=h, filter=FilterSettings())
 if res.filtered is None:
     sys.exit("no filtered image")

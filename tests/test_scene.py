@@ -163,7 +163,7 @@ def test_light_table_is_a_distribution():
     sc = parse(GOOD.replace('type = "sphere"\nmaterial = "white"',
                             'type = "sphere"\nmaterial = "white"\nemission = [1, 2, 3]'))
     p = pack_scene(sc)
-    lights = p.records[-5 * p.count("lights"):].reshape(-1, 5, 4)[:, 4]
+    lights = p.section("lights")["info"]  # area, pick probability, alias probability, material
     assert lights[:, 1].sum() == pytest.approx(1.0) and lights[-1, 2] == 1.0
     # power = pi * area * mean(Le) per emitting side: quad 1 x 4, sphere 4 pi 0.25 x 2
     pq, ps = math.pi * 1 * 4, math.pi * 4 * math.pi * 0.25 * 2

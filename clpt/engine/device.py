@@ -21,11 +21,11 @@ from ..denoise import ConeFilter
 from ..device import DeviceContext, DeviceError
 from ..features import Features, scene_features
 from ..pack import MAX_FLOAT_RECORDS, PackedScene, camera_frame
-from ..photons import PM_PREPASS, PhotonMap, PhotonSettings, counts_arg
+from ..photons import PM_OFF, PM_PREPASS, PhotonMap, PhotonSettings
 from ..scene import SceneError
 from .accum import Accumulator
 from .job import DeviceOptions, RenderJob, WorkItem, kernel_photons, photon_plan
-from .launch import launch_dtype, trace_args
+from .launch import RecordBuffer, fill_scene_info, trace_args, trace_record
 
 PREPASS_SEED_SALT = 0x2545F491
 
@@ -41,35 +41,22 @@ def device_features(dctx: DeviceContext, packed: PackedScene, opts: DeviceOption
     return scene_features(packed, lanes=lanes or opts.lanes,
                           double=opts.precision == "double", accum_double=acc_double or opts.precision == "double",
                           mode=opts.kernel, nee=opts.nee, photons=packed.has_caustics and opts.photons is not False,
-                          aux=opts.aux, tiles=opts.tiles, bvh_walk=opts.bvh_walk)
+                          aux=opts.aux, bvh_walk=opts.experimental.bvh_walk)
 
 
 def kernel_sources(packed: PackedScene | None, features: Features) -> list[str]:
-    """The stitched programs a scene's build compiles (without a baked scene's
-    records when packed is None): the path pass (and the filter), and for
-    scenes with caustic photons the photon pass and grid build apart, so that
-    the two build in parallel."""
-    generated = {}
-    if features.mode == "baked" and packed is not None:
-        generated["<baked scene>"] = baked_source(packed.records, features.double)
-    out = [program.stitch(["trace.cl"] + (["filter.cl"] if features.aux else []), generated)]
+    """The stitched programs a scene's build compiles: the path pass (and the
+    filter), and for scenes with caustic photons the photon pass and grid
+    build apart, so that the two build in parallel. (The source does not
+    depend on the packed scene, which only the build options describe.)"""
+    out = [program.stitch(["path.h", "trace.cl"] + (["filter.cl"] if features.aux else []))]
     if features.photons:
-        out.append(program.stitch(["photons.cl", "grid.cl"], generated))
+        out.append(program.stitch(["photons.cl", "grid.cl"]))
     return out
 
 
 def kernel_source(packed: PackedScene | None, features: Features) -> str:
     return "\n".join(kernel_sources(packed, features))
-
-
-def baked_source(records: np.ndarray, double: bool) -> str:
-    t = "double4" if double else "float4"
-    fmt = "%.17g" if double else "%.9g"
-    # Printed from the kernel's own precision: 9 digits give back exactly the
-    # float the buffer would hold (rounding the double's digits could miss it).
-    records = np.asarray(records, dtype=np.float64 if double else np.float32).astype(np.float64)
-    rows = ",\n".join(f"    ({t})({', '.join(fmt % v for v in r)})" for r in records) or f"    ({t})(0)"
-    return f"__constant real4 clpt_scene[{max(1, len(records))}] = {{\n{rows}\n}};\n"
 
 
 class _Sums:
@@ -127,7 +114,6 @@ class DeviceWorker:
         if recs.size == 0:
             recs = np.zeros((1, 4), dtype=real)
         self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
-        self.counts = counts_arg(packed.counts)
         self.eps_abs = OFFSET_FLOOR['double' if features.double else 'float']  # kernels/scene.h
         self.real = real
         sources = kernel_sources(packed, features)
@@ -141,7 +127,7 @@ class DeviceWorker:
             # at their first launch, here while the path pass is still compiling.
             prg, info = build(source)
             pmap = PhotonMap(dctx, prg, real)
-            pmap.build(self.scene_buf, self.counts, self.eps_abs, features.lanes, 0, PhotonSettings(count=1),
+            pmap.build(self.scene_buf, packed.counts, self.eps_abs, features.lanes, 0, PhotonSettings(count=1),
                        0.01 * max(packed.size, 1e-30))
             pmap.launches.clear()
             pmap.kernel_times.clear()
@@ -162,22 +148,18 @@ class DeviceWorker:
         self.build = program.BuildInfo(time.perf_counter() - t0, all(b.cache_hit for _, b in built),
                                        "+".join(b.key for _, b in built), built[0][1].options)
         self.kernel = cl.Kernel(self.program, "trace_paths")
+        self.launch = RecordBuffer(dctx, trace_record(features.double))
         self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
         self.launched = False
         self.filter = ConeFilter(dctx, self.program) if features.aux else None
-        self.aux = []
+        self.aux = None
         self.launches = {}
         self.kernel_times = {}  # kernel name -> device seconds of each launch since start()
         self.job = None
 
     # --- a job's buffers ------------------------------------------------------------
-    def _allocate(self, n_pix: int, caustic_buffer: bool, width: int | None = None):
-        lanes = self.features.lanes
-        groups = -(-n_pix // lanes)
-        tw = self.features.tile_width
-        if tw > 1:  # one work-item per tile (width None: one image row)
-            w = width or n_pix
-            groups = -(-w // tw) * -(-(n_pix // w) // (lanes // tw))
+    def _allocate(self, n_pix: int, caustic_buffer: bool):
+        groups = -(-n_pix // self.features.lanes)
         self.global_size = -(-groups // self.local) * self.local
         need = n_pix * 40 * (2 if caustic_buffer else 1) + self.global_size * 16 + n_pix * 64 * self.features.aux
         dev = self.dctx.device
@@ -190,9 +172,9 @@ class DeviceWorker:
             self.main = _Sums(self.dctx, n_pix, self.features.accum_double)
             self.caustic = _Sums(self.dctx, n_pix, self.features.accum_double) if caustic_buffer else None
             self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
-            self.list_buf = cl.Buffer(ctx, rw, 4)   # adaptive passes replace these
-            self.jobs_buf = cl.Buffer(ctx, rw, 16)
-            self.aux = [cl.Buffer(ctx, rw, n_pix * 16) for _ in range(4)] if self.features.aux else []
+            self.jobs_buf = cl.Buffer(ctx, rw, 16)  # adaptive passes replace it
+            # The feature sums: four planes of n_pix float4 (kernels/film.h VisibleSurface).
+            self.aux = cl.Buffer(ctx, rw, 4 * n_pix * 16) if self.features.aux else None
             self._zero_aux()
             q.finish()
         except cl.Error as e:
@@ -202,19 +184,19 @@ class DeviceWorker:
         self.n_pix = n_pix
 
     def _zero_aux(self):
-        for b in self.aux:
-            cl.enqueue_fill_buffer(self.dctx.queue, b, np.float32(0), 0, b.size)
+        if self.aux is not None:
+            cl.enqueue_fill_buffer(self.dctx.queue, self.aux, np.float32(0), 0, self.aux.size)
 
     def start(self, job: RenderJob, initial: Accumulator | None = None):
         """Get ready for a job: buffers for its image, zero sums (or `initial`)."""
         n_pix = job.n_pix
-        self._allocate(n_pix, caustic_buffer=job.offline, width=job.width)
+        self._allocate(n_pix, caustic_buffer=job.offline)
         frame = camera_frame(job.scene.camera, job.width, job.height, self.packed.length_scale)
-        rec = np.zeros((), dtype=launch_dtype(self.features.double))
-        rec["counts"] = list(self.packed.counts) + [0] * (8 - len(self.packed.counts))
-        rec["eps_abs"], rec["lum_scale"] = self.eps_abs, self.packed.lum_scale
+        rec = trace_record(self.features.double)
+        fill_scene_info(rec["scene"], self.packed.counts, self.eps_abs)
+        rec["lum_scale"] = self.packed.lum_scale
         for k in ("origin", "corner", "dx", "dy"):
-            rec["cam_o" if k == "origin" else k] = (*getattr(frame, k), 0)
+            rec["camera"][k] = (*getattr(frame, k), 0)
         rec["width"], rec["height"] = job.width, job.height
         rec["max_depth"], rec["rr_depth"] = min(job.max_depth, 2**31), min(job.rr_depth, 2**31)
         rec["aux_specular"] = int(job.aux_specular == "surface")
@@ -228,7 +210,7 @@ class DeviceWorker:
 
     # --- photon maps --------------------------------------------------------------------
     def build_photons(self, seed: int, settings: PhotonSettings, radius: float, mode: int):
-        info = self.pmap.build(self.scene_buf, self.counts, self.eps_abs, self.features.lanes, seed, settings,
+        info = self.pmap.build(self.scene_buf, self.packed.counts, self.eps_abs, self.features.lanes, seed, settings,
                                radius)
         self.pm_settings = settings
         self.pm_mode = mode
@@ -270,21 +252,20 @@ class DeviceWorker:
                 self.stats_buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_WRITE, global_size * 16)
                 self.stats_host = np.empty((global_size, 4), dtype=np.uint32)
             mf = cl.mem_flags
-            self.list_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                                      hostbuf=np.ascontiguousarray(item.pixels, dtype=np.uint32))
-            self.jobs_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR,
-                                      hostbuf=np.ascontiguousarray(item.jobs, dtype=np.uint32))
+            jobs = np.array(item.jobs, dtype=np.uint32).reshape(-1, 4)
+            jobs[:, 3] = item.pixels  # (samples, max depth, first sample, pixel): kernels/film.h lane_jobs
+            self.jobs_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=jobs)
         else:
             rec["sample_begin"], rec["n_samples"] = item.s0, item.n
         sums = self.caustic if prepass else self.main
         buffers = {"scene": self.scene_buf, "pix_sum": sums.pix_sum, "pix_sq": sums.pix_sq, "stats": self.stats_buf,
-                   "pix_list": self.list_buf, "pix_jobs": self.jobs_buf}
-        buffers.update(zip(("aux_normal", "aux_albedo", "aux_emit", "aux_caustic"), self.aux))
-        tail = None
+                   "pix_jobs": self.jobs_buf, "aux": self.aux}
         if self.features.photons:
             pset = kernel_photons(self.job.photons, self.packed.length_scale) or PhotonSettings()
-            tail = self.pmap.kernel_args(pset, PM_PREPASS if prepass else self.job.pm_mode)
-        self.kernel.set_args(*trace_args(rec, buffers, self.features.aux, tail))
+            self.pmap.lookup(rec["photons"], pset, PM_PREPASS if prepass else self.job.pm_mode)
+            buffers.update(self.pmap.buffers())
+        buffers["launch"] = self.launch.write(rec)
+        self.kernel.set_args(*trace_args(buffers, self.features.aux, self.features.photons))
         q = self.dctx.queue
         t0 = time.perf_counter()
         ev = cl.enqueue_nd_range_kernel(q, self.kernel, (global_size,), (self.local,))
@@ -319,9 +300,9 @@ class DeviceWorker:
                 out[name] = sums.pix_sum.size + sums.pix_sq.size
         if hasattr(self, "stats_buf"):
             out["work-item stats"] = self.stats_buf.size
-            out["adaptive lists"] = self.list_buf.size + self.jobs_buf.size
-        if self.aux:
-            out["feature buffers"] = sum(b.size for b in self.aux)
+            out["adaptive lists"] = self.jobs_buf.size
+        if self.aux is not None:
+            out["feature buffers"] = self.aux.size
         if self.pmap is not None:
             out.update(self.pmap.buffer_bytes())
         return out
@@ -342,9 +323,10 @@ class DeviceWorker:
             caustic, ev = self.caustic.read_async()
             events += ev
         aux = None
-        if self.aux:
+        if self.aux is not None:
             aux = [np.empty((self.n_pix, 4), np.float32) for _ in range(4)]
-            events += [cl.enqueue_copy(self.dctx.queue, h, b, is_blocking=False) for h, b in zip(aux, self.aux)]
+            events += [cl.enqueue_copy(self.dctx.queue, h, self.aux, src_offset=k * h.nbytes, is_blocking=False)
+                       for k, h in enumerate(aux)]
         self.dctx.queue.flush()
         return (main, caustic, aux), events
 
@@ -357,10 +339,11 @@ class DeviceWorker:
                 self.caustic.write(*acc.to_device("c_", kahan))
             else:
                 self.caustic.zero()
-        if self.aux:
+        if self.aux is not None:
             if "aux" in acc.planes:
-                for b, h in zip(self.aux, acc.aux_to_device()):
-                    cl.enqueue_copy(self.dctx.queue, b, h)
+                for k, h in enumerate(acc.aux_to_device()):
+                    h = np.ascontiguousarray(h, dtype=np.float32)
+                    cl.enqueue_copy(self.dctx.queue, self.aux, h, dst_offset=k * h.nbytes)
             else:
                 self._zero_aux()
         self.dctx.queue.finish()

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..adaptive import AdaptiveSettings
 from ..denoise import FilterSettings
+from ..features import Experimental
 from ..photons import PM_MERGE, PM_OFF, PM_OFFLINE, PM_OWNED, PhotonSettings, photon_seed
 from ..scene import Scene
 
@@ -58,14 +59,13 @@ class DeviceOptions:
     use_cache: bool = True
     accumulate: str = "auto"
     local_size: int | None = None
-    tiles: bool = False
     bvh: object = "auto"
     bvh_method: str = "lbvh"
-    bvh_walk: str = "packet"
+    experimental: Experimental = Experimental()  # variants kept for `clpt bench` to compare
 
     def renderer_kwargs(self) -> dict:
         """Renderer's keywords for these options (but use_cache and the device)."""
-        out = asdict(self)
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
         out.pop("use_cache")
         return out
 

@@ -20,8 +20,9 @@ __kernel void probe_layout(__global int *out)
     out[4] = LIGHT_STRIDE; out[5] = LIGHT_KIND_QUAD; out[6] = LIGHT_KIND_TRIANGLE; out[7] = LIGHT_KIND_SPHERE;
 }
 
-// sizeof and the offset of every field of each record clpt/layout.py defines,
-// in its order (the host generates the list: PROBE_RECORD_FIELDS).
+// sizeof and the offset of every field of each struct clpt/layout.py defines
+// (the launch records), in its order (the host generates the list:
+// PROBE_RECORD_FIELDS).
 __kernel void probe_record_layout(__global uint *out)
 {
     uint k = 0;
@@ -116,19 +117,19 @@ __kernel void probe_refract(__global const real *dx, __global const real *dy, __
     ST3(refract_dir(d, n, cos_i, cos_t, e), wx, wy, wz, i);
 }
 
-inline Scene probe_scene(__global const real4 *rec, uint8 counts)
+inline Scene probe_scene(__global const real4 *rec, __constant SceneInfo *info)
 {
-    return scene_make(rec, counts, R(0));
+    return scene_make(rec, *info);
 }
 
-__kernel void probe_intersect(__global const real4 *rec, uint8 counts,
+__kernel void probe_intersect(__global const real4 *rec, __constant SceneInfo *info,
                               __global const real *ox, __global const real *oy, __global const real *oz,
                               __global const real *dx, __global const real *dy, __global const real *dz,
                               __global real *t, __global real *nx, __global real *ny, __global real *nz,
                               __global real *mat, __global real *occluded)
 {
     size_t i = get_global_id(0);
-    Scene s = probe_scene(rec, counts);
+    Scene s = probe_scene(rec, info);
     V3 o = LD3(ox, oy, oz, i), d = LD3(dx, dy, dz, i);
     Hit h = scene_intersect(&s, o, d);
     ST(h.t, t, i);
@@ -141,7 +142,7 @@ __kernel void probe_intersect(__global const real4 *rec, uint8 counts,
 
 // Closest hit (t, primitive, barycentrics, geometric normal) and shadow
 // queries with a finite tmax, for comparing the BVH with the plain loops.
-__kernel void probe_hit(__global const real4 *rec, uint8 counts,
+__kernel void probe_hit(__global const real4 *rec, __constant SceneInfo *info,
                         __global const real *ox, __global const real *oy, __global const real *oz,
                         __global const real *dx, __global const real *dy, __global const real *dz,
                         __global const real *tmax,
@@ -150,7 +151,7 @@ __kernel void probe_hit(__global const real4 *rec, uint8 counts,
                         __global real *occluded)
 {
     size_t i = get_global_id(0);
-    Scene s = probe_scene(rec, counts);
+    Scene s = probe_scene(rec, info);
     V3 o = LD3(ox, oy, oz, i), d = LD3(dx, dy, dz, i);
     Hit h = scene_intersect(&s, o, d);
     ST(h.t, t, i); ST(h.prim, prim, i); ST(h.bu, bu, i); ST(h.bv, bv, i); ST(h.light, light, i);
@@ -161,13 +162,13 @@ __kernel void probe_hit(__global const real4 *rec, uint8 counts,
 }
 
 // Shading normal at the closest hit, on the side facing the ray.
-__kernel void probe_shading_normal(__global const real4 *rec, uint8 counts,
+__kernel void probe_shading_normal(__global const real4 *rec, __constant SceneInfo *info,
                                    __global const real *ox, __global const real *oy, __global const real *oz,
                                    __global const real *dx, __global const real *dy, __global const real *dz,
                                    __global real *nx, __global real *ny, __global real *nz)
 {
     size_t i = get_global_id(0);
-    Scene s = probe_scene(rec, counts);
+    Scene s = probe_scene(rec, info);
     V3 o = LD3(ox, oy, oz, i), d = LD3(dx, dy, dz, i);
     Hit h = scene_intersect(&s, o, d);
     vmask front = v3_dot(h.ng, d) < R(0);
@@ -175,15 +176,17 @@ __kernel void probe_shading_normal(__global const real4 *rec, uint8 counts,
     ST3(n, nx, ny, nz, i);
 }
 
-__kernel void probe_light_sample(__global const real4 *rec, uint8 counts,
+__kernel void probe_light_sample(__global const real4 *rec, __constant SceneInfo *info,
                                  __global const real *px, __global const real *py, __global const real *pz,
                                  __global const real *u0, __global const real *u1, __global const real *u2,
                                  __global real *wx, __global real *wy, __global real *wz, __global real *dist,
                                  __global real *le, __global real *pdf, __global real *valid)
 {
     size_t i = get_global_id(0);
-    Scene s = probe_scene(rec, counts);
-    LightSample ls = light_sample(&s, LD3(px, py, pz, i), LD(u0, i), LD(u1, i), LD(u2, i));
+    Scene s = probe_scene(rec, info);
+    LightU u;
+    u.pick = LD(u0, i); u.u1 = LD(u1, i); u.u2 = LD(u2, i);
+    LightSample ls = light_sample(&s, LD3(px, py, pz, i), u, 1);
     ST3(ls.wi, wx, wy, wz, i);
     ST(ls.dist, dist, i);
     ST(ls.Le.x, le, i);
@@ -195,8 +198,8 @@ __kernel void probe_light_sample(__global const real4 *rec, uint8 counts,
 __kernel void probe_accumulate(__global const real *x, uint n, __global pix_sum_t *ps, __global pix_sq_t *pq)
 {
     size_t i = get_global_id(0);
-    PixelAcc a;
-    pixel_acc_zero(&a);
+    Film a;
+    film_zero(&a);
     vreal v = LD(x, i);
     vmask all = v == v || v != v;
     for (uint k = 0; k < n; k++) {
@@ -205,7 +208,7 @@ __kernel void probe_accumulate(__global const real *x, uint n, __global pix_sum_
         acc_add(&a.sq, v * v, all);
     }
     for (int l = 0; l < CLPT_LANES; l++)
-        pixel_acc_store(&a, l, ps, pq, i * CLPT_LANES + l);
+        film_store_lane(&a, l, ps, pq, i * CLPT_LANES + l);
 }
 
 // photon_gather_one for each query point (one per work-item, whatever the lanes).
@@ -229,15 +232,17 @@ __kernel void probe_gather(__global const float4 *ph_pos, __global const float4 
 // gives the point when a ray along the sample's direction hits it (what a
 // BSDF-sampled hit of that light uses for its multiple-importance weight),
 // 0 where the ray meets something else first.
-__kernel void probe_light_pdf(__global const real4 *rec, uint8 counts,
+__kernel void probe_light_pdf(__global const real4 *rec, __constant SceneInfo *info,
                               __global const real *px, __global const real *py, __global const real *pz,
                               __global const real *u0, __global const real *u1, __global const real *u2,
                               __global real *pdf_sample, __global real *pdf_hit)
 {
     size_t i = get_global_id(0);
-    Scene s = probe_scene(rec, counts);
+    Scene s = probe_scene(rec, info);
     V3 x = LD3(px, py, pz, i);
-    LightSample ls = light_sample(&s, x, LD(u0, i), LD(u1, i), LD(u2, i));
+    LightU u;
+    u.pick = LD(u0, i); u.u1 = LD(u1, i); u.u2 = LD(u2, i);
+    LightSample ls = light_sample(&s, x, u, 1);
     Hit h = scene_intersect(&s, x, ls.wi);
     vreal p = light_pdf_hit(&s, h.light, x, v3_fma(ls.wi, h.t, x), h.ng, h.t);
     ST(VSEL((vreal)R(0), ls.pdf, ls.valid), pdf_sample, i);

@@ -1,0 +1,284 @@
+// film.h: what trace_paths reads and writes per pixel, and nothing else does.
+//
+//   LaneJobs        which pixel each lane works on, from which sample, how
+//                   many samples and how deep (a row of pixels, or an
+//                   adaptive pass's list)
+//   Film            the pixel sums of the lanes' pixels: sums stay accurate
+//                   over 10^6 samples and more (below)
+//   VisibleSurface  the feature sums the denoisers read (CLPT_AUX): normal,
+//                   albedo, depth, directly seen emission, caustic part
+// Each is loaded from its buffers before the path loop, added to per sample
+// in sample order, and stored after it, one lane at a time.
+//
+// Sums: with fp64 (CLPT_ACCUM_DOUBLE) a pixel's sums are doubles. Devices
+// without fp64 keep Kahan-compensated float sums (sum and compensation), whose
+// error stays at a few float ulps of the total instead of growing with the
+// sample count. Both take 32 + 8 bytes per pixel:
+//   pix_sum  double4 (r, g, b, n)   or  float8 (r, g, b, n, and their compensations)
+//   pix_sq   double (sum of squared luminance)   or  float2 (sum, compensation)
+
+#define NO_PIXEL 0xFFFFFFFFu
+
+// --- the lanes' pixels -------------------------------------------------------------
+typedef struct {
+    vuint pixel;     // row-major index (NO_PIXEL, or beyond the image: none)
+    vuint s_begin;   // index of the pixel's first sample here
+    vreal n;         // samples to take (0: none)
+    vreal depth;     // most scattering events of a path
+    vmask ok;        // the lane has a pixel
+} LaneJobs;
+
+// Work-item gid's lanes: CLPT_LANES consecutive pixels of the image (row-major,
+// from group_offset), all taking samples [sample_begin, sample_begin +
+// n_samples); or, when n_list > 0 (adaptive sampling), CLPT_LANES entries of
+// jobs, each (samples, max depth, first sample, pixel): the host continues
+// each pixel's sample sequence where it stands.
+inline LaneJobs lane_jobs(const TraceLaunch *L, __global const uint4 *jobs, uint gid)
+{
+    LaneJobs j;
+    uint n_pix = L->width * L->height;
+    if (L->n_list == 0) {
+        uint first = (L->group_offset + gid) * CLPT_LANES;
+        j.pixel = (vuint)first + VLANE_IDS;
+        j.ok = VREAL(VLANE_IDS) < (real)(first < n_pix ? min(n_pix - first, (uint)CLPT_LANES) : 0u);
+        j.s_begin = (vuint)L->sample_begin;
+        j.n = (vreal)(real)L->n_samples;
+        j.depth = (vreal)(real)L->max_depth;
+        return j;
+    }
+    j.pixel = j.s_begin = (vuint)0u;
+    j.n = j.depth = (vreal)R(0);
+    for (int l = 0; l < CLPT_LANES; l++) {
+        uint e = gid * CLPT_LANES + l;
+        uint4 job = e < L->n_list ? jobs[e] : (uint4)(0u, 0u, 0u, NO_PIXEL);
+        VLANE_U(j.pixel, l) = job.w;
+        VLANE_U(j.s_begin, l) = job.z;
+        VLANE_R(j.n, l) = (real)job.x;
+        VLANE_R(j.depth, l) = (real)job.y;
+    }
+    j.ok = j.n > R(0);
+    return j;
+}
+
+// --- pixel sums ----------------------------------------------------------------------
+#if CLPT_ACCUM_DOUBLE
+typedef double4 pix_sum_t;
+typedef double pix_sq_t;
+typedef struct { vdouble s; } Acc;
+inline void acc_add(Acc *a, vreal x, vmask m) { a->s = VSEL(a->s, a->s + VDOUBLE(x), VMASK_D(m)); }
+#else
+typedef float8 pix_sum_t;
+typedef float2 pix_sq_t;
+typedef struct { vreal s, c; } Acc;
+// Kahan summation: c carries what the last addition rounded away.
+inline void acc_add(Acc *a, vreal x, vmask m)
+{
+    vreal y = x - a->c;
+    vreal t = a->s + y;
+    vreal c = (t - a->s) - y;
+    a->s = VSEL(a->s, t, m);
+    a->c = VSEL(a->c, c, m);
+}
+#endif
+
+// Per lane: sums of r, g, b, samples and squared luminance (times lum_scale).
+typedef struct { Acc r, g, b, n, sq; } Film;
+
+inline void film_zero(Film *f)
+{
+#if CLPT_ACCUM_DOUBLE
+    f->r.s = f->g.s = f->b.s = f->n.s = f->sq.s = 0.0;
+#else
+    f->r.s = f->g.s = f->b.s = f->n.s = f->sq.s = (vreal)0.0f;
+    f->r.c = f->g.c = f->b.c = f->n.c = f->sq.c = (vreal)0.0f;
+#endif
+}
+
+inline void film_load_lane(Film *f, int l, __global const pix_sum_t *ps, __global const pix_sq_t *pq, uint p)
+{
+    pix_sum_t s = ps[p];
+    pix_sq_t q = pq[p];
+#if CLPT_ACCUM_DOUBLE
+    VLANE_D(f->r.s, l) = s.x; VLANE_D(f->g.s, l) = s.y; VLANE_D(f->b.s, l) = s.z; VLANE_D(f->n.s, l) = s.w;
+    VLANE_D(f->sq.s, l) = q;
+#else
+    VLANE_R(f->r.s, l) = s.s0; VLANE_R(f->g.s, l) = s.s1; VLANE_R(f->b.s, l) = s.s2; VLANE_R(f->n.s, l) = s.s3;
+    VLANE_R(f->r.c, l) = s.s4; VLANE_R(f->g.c, l) = s.s5; VLANE_R(f->b.c, l) = s.s6; VLANE_R(f->n.c, l) = s.s7;
+    VLANE_R(f->sq.s, l) = q.x; VLANE_R(f->sq.c, l) = q.y;
+#endif
+}
+
+inline void film_store_lane(const Film *f, int l, __global pix_sum_t *ps, __global pix_sq_t *pq, uint p)
+{
+    Film g = *f;  // lanes are read through private storage
+#if CLPT_ACCUM_DOUBLE
+    ps[p] = (double4)(VLANE_D(g.r.s, l), VLANE_D(g.g.s, l), VLANE_D(g.b.s, l), VLANE_D(g.n.s, l));
+    pq[p] = VLANE_D(g.sq.s, l);
+#else
+    ps[p] = (float8)(VLANE_R(g.r.s, l), VLANE_R(g.g.s, l), VLANE_R(g.b.s, l), VLANE_R(g.n.s, l),
+                     VLANE_R(g.r.c, l), VLANE_R(g.g.c, l), VLANE_R(g.b.c, l), VLANE_R(g.n.c, l));
+    pq[p] = (float2)(VLANE_R(g.sq.s, l), VLANE_R(g.sq.c, l));
+#endif
+}
+
+// The sums of the lanes' pixels (lanes without one start from zero).
+inline void film_load(Film *f, vuint pixel, uint n_pix, __global const pix_sum_t *ps, __global const pix_sq_t *pq)
+{
+    film_zero(f);
+    for (int l = 0; l < CLPT_LANES; l++) {
+        uint p = VLANE_U(pixel, l);
+        if (p < n_pix)
+            film_load_lane(f, l, ps, pq, p);
+    }
+}
+
+inline void film_store(const Film *f, vuint pixel, uint n_pix, __global pix_sum_t *ps, __global pix_sq_t *pq)
+{
+    for (int l = 0; l < CLPT_LANES; l++) {
+        uint p = VLANE_U(pixel, l);
+        if (p < n_pix)
+            film_store_lane(f, l, ps, pq, p);
+    }
+}
+
+// Adds finished samples (lanes in `done`) to the pixel sums. A sample that is
+// not finite is counted and left out: it never reaches the sums. The squares
+// are of luminance times lum_scale (a power of two that brings the scene's
+// brightest emission near 1), so they stay in float's range at any units.
+inline void film_add_sample(Film *f, vmask done, V3 L, real lum_scale, uint *nonfinite)
+{
+    vreal lum = v3_luminance(L) * lum_scale;
+    vmask bad = done && !isfinite(L.x + L.y + L.z);
+    *nonfinite += vpopcount(bad);
+    vmask ok = done && !bad;
+    acc_add(&f->r, L.x, ok);
+    acc_add(&f->g, L.y, ok);
+    acc_add(&f->b, L.z, ok);
+    acc_add(&f->sq, lum * lum, ok);
+    acc_add(&f->n, (vreal)R(1), done);
+}
+
+// --- features for the denoisers (CLPT_AUX) ------------------------------------------
+// Per pixel, sums over samples of the feature vertex's shading normal (w:
+// count), of its albedo seen through the specular chain (rgb) and distance
+// from the camera (w), of the emission reached up to and at that vertex
+// (rgb; w: samples whose feature vertex is an emitter it sees), and of the
+// photon map's contribution at the first vertex with a non-delta part (the
+// gather there, or its merge; rgb; w: its squared luminance times
+// lum_scale^2). The feature vertex is the first vertex with a non-delta part
+// (aux_specular 0: mirrors and glass are seen through) or the first vertex
+// (1: they are surfaces with albedo kr + kt). An emitter's albedo is its
+// emission over its largest component, times the throughput; paths that meet
+// no feature vertex get albedo 1 and no normal. The four sums are planes of
+// one buffer, n_pix float4 each: normal, albedo, emission, caustic.
+typedef struct {
+    V3 normal;   vreal count;       // plane 0
+    V3 albedo;   vreal depth;       // plane 1
+    V3 emission; vreal lights;      // plane 2
+    V3 caustic;  vreal caustic_sq;  // plane 3
+    vmask found;     // this sample's feature vertex is recorded
+    vreal path_len;  // distance this sample's path has travelled
+} VisibleSurface;
+
+#if CLPT_AUX
+inline void v3_add_where(V3 *a, V3 b, vmask m) { *a = v3_sel(*a, v3_add(*a, b), m); }
+inline void vreal_add_where(vreal *a, vreal b, vmask m) { *a = VSEL(*a, *a + b, m); }
+
+inline void visible_load(VisibleSurface *v, vuint pixel, uint n_pix, __global const float4 *aux)
+{
+    v->normal = v->albedo = v->emission = v->caustic = v3_zero();
+    v->count = v->depth = v->lights = v->caustic_sq = v->path_len = (vreal)R(0);
+    v->found = v->count != v->count;
+    for (int l = 0; l < CLPT_LANES; l++) {
+        uint p = VLANE_U(pixel, l);
+        if (p >= n_pix)
+            continue;
+        float4 a = aux[p], b = aux[n_pix + p], c = aux[2 * n_pix + p], e = aux[3 * n_pix + p];
+        VLANE_R(v->normal.x, l) = a.x; VLANE_R(v->normal.y, l) = a.y; VLANE_R(v->normal.z, l) = a.z;
+        VLANE_R(v->count, l) = a.w;
+        VLANE_R(v->albedo.x, l) = b.x; VLANE_R(v->albedo.y, l) = b.y; VLANE_R(v->albedo.z, l) = b.z;
+        VLANE_R(v->depth, l) = b.w;
+        VLANE_R(v->emission.x, l) = c.x; VLANE_R(v->emission.y, l) = c.y; VLANE_R(v->emission.z, l) = c.z;
+        VLANE_R(v->lights, l) = c.w;
+        VLANE_R(v->caustic.x, l) = e.x; VLANE_R(v->caustic.y, l) = e.y; VLANE_R(v->caustic.z, l) = e.z;
+        VLANE_R(v->caustic_sq, l) = e.w;
+    }
+}
+
+inline void visible_store(const VisibleSurface *vs, vuint pixel, uint n_pix, __global float4 *aux)
+{
+    VisibleSurface v = *vs;  // lanes are read through private storage
+    for (int l = 0; l < CLPT_LANES; l++) {
+        uint p = VLANE_U(pixel, l);
+        if (p >= n_pix)
+            continue;
+        aux[p] = (float4)(VLANE_R(v.normal.x, l), VLANE_R(v.normal.y, l), VLANE_R(v.normal.z, l),
+                          VLANE_R(v.count, l));
+        aux[n_pix + p] = (float4)(VLANE_R(v.albedo.x, l), VLANE_R(v.albedo.y, l), VLANE_R(v.albedo.z, l),
+                                  VLANE_R(v.depth, l));
+        aux[2 * n_pix + p] = (float4)(VLANE_R(v.emission.x, l), VLANE_R(v.emission.y, l),
+                                      VLANE_R(v.emission.z, l), VLANE_R(v.lights, l));
+        aux[3 * n_pix + p] = (float4)(VLANE_R(v.caustic.x, l), VLANE_R(v.caustic.y, l), VLANE_R(v.caustic.z, l),
+                                      VLANE_R(v.caustic_sq, l));
+    }
+}
+
+// A new sample in the lanes of `start`.
+inline void visible_start(VisibleSurface *v, vmask start)
+{
+    v->found = v->found && !start;
+    v->path_len = VSEL(v->path_len, (vreal)R(0), start);
+}
+
+// The surface the lanes in `hit` reached, t further along the path: recorded
+// where it is this sample's feature vertex. Returns the lanes for which the
+// vertex is the feature vertex or comes before it (whose emission is seen
+// directly).
+inline vmask visible_add_vertex(VisibleSurface *v, vmask hit, vreal t, const Material *m, V3 n, V3 beta,
+                                vmask front, uint aux_specular)
+{
+    v->path_len = VSEL(v->path_len, v->path_len + t, hit);
+    vmask before_x = !v->found;
+    vmask rec = hit && !v->found && (m->nondelta != R(0) || aux_specular != 0u);
+    if (VANY(rec)) {
+        V3 surf = v3_add(m->kd, m->ks);
+        if (aux_specular != 0u) {  // a mirror or glass vertex is a surface of albedo kr + kt (at most 1)
+            V3 spec = v3_add(m->kr, m->kt);
+            surf = v3_sel(surf, v3(fmin(spec.x, R(1)), fmin(spec.y, R(1)), fmin(spec.z, R(1))),
+                          m->nondelta == R(0));
+        }
+        // An emitter it sees is described by its own colour, and flagged.
+        vreal le_max = fmax(m->Le.x, fmax(m->Le.y, m->Le.z));
+        vmask light = rec && le_max > R(0) && (front || m->two_sided != R(0));
+        surf = v3_sel(surf, v3_scale(m->Le, R(1) / fmax(le_max, R(1e-30))), light);
+        vreal_add_where(&v->lights, (vreal)R(1), light);
+        v3_add_where(&v->normal, n, rec);
+        v3_add_where(&v->albedo, v3_mul(beta, surf), rec);
+        vreal_add_where(&v->depth, v->path_len, rec);
+        vreal_add_where(&v->count, (vreal)R(1), rec);
+        v->found = v->found || rec;
+    }
+    return before_x;
+}
+
+// The photon map's part c of this sample (lanes in m, if finite): rgb and
+// its squared luminance times lum_scale^2.
+inline void visible_add_caustic(VisibleSurface *v, V3 c, vmask m, real lum_scale)
+{
+    vreal l = v3_luminance(c) * lum_scale;
+    vmask add = m && isfinite(c.x + c.y + c.z);
+    v3_add_where(&v->caustic, c, add);
+    v->caustic_sq = VSEL(v->caustic_sq, v->caustic_sq + l * l, add);  // one expression: l * l may fuse into the sum
+}
+
+// Finished samples (lanes in done) that met no feature vertex (an emitter
+// seen directly or through glass, or the void): no normal, albedo 1, the
+// distance travelled.
+inline void visible_end_sample(VisibleSurface *v, vmask done)
+{
+    vmask none = done && !v->found;
+    v3_add_where(&v->albedo, v3((vreal)R(1), (vreal)R(1), (vreal)R(1)), none);
+    vreal_add_where(&v->depth, v->path_len, none);
+    vreal_add_where(&v->count, (vreal)R(1), none);
+}
+#endif

@@ -1,0 +1,265 @@
+// path.h: the events of a camera path's vertex, one function each, in the
+// order trace_paths (trace.cl) runs them:
+//   path_start         a new camera ray
+//   vertex_make        the surface the ray hit: point, normals, material, lobe probabilities
+//   path_emission      emission found there, weighted by multiple importance
+//                      sampling against light sampling and photon merging
+//   path_photons       the photon map there: the gather at x, or a merge (CLPT_PHOTONS)
+//   path_direct_light  next event estimation: a light sample, its weight, its shadow ray (CLPT_NEE)
+//   path_scatter       a lobe and direction from the BSDF (bsdf.h), the next ray
+//   path_class_update  where the path stands relative to the photon map's paths (CLPT_PHOTONS)
+// Each works on the lanes its masks say and leaves the others as they were.
+//
+// Estimator: path tracing with next event estimation at every vertex with a
+// non-delta lobe (CLPT_NEE), weighted against BSDF sampling by multiple
+// importance sampling (power heuristic): emission found by a BSDF-sampled
+// ray after a non-delta lobe is weighted by pdf_bsdf^2 / (pdf_bsdf^2 +
+// pdf_light^2) and the light sample by the complement; after the camera or
+// a delta lobe (which light sampling cannot reach) emission counts whole.
+// A material's lobe is chosen by Russian roulette over kd, ks, kr, kt and
+// absorption, as in the paper; before depth rr_depth the absorption branch
+// is left out (lobe probabilities renormalized).
+//
+// Caustic photons (CLPT_PHOTONS; what a launch does is its PhotonLookup's
+// choice, clpt/photons.py):
+//   merge: photon merging at every vertex with a non-delta part, weighted by
+//     multiple importance sampling against path tracing, for the paths both
+//     can make: ... x D S+ L, where D is a non-delta vertex and S+ purely
+//     specular ones (the paths trace_photons stores, L S+ D). With p_pt the
+//     BSDF pdf at x of the direction towards the specular chain and p_m = pf
+//     cos mis_k (pf = the photon's light-side pdf p_area p_dir / cos at the
+//     light, mis_k = pi r^2 N photons), the merge gets p_m^2 / (p_m^2 +
+//     p_pt^2) and the path-traced hit of the light at the end of the chain
+//     the complement, both computed by the same function of the path, so the
+//     two add up to one technique's worth (vertex merging, Georgiev et al.
+//     2012, without connections).
+//   owns: the photon map owns exactly the paths E S* x D S+ L where x is the
+//     first vertex from the camera with a non-delta part; emission reached
+//     along an owned path is not added. With gather, x gathers in every
+//     sample (online); without, a per-pixel caustic buffer the host adds
+//     does (offline). stop_at_x is the offline pre-pass: follow the camera
+//     path to x, gather there, and stop.
+
+// Where a path stands relative to the photon map's paths (owns).
+#define OWN_BEFORE_X 0  // no vertex with a non-delta part yet
+#define OWN_AFTER_D 1   // x chose its non-delta lobe
+#define OWN_OWNED 2     // ... and one or more purely specular vertices followed
+#define OWN_NOT 3       // not a photon-map path
+
+// Where a path stands relative to the paths photon merging can make (merge).
+#define CHAIN_NONE 0    // the last vertex was not a non-delta lobe, nor after one via delta vertices
+#define CHAIN_AFTER_D 1 // the last vertex chose a non-delta lobe
+#define CHAIN_IN 2      // ... then one or more purely specular vertices followed
+
+typedef struct {
+    V3 o, d;         // current ray
+    V3 beta;         // path throughput
+    V3 L;            // radiance gathered so far by this sample
+    vreal depth;     // scattering events so far
+    vmask specular;  // last vertex was the camera or a delta lobe
+    vreal pdf_prev;  // solid-angle pdf of the last BSDF sample; 0 after the camera or a delta lobe
+    V3 x_prev;       // the last scattering vertex (for the light pdf of a BSDF-sampled hit)
+    vreal own;       // OWN_*: relation to the owned photon map's paths
+    vreal chain;     // CHAIN_*: relation to the paths photon merging can make
+    vreal chain_k;   // at the last non-delta vertex: mis_k cos / pdf_bsdf of the direction taken
+                     // (0 where no merge happened there); times pf at the light: p_m / p_pt
+    vreal nd_count;  // vertices with a non-delta part met so far (merges at the first merge_vertices)
+} PathState;
+
+// A vertex: the surface a path's ray hit.
+typedef struct {
+    Hit h;
+    Material m;
+    LobeProbs pr;      // the lobes' probabilities at this depth
+    V3 x;              // the point
+    V3 n, ng;          // shading and geometric normals, on the side of the incoming ray
+    vmask hit, front;  // the ray hit something; it hit the front face (the normal's side)
+    vmask nondelta;    // the surface has a diffuse or Phong part
+    vmask at_x;        // (photons) the first vertex with a non-delta part
+    vmask merge_here;  // (photons) a vertex where merging may happen
+} Vertex;
+
+inline PathState path_state_make(vmask active)
+{
+    PathState ps;
+    ps.o = ps.d = ps.beta = ps.L = ps.x_prev = v3_zero();
+    ps.depth = ps.pdf_prev = ps.own = ps.chain = ps.chain_k = ps.nd_count = (vreal)R(0);
+    ps.specular = active;
+    return ps;
+}
+
+// A new camera ray through (px, py) + u of the image for the lanes in start.
+CLPT_INLINE void path_start(PathState *ps, const CameraRec *cam, vreal px, vreal py, CameraU u, vmask start)
+{
+    V3 d = camera_ray(cam->corner, cam->dx, cam->dy, px + u.x, py + u.y);
+    ps->o = v3_sel(ps->o, v3_splat(cam->origin), start);
+    ps->d = v3_sel(ps->d, d, start);
+    ps->beta = v3_sel(ps->beta, v3((vreal)R(1), (vreal)R(1), (vreal)R(1)), start);
+    ps->L = v3_sel(ps->L, v3_zero(), start);
+    ps->depth = VSEL(ps->depth, (vreal)R(0), start);
+    ps->own = VSEL(ps->own, (vreal)R(0), start);
+    ps->chain = VSEL(ps->chain, (vreal)R(0), start);
+    ps->pdf_prev = VSEL(ps->pdf_prev, (vreal)R(0), start);
+    ps->nd_count = VSEL(ps->nd_count, (vreal)R(0), start);
+    ps->specular = ps->specular || start;
+}
+
+// The vertex at hit h of the lanes in `active` (rr_depth: the depth from
+// which absorption may end paths).
+CLPT_INLINE Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmask active, uint rr_depth)
+{
+    Vertex v;
+    v.h = h;
+    v.hit = active && h.t < R(INFINITY);
+    v.m = material_fetch(sc, h.mat);
+    v.x = v3_fma(ps->d, h.t, ps->o);
+    v.front = v3_dot(h.ng, ps->d) < R(0);
+    v.ng = v3_sel(v3_neg(h.ng), h.ng, v.front);  // faces the incoming ray
+    v.n = hit_shading_normal(sc, &h, v.ng);      // smooth triangles: the interpolated normal
+    v.pr = lobe_probs(&v.m, ps->depth < (real)rr_depth);
+    v.nondelta = v.hit && v.m.nondelta != R(0);
+    v.at_x = v.merge_here = v.hit && !v.hit;
+    return v;
+}
+
+// Emission at the vertex towards the path, times the throughput and its
+// multiple-importance weight; *sees: the lanes it reaches (an emitter's
+// side that emits; not a path the photon map owns).
+CLPT_INLINE V3 path_emission(const Scene *sc, const PhotonLookup *pl, const PathState *ps, const Vertex *v,
+                             vmask *sees)
+{
+    vmask s = v->hit && (v->front || v->m.two_sided != R(0));
+    vreal w = (vreal)R(1);
+#if CLPT_NEE
+    // After a non-delta lobe light sampling could have found this point too.
+    vmask bsdf_hit = s && ps->pdf_prev > R(0) && v->h.light > R(0);
+    if (VANY(bsdf_hit)) {
+        vreal pdf_l = light_pdf_hit(sc, v->h.light, ps->x_prev, v->x, v->h.ng, v->h.t);
+        w = VSEL(w, mis_power(ps->pdf_prev, pdf_l), bsdf_hit);
+    }
+#endif
+#if CLPT_PHOTONS
+    if (pl->owns)
+        s = s && ps->own != (real)OWN_OWNED && !pl->stop_at_x;
+    // At the end of a purely specular chain from a non-delta vertex that
+    // merged, photon merging could have made this path too.
+    vmask merged_path = s && ps->chain == (real)CHAIN_IN && ps->chain_k > R(0) && v->h.light > R(0);
+    if (pl->merge && VANY(merged_path)) {
+        vreal pf = light_photon_pdf(sc, v->h.light, v->x, v->h.ng, v3_neg(ps->d), v->m.two_sided != R(0), pl->aim);
+        w = VSEL(w, mis_power((vreal)R(1), pf * ps->chain_k), merged_path);
+    }
+#endif
+    *sees = s;
+    return v3_scale(v3_mul(ps->beta, v->m.Le), w);
+}
+
+#if CLPT_PHOTONS
+// The photon map at the vertex: the gather at x (gather), and merges at
+// vertices with a non-delta part (merge), added to ps->L and to the caustic
+// features; marks v->at_x and v->merge_here for path_class_update. The
+// offline pre-pass ends paths at x (*go). A vertex merges with probability
+// merge_p (Russian roulette on the technique, which bounds its cost); the
+// weights count that in (the host folds it into mis_k), so both sides still
+// see the same pdfs.
+CLPT_INLINE void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState *ps, Vertex *v,
+                              const Sampler *sp, vreal max_depth, vmask *go, VisibleSurface *vis, real lum_scale)
+{
+    v->at_x = v->hit && ps->own == (real)OWN_BEFORE_X && v->m.nondelta != R(0);
+    if (pl->gather && VANY(v->at_x)) {
+        V3 Lc = photon_gather(pm, &v->m, v->pr, v->x, v->n, ps->d, sample_merge(sp, ps->depth), v->at_x, 0,
+                              max_depth - ps->depth - R(1));
+        ps->L = v3_sel(ps->L, v3_add(ps->L, v3_mul(ps->beta, Lc)), v->at_x);
+#if CLPT_AUX
+        visible_add_caustic(vis, v3_mul(ps->beta, Lc), v->at_x, lum_scale);
+#endif
+    }
+    if (pl->stop_at_x)
+        *go = *go && !v->at_x;
+    v->merge_here = *go && v->nondelta && ps->nd_count < (real)pl->merge_vertices;
+    if (pl->merge && VANY(v->merge_here)) {
+        vreal u = sample_merge(sp, ps->depth);
+        vmask merges = v->merge_here && u < pl->merge_p;
+        if (VANY(merges)) {
+            V3 Lm = photon_gather(pm, &v->m, v->pr, v->x, v->n, ps->d, u / pl->merge_p, merges, 1,
+                                  max_depth - ps->depth - R(1));
+            ps->L = v3_sel(ps->L, v3_fma(v3_mul(ps->beta, Lm), R(1) / pl->merge_p, ps->L), merges);
+#if CLPT_AUX
+            // The merge at the first non-delta vertex: the caustic as seen.
+            visible_add_caustic(vis, v3_scale(v3_mul(ps->beta, Lm), R(1) / pl->merge_p),
+                                merges && ps->nd_count == R(0), lum_scale);
+#endif
+        }
+    }
+    ps->nd_count = VSEL(ps->nd_count, ps->nd_count + R(1), v->nondelta);
+}
+#endif
+
+// Next event estimation at the vertex for the lanes in nee: a light sample
+// weighted against BSDF sampling by the power heuristic, added to ps->L
+// where its shadow ray is clear. Returns the shadow rays traced.
+CLPT_INLINE uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, vmask nee, const Sampler *sp)
+{
+    if (!VANY(nee))
+        return 0;
+    LightSample ls = light_sample(sc, v->x, sample_light(sp, ps->depth), 1);
+    vreal cos_x = v3_dot(v->n, ls.wi);
+    nee = nee && ls.valid && cos_x > R(0) && v3_dot(v->ng, ls.wi) > R(0);
+    if (!VANY(nee))
+        return 0;
+    V3 f = bsdf_eval(&v->m, ps->d, v->n, ls.wi);
+    vreal w = mis_power(ls.pdf, bsdf_pdf(&v->m, v->pr, ps->d, v->n, ls.wi));
+    V3 c = v3_mul(v3_mul(ps->beta, f), v3_scale(ls.Le, w * cos_x / ls.pdf));
+    // The shadow ray runs from the offset origin to the light point itself:
+    // aimed along wi from there instead, it would cut into a sphere light
+    // near its silhouette and see the light block itself.
+    V3 so = offset_origin(sc, v->x, v->ng, v->h.err);
+    V3 to = v3_sub(ls.p, so);
+    vreal len = sqrt(v3_dot(to, to));
+    vmask blocked = scene_occluded(sc, so, v3_scale(to, R(1) / len), len * R(0.9999), nee);
+    ps->L = v3_sel(ps->L, v3_add(ps->L, c), nee && !blocked);
+    return vpopcount(nee);
+}
+
+// Scattering at the vertex for the lanes in go: a lobe and a direction from
+// the BSDF, the throughput, and the next ray (kept on the side of the
+// geometric surface its lobe meant). Returns the lanes whose path goes on.
+CLPT_INLINE vmask path_scatter(const Scene *sc, PathState *ps, const Vertex *v, vmask go, BsdfU u)
+{
+    BsdfSample bs = bsdf_sample(&v->m, v->pr, ps->d, v->n, v->front, go, u, TRANSPORT_RADIANCE, 1);
+    vmask cont = go && bs.chosen;
+    ps->beta = v3_sel(ps->beta, v3_mul(ps->beta, bs.weight), cont);
+    ps->o = v3_sel(ps->o, offset_scattered(sc, v->x, v3_sel(v3_neg(v->n), v->n, bs.up), bs.wi, v->h.err), cont);
+    ps->d = v3_sel(ps->d, bs.wi, cont);
+    ps->specular = VSEL(ps->specular, bs.delta, cont);
+    ps->pdf_prev = VSEL(ps->pdf_prev, bs.pdf, cont);
+    ps->x_prev = v3_sel(ps->x_prev, v->x, cont);
+    cont = cont && v3_max_comp(ps->beta) > R(0);
+    keep_geometric_side(sc, &ps->o, &ps->d, v->x, v->n, v->ng, cont && v->h.nrm >= R(0), v->h.err);
+    ps->depth = VSEL(ps->depth, ps->depth + R(1), cont);
+    return cont;
+}
+
+#if CLPT_PHOTONS
+// After scattering (cont: the lanes going on): x's lobe decides whether the
+// path can be the photon map's, and after it only purely specular vertices
+// keep it so (own); for merging, a non-delta lobe starts a chain (with its
+// pdf, if a merge happened at this vertex), purely specular vertices extend
+// it, and a delta lobe of a vertex with a non-delta part ends it (chain).
+CLPT_INLINE void path_class_update(PathState *ps, const Vertex *v, vmask cont, real mis_k)
+{
+    vmask pure_delta = v->m.nondelta == R(0);
+    vreal own = ps->own;
+    own = VSEL(own, VSEL((vreal)R(OWN_NOT), (vreal)R(OWN_AFTER_D), !ps->specular), v->at_x);
+    vmask after = ps->own == (real)OWN_AFTER_D || ps->own == (real)OWN_OWNED;
+    own = VSEL(own, VSEL((vreal)R(OWN_NOT), (vreal)R(OWN_OWNED), pure_delta), after && v->hit);
+    ps->own = own;
+    vmask took_nd = v->nondelta && !ps->specular;
+    vmask extend = pure_delta && (ps->chain == (real)CHAIN_AFTER_D || ps->chain == (real)CHAIN_IN);
+    vreal chain = VSEL((vreal)R(CHAIN_NONE), (vreal)R(CHAIN_IN), extend);
+    chain = VSEL(chain, (vreal)R(CHAIN_AFTER_D), took_nd);
+    vreal cos_o = v3_dot(v->n, ps->d);
+    vreal k = VSEL((vreal)R(0), mis_k * cos_o / ps->pdf_prev, v->merge_here && ps->pdf_prev > R(0));
+    ps->chain_k = VSEL(ps->chain_k, k, took_nd);
+    ps->chain = VSEL(ps->chain, chain, cont);
+}
+#endif
