@@ -143,8 +143,10 @@ inline vreal bvh_leaf_item_t(const Scene *sc, uint blk, int k, V3 o, V3 d, real4
     return intersect_planar_recs(*p, *n, *wu, *wv, o, d, (*wv).w != (real)ITEM_QUAD, a, b);
 }
 
-// Closest hits among a leaf's items, into h (every lane against each item).
-inline void bvh_leaf_closest(const Scene *sc, uint blk, V3 o, V3 d, Hit *h)
+// A leaf's items against every lane (each item against all lanes at once):
+// the closest hits into *h (any = 0), or the lanes they block before tmax
+// or'ed into *occ (any = 1; a constant where this is inlined).
+CLPT_INLINE void bvh_leaf_lanes(const Scene *sc, uint blk, V3 o, V3 d, int any, Hit *h, vreal tmax, vmask *occ)
 {
     real4 kind = bvh_lrow(sc, blk, BVHL_KIND);
     for (int k = 0; k < BVHL_WIDTH; k++) {
@@ -153,25 +155,13 @@ inline void bvh_leaf_closest(const Scene *sc, uint blk, V3 o, V3 d, Hit *h)
         real4 p, n, wu, wv;
         vreal a, b;
         vreal t = bvh_leaf_item_t(sc, blk, k, o, d, &p, &n, &wu, &wv, &a, &b);
-        if (wv.w == (real)ITEM_SPHERE)
+        if (any)
+            *occ = *occ || t < tmax;
+        else if (wv.w == (real)ITEM_SPHERE)
             hit_sphere(h, t, t < h->t, (real4)(p.x, p.y, p.z, n.x), o, d, p.w, n.w, wu.w);
         else
             hit_planar(h, t, t < h->t, p, n, wu, wv, a, b);
     }
-}
-
-// Lanes among !occ that a leaf's items block before tmax, or'ed into occ.
-inline vmask bvh_leaf_occluded(const Scene *sc, uint blk, V3 o, V3 d, vreal tmax, vmask occ)
-{
-    real4 kind = bvh_lrow(sc, blk, BVHL_KIND);
-    for (int k = 0; k < BVHL_WIDTH; k++) {
-        if (BVH_EL(kind, k) == (real)ITEM_EMPTY)
-            break;
-        real4 p, n, wu, wv;
-        vreal a, b;
-        occ = occ || bvh_leaf_item_t(sc, blk, k, o, d, &p, &n, &wu, &wv, &a, &b) < tmax;
-    }
-    return occ;
 }
 
 // --- one ray against a wide node and a leaf block, in vectors of 8 ---------
@@ -372,13 +362,11 @@ CLPT_INLINE void bvh_packet_walk(const Scene *sc, V3 o, V3 d, int any, Hit *h, v
         int go = 0;
         if (cur & BVH_LEAF_BIT) {
             uint blk = cur & ~BVH_LEAF_BIT;
+            bvh_leaf_lanes(sc, blk, o, d, any, h, tmax, occ);
             if (any) {
-                *occ = bvh_leaf_occluded(sc, blk, o, d, tmax, *occ);
                 open_tmax = VSEL(tmax, (vreal)R(-1), *occ);
                 if (VALL(*occ))
                     break;
-            } else {
-                bvh_leaf_closest(sc, blk, o, d, h);
             }
         } else {
             breal8 lx = bvh_row(sc, cur, BVH_LO_X), hx = bvh_row(sc, cur, BVH_HI_X);
