@@ -108,16 +108,16 @@ inline void film_load_lane(Film *f, int l, __global const pix_sum_t *ps, __globa
 #endif
 }
 
-inline void film_store_lane(const Film *f, int l, __global pix_sum_t *ps, __global pix_sq_t *pq, uint p)
+// (f is not const: lanes are read through private storage, VLANE_*.)
+inline void film_store_lane(Film *f, int l, __global pix_sum_t *ps, __global pix_sq_t *pq, uint p)
 {
-    Film g = *f;  // lanes are read through private storage
 #if CLPT_ACCUM_DOUBLE
-    ps[p] = (double4)(VLANE_D(g.r.s, l), VLANE_D(g.g.s, l), VLANE_D(g.b.s, l), VLANE_D(g.n.s, l));
-    pq[p] = VLANE_D(g.sq.s, l);
+    ps[p] = (double4)(VLANE_D(f->r.s, l), VLANE_D(f->g.s, l), VLANE_D(f->b.s, l), VLANE_D(f->n.s, l));
+    pq[p] = VLANE_D(f->sq.s, l);
 #else
-    ps[p] = (float8)(VLANE_R(g.r.s, l), VLANE_R(g.g.s, l), VLANE_R(g.b.s, l), VLANE_R(g.n.s, l),
-                     VLANE_R(g.r.c, l), VLANE_R(g.g.c, l), VLANE_R(g.b.c, l), VLANE_R(g.n.c, l));
-    pq[p] = (float2)(VLANE_R(g.sq.s, l), VLANE_R(g.sq.c, l));
+    ps[p] = (float8)(VLANE_R(f->r.s, l), VLANE_R(f->g.s, l), VLANE_R(f->b.s, l), VLANE_R(f->n.s, l),
+                     VLANE_R(f->r.c, l), VLANE_R(f->g.c, l), VLANE_R(f->b.c, l), VLANE_R(f->n.c, l));
+    pq[p] = (float2)(VLANE_R(f->sq.s, l), VLANE_R(f->sq.c, l));
 #endif
 }
 
@@ -132,7 +132,7 @@ inline void film_load(Film *f, vuint pixel, uint n_pix, __global const pix_sum_t
     }
 }
 
-inline void film_store(const Film *f, vuint pixel, uint n_pix, __global pix_sum_t *ps, __global pix_sq_t *pq)
+inline void film_store(Film *f, vuint pixel, uint n_pix, __global pix_sum_t *ps, __global pix_sq_t *pq)
 {
     for (int l = 0; l < CLPT_LANES; l++) {
         uint p = VLANE_U(pixel, l);
@@ -205,21 +205,20 @@ inline void visible_load(VisibleSurface *v, vuint pixel, uint n_pix, __global co
     }
 }
 
-inline void visible_store(const VisibleSurface *vs, vuint pixel, uint n_pix, __global float4 *aux)
+inline void visible_store(VisibleSurface *v, vuint pixel, uint n_pix, __global float4 *aux)
 {
-    VisibleSurface v = *vs;  // lanes are read through private storage
     for (int l = 0; l < CLPT_LANES; l++) {
         uint p = VLANE_U(pixel, l);
         if (p >= n_pix)
             continue;
-        aux[p] = (float4)(VLANE_R(v.normal.x, l), VLANE_R(v.normal.y, l), VLANE_R(v.normal.z, l),
-                          VLANE_R(v.count, l));
-        aux[n_pix + p] = (float4)(VLANE_R(v.albedo.x, l), VLANE_R(v.albedo.y, l), VLANE_R(v.albedo.z, l),
-                                  VLANE_R(v.depth, l));
-        aux[2 * n_pix + p] = (float4)(VLANE_R(v.emission.x, l), VLANE_R(v.emission.y, l),
-                                      VLANE_R(v.emission.z, l), VLANE_R(v.lights, l));
-        aux[3 * n_pix + p] = (float4)(VLANE_R(v.caustic.x, l), VLANE_R(v.caustic.y, l), VLANE_R(v.caustic.z, l),
-                                      VLANE_R(v.caustic_sq, l));
+        aux[p] = (float4)(VLANE_R(v->normal.x, l), VLANE_R(v->normal.y, l), VLANE_R(v->normal.z, l),
+                          VLANE_R(v->count, l));
+        aux[n_pix + p] = (float4)(VLANE_R(v->albedo.x, l), VLANE_R(v->albedo.y, l), VLANE_R(v->albedo.z, l),
+                                  VLANE_R(v->depth, l));
+        aux[2 * n_pix + p] = (float4)(VLANE_R(v->emission.x, l), VLANE_R(v->emission.y, l),
+                                      VLANE_R(v->emission.z, l), VLANE_R(v->lights, l));
+        aux[3 * n_pix + p] = (float4)(VLANE_R(v->caustic.x, l), VLANE_R(v->caustic.y, l), VLANE_R(v->caustic.z, l),
+                                      VLANE_R(v->caustic_sq, l));
     }
 }
 
