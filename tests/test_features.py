@@ -92,3 +92,35 @@ def test_feature_buffers_only_with_the_filter(device_spec):
     assert aux.features.aux and "-DCLPT_AUX=1" in aux.features.options()
     assert np.array_equal(res.image, res2.image)
     assert set(res2.aux) == {"normal", "albedo", "depth", "emission", "emitter", "caustic", "caustic_var"}
+
+
+def _function_lengths():
+    """(lines, file, name) of every function defined in kernels/."""
+    out = []
+    for path in sorted(kernel_dir().iterdir()):
+        lines = path.read_text().split("\n")
+        i = 0
+        while i < len(lines):
+            m = re.match(r"^(?!#|typedef\b|//|\s)[\w ]+?\b(\w+)\(", lines[i])
+            if not m or lines[i].rstrip().endswith(";"):
+                i += 1
+                continue
+            j, depth, opened = i, 0, False
+            while j < len(lines):
+                depth += lines[j].count("{") - lines[j].count("}")
+                opened = opened or "{" in lines[j]
+                if opened and depth == 0:
+                    break
+                j += 1
+            out.append((j - i + 1, path.name, m[1]))
+            i = j + 1
+    return out
+
+
+def test_kernel_functions_stay_readable():
+    """trace_paths is the loop over the path events (kernels/path.h), at most
+    150 lines; every other kernel function at most 100."""
+    lengths = {name: n for n, _, name in _function_lengths()}
+    assert {"trace_paths", "path_emission", "bsdf_sample", "light_sample", "scene_walk"} <= set(lengths)
+    assert lengths["trace_paths"] <= 150
+    assert {name: n for name, n in lengths.items() if n > 100 and name != "trace_paths"} == {}

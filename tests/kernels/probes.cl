@@ -42,6 +42,29 @@ __kernel void probe_rng(uint seed, __global const uint *pixel, __global const ui
     ST(r.a, a, i); ST(r.b, b, i); ST(r.c, c, i); ST(r.d, d, i);
 }
 
+// Every named dimension of sampler.h for (seed, pixel, sample, depth), in
+// the order test_sampler.py reads them: camera x, y; light pick, u1, u2;
+// merge; bsdf lobe, u1, u2, fresnel; photon (index = pixel) emission pick,
+// u1, u2, caster, aim u1, u2; photon bounce `bounce` lobe, fresnel. Work-item
+// i writes out[(18 i + k) * CLPT_LANES + lane].
+__kernel void probe_sampler(uint seed, uint bounce, __global const uint *pixel, __global const uint *sample,
+                            __global const uint *depth, __global real *out)
+{
+    size_t i = get_global_id(0);
+    Sampler s = sampler_make(seed, LDU(pixel, i), LDU(sample, i));
+    vreal d = VREAL(LDU(depth, i));
+    CameraU c = sample_camera(&s);
+    LightU l = sample_light(&s, d);
+    BsdfU b = sample_bsdf(&s, d);
+    PhotonSampler ps = photon_sampler_make(seed, LDU(pixel, i));
+    EmitU e = sample_photon_emission(&ps);
+    BsdfU pb = sample_photon_bounce(&ps, bounce);
+    vreal v[18] = {c.x, c.y, l.pick, l.u1, l.u2, sample_merge(&s, d), b.lobe, b.u1, b.u2, b.fresnel,
+                   e.light.pick, e.light.u1, e.light.u2, e.caster, e.u1, e.u2, pb.lobe, pb.fresnel};
+    for (int k = 0; k < 18; k++)
+        ST(v[k], out, 18 * i + k);
+}
+
 __kernel void probe_cosine_hemisphere(__global const real *u1, __global const real *u2,
                                       __global real *x, __global real *y, __global real *z, __global real *pdf)
 {
