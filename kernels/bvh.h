@@ -87,12 +87,6 @@ inline lreal bvh_lrow(const Scene *sc, uint blk, uint field)
     return scene_rec(sc, blk + field);
 }
 
-// Item k's value of field `field` of a leaf block.
-inline real bvh_leaf_el(const Scene *sc, uint blk, uint field, int k)
-{
-    return ((__global const real *)(sc->rec + blk + field))[k];
-}
-
 inline real bvh_min4(real4 v)
 {
     __typeof__(v.lo) a = min(v.lo, v.hi);
@@ -124,12 +118,17 @@ inline vreal bvh_enter(real4 lo, real4 hi, V3 o, V3 inv, vreal tmax)
 // Item k of the leaf block at blk as the PLANAR rows p, n, wu, wv.
 inline void bvh_leaf_item(const Scene *sc, uint blk, int k, real4 *p, real4 *n, real4 *wu, real4 *wv)
 {
-#define LEAF_EL(f) bvh_leaf_el(sc, blk, f, k)
-    *p = (real4)(LEAF_EL(BVHL_PX), LEAF_EL(BVHL_PY), LEAF_EL(BVHL_PZ), LEAF_EL(BVHL_MAT));
-    *n = (real4)(LEAF_EL(BVHL_NX), LEAF_EL(BVHL_NY), LEAF_EL(BVHL_NZ), LEAF_EL(BVHL_LIGHT));
-    *wu = (real4)(LEAF_EL(BVHL_UX), LEAF_EL(BVHL_UY), LEAF_EL(BVHL_UZ), LEAF_EL(BVHL_PRIM));
-    *wv = (real4)(LEAF_EL(BVHL_VX), LEAF_EL(BVHL_VY), LEAF_EL(BVHL_VZ), LEAF_EL(BVHL_KIND));
-#undef LEAF_EL
+    // Whole rows loaded, then item k taken from each (a scalar load per field was slower on PoCL).
+    real4 px = bvh_lrow(sc, blk, BVHL_PX), py = bvh_lrow(sc, blk, BVHL_PY), pz = bvh_lrow(sc, blk, BVHL_PZ);
+    real4 nx = bvh_lrow(sc, blk, BVHL_NX), ny = bvh_lrow(sc, blk, BVHL_NY), nz = bvh_lrow(sc, blk, BVHL_NZ);
+    real4 ux = bvh_lrow(sc, blk, BVHL_UX), uy = bvh_lrow(sc, blk, BVHL_UY), uz = bvh_lrow(sc, blk, BVHL_UZ);
+    real4 vx = bvh_lrow(sc, blk, BVHL_VX), vy = bvh_lrow(sc, blk, BVHL_VY), vz = bvh_lrow(sc, blk, BVHL_VZ);
+    real4 kind = bvh_lrow(sc, blk, BVHL_KIND), mat = bvh_lrow(sc, blk, BVHL_MAT);
+    real4 light = bvh_lrow(sc, blk, BVHL_LIGHT), prim = bvh_lrow(sc, blk, BVHL_PRIM);
+    *p = (real4)(BVH_EL(px, k), BVH_EL(py, k), BVH_EL(pz, k), BVH_EL(mat, k));
+    *n = (real4)(BVH_EL(nx, k), BVH_EL(ny, k), BVH_EL(nz, k), BVH_EL(light, k));
+    *wu = (real4)(BVH_EL(ux, k), BVH_EL(uy, k), BVH_EL(uz, k), BVH_EL(prim, k));
+    *wv = (real4)(BVH_EL(vx, k), BVH_EL(vy, k), BVH_EL(vz, k), BVH_EL(kind, k));
 }
 
 // Item k of a leaf against every lane: its records and the hit distances

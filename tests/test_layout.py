@@ -72,7 +72,7 @@ def test_generated_c_is_in_every_build():
 
 
 # The functions through which kernels read scene rows: (name, index of the offset argument).
-ACCESSORS = {"scene_rec": 1, "bvh_row": 2, "bvh_lrow": 2, "bvh_leaf_el": 2}
+ACCESSORS = {"scene_rec": 1, "bvh_row": 2, "bvh_lrow": 2}
 
 
 def _calls(text, name):
