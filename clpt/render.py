@@ -184,8 +184,8 @@ class Renderer:
         self._twins = {}
         self.options = DeviceOptions(lanes=lanes, precision=precision, kernel=kernel, nee=nee, photons=photons,
                                      aux=aux, use_cache=use_cache, accumulate=accumulate, local_size=local_size,
-                                     bvh=bvh, bvh_method=bvh_method,
-                                     experimental=(experimental or Experimental()).check())
+                                     bvh=bvh, bvh_method=bvh_method)
+        self.experimental = (experimental or Experimental()).check()
         t0 = time.perf_counter()
         self.packed = self.options.pack(scene)
         self.pack_seconds = time.perf_counter() - t0
@@ -205,10 +205,11 @@ class Renderer:
                                   f"{dctx.device.max_work_group_size}")
 
             def make(n_lanes, dctx=dctx):
-                return DeviceWorker(dctx, self.packed, device_features(dctx, self.packed, self.options, n_lanes),
+                return DeviceWorker(dctx, self.packed, device_features(dctx, self.packed, self.options, n_lanes,
+                                                                       self.experimental),
                                     use_cache)
 
-            f = device_features(dctx, self.packed, self.options, lanes or 1)
+            f = device_features(dctx, self.packed, self.options, lanes or 1, self.experimental)
             tuning, st = tune.choose(dctx, kernel_source(None, f), f.options(), make, self._trial,
                                      lanes=lanes, local_size=local_size, use_cache=use_cache)
             if st is None:
@@ -225,6 +226,7 @@ class Renderer:
         shell = Renderer.__new__(Renderer)
         shell.scene, shell.packed, shell.states, shell.features = self.scene, self.packed, [st], st.features
         shell.options, shell._local, shell._processes = self.options, None, None
+        shell.experimental = self.experimental
         shell.photon_settings, shell._twins = self.photon_settings, {}
         n = tune.TRIAL_SIZE
         res = shell.render(spp, width=n, height=n, seed=seed, pass_seconds=1e9)
@@ -356,7 +358,7 @@ class Renderer:
             if kw.get("photons") is None and self.photon_settings is not None:
                 kw["photons"] = self.photon_settings
             self._twins[key] = Renderer(self.scene, device=[d.device for d in self.devices],
-                                        use_cache=self.options.use_cache, **kw)
+                                        use_cache=self.options.use_cache, experimental=self.experimental, **kw)
         return self._twins[key]
 
     def _executor(self, executor):

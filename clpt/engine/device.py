@@ -19,7 +19,7 @@ from .. import program
 from ..constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, OFFSET_FLOOR
 from ..denoise import ConeFilter
 from ..device import DeviceContext, DeviceError
-from ..features import Features, scene_features
+from ..features import Experimental, Features, scene_features
 from ..pack import MAX_FLOAT_RECORDS, PackedScene, camera_frame
 from ..photons import PM_OFF, PM_PREPASS, PhotonMap, PhotonSettings
 from ..scene import SceneError
@@ -30,7 +30,11 @@ from .launch import RecordBuffer, fill_scene_info, trace_args, trace_record
 PREPASS_SEED_SALT = 0x2545F491
 
 
-def device_features(dctx: DeviceContext, packed: PackedScene, opts: DeviceOptions, lanes: int | None = None) -> Features:
+def device_features(dctx: DeviceContext, packed: PackedScene, opts: DeviceOptions, lanes: int | None = None,
+                    experimental: Experimental | None = None) -> Features:
+    """The build of packed on dctx: the options' (and, for `clpt bench`, an
+    Experimental variant's; renders and their jobs never carry one, as no
+    variant changes an image)."""
     if (opts.precision == "double" or opts.accumulate == "double") and not dctx.fp64:
         raise DeviceError(f"{dctx.label} has no double precision (cl_khr_fp64); render with precision='float'")
     acc_double = dctx.fp64 if opts.accumulate == "auto" else opts.accumulate == "double"
@@ -41,7 +45,7 @@ def device_features(dctx: DeviceContext, packed: PackedScene, opts: DeviceOption
     return scene_features(packed, lanes=lanes or opts.lanes,
                           double=opts.precision == "double", accum_double=acc_double or opts.precision == "double",
                           mode=opts.kernel, nee=opts.nee, photons=packed.has_caustics and opts.photons is not False,
-                          aux=opts.aux, bvh_walk=opts.experimental.bvh_walk)
+                          aux=opts.aux, bvh_walk=(experimental or Experimental()).bvh_walk)
 
 
 def kernel_sources(packed: PackedScene | None, features: Features) -> list[str]:

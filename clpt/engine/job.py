@@ -16,7 +16,6 @@ import numpy as np
 
 from ..adaptive import AdaptiveSettings
 from ..denoise import FilterSettings
-from ..features import Experimental
 from ..photons import PM_MERGE, PM_OFF, PM_OFFLINE, PM_OWNED, PhotonSettings, photon_seed
 from ..scene import Scene
 
@@ -61,11 +60,10 @@ class DeviceOptions:
     local_size: int | None = None
     bvh: object = "auto"
     bvh_method: str = "lbvh"
-    experimental: Experimental = Experimental()  # variants kept for `clpt bench` to compare
 
     def renderer_kwargs(self) -> dict:
         """Renderer's keywords for these options (but use_cache and the device)."""
-        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out = asdict(self)
         out.pop("use_cache")
         return out
 
