@@ -15,14 +15,27 @@ from __future__ import annotations
 import copy
 import json
 import math
+import random
+import re
+import shutil
+import tempfile
 import tomllib
+import warnings
 from pathlib import Path
 
 import numpy as np
+from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 
 import clpt
 from clpt.resources import scene_path
+
+def bounded(n):
+    """Settings for a test of n inputs, the same ones every run
+    (derandomized), without a time limit per input."""
+    return settings(max_examples=n, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck),
+                    database=None)
+
 
 # --- values --------------------------------------------------------------------------
 
@@ -184,14 +197,16 @@ def one_line(msg: str, what: str):
         raise Failure(f"{what}: not a one-line error: {msg!r}")
 
 
-def check_scene_file(path: Path, render: bool, device=None) -> str:
+def check_scene_file(path: Path, render: bool, device=None, need_place=False) -> str:
     """Load (and maybe render, 4x4 at 1 spp) a scene file; the outcome's name.
-    Raises Failure for anything but a render or a clear refusal."""
+    Raises Failure for anything but a render or a clear refusal (one line
+    naming the file, and with need_place the place in it: see refusal)."""
     try:
-        scene = clpt.load_scene(path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            scene = clpt.load_scene(path)
     except clpt.SceneError as e:
-        one_line(str(e), "load_scene")
-        return "refused"
+        return refusal(e, path, need_place)
     except Exception as e:  # noqa: BLE001
         raise Failure(f"load_scene raised {type(e).__name__}: {e}") from e
     if not render:
@@ -304,3 +319,350 @@ def check_command(argv, output, tmp: Path, run_main, device=None) -> str:
         raise Failure(f"{argv}: non-finite pixels in {p}")
     p.unlink()
     return "rendered, with a warning" if any("warning" in ln for ln in lines) else "rendered"
+
+
+# === Every file clpt reads ==================================================================
+#
+# Each reader (XML scenes, OBJ and PLY meshes, checkpoints) has a strategy of
+# inputs (mutations of real files, and for XML scenes also scenes generated
+# from a grammar of the supported elements) and a check of one input, in
+# READERS below. The contract every check enforces: an input loads, and then
+# holds only finite data (and, when asked, renders a finite 4x4 image at
+# 1 spp), or it is refused with a one-line error (SceneError) that names the
+# file, the place (a line, an element, a byte offset or a member) and the
+# reason. Anything else, a traceback, another exception, a non-finite value,
+# is a Failure; fuzz_long.py adds a time limit per input, so a hang is one too.
+#
+# A new reader (textures, Mitsuba's `serialized` meshes) slots in as one more
+# Reader: seed files to mutate (or a generator) and a check.
+
+TESTS = Path(__file__).resolve().parent
+DATA = TESTS / "data"
+MESHES = Path(clpt.__file__).resolve().parent.parent / "scenes" / "meshes"
+
+# Text that parsers trip on, spliced into files in place of numbers, values and bytes.
+TOKENS = ["", " ", "0", "-0", "1", "-1", "3", "nan", "NaN", "inf", "-inf", "1e309", "-1e309", "1e-320", "3.4e38",
+          "2147483647", "2147483648", "4294967296", "-2147483649", "99999999999999999999", "1e30", "0x10", "1,2",
+          "1, 2, 3, 4", "a", "$x", "1e", ".", "+", "--1", "é", "\t", "\n", "//", "/", "#", "\\"]
+
+
+def _at(draw, data, end=False):
+    return draw(st.integers(0, len(data) if end else max(len(data) - 1, 0)))
+
+
+def _lines(data: bytes) -> list[bytes]:
+    return data.split(b"\n")
+
+
+def m_flip(draw, d):
+    if d:
+        d[_at(draw, d)] ^= 1 << draw(st.integers(0, 7))
+    return d
+
+
+def m_byte(draw, d):
+    if d:
+        d[_at(draw, d)] = draw(st.integers(0, 255))
+    return d
+
+
+def m_delete(draw, d):
+    i = _at(draw, d)
+    del d[i:i + draw(st.integers(1, 64))]
+    return d
+
+
+def m_duplicate(draw, d):
+    i = _at(draw, d)
+    span = d[i:i + draw(st.integers(1, 64))]
+    j = _at(draw, d, end=True)
+    d[j:j] = span
+    return d
+
+
+def m_truncate(draw, d):
+    return d[:_at(draw, d, end=True)]
+
+
+def m_insert(draw, d):
+    j = _at(draw, d, end=True)
+    d[j:j] = draw(st.sampled_from(TOKENS)).encode()
+    return d
+
+
+NUMBER = re.compile(rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?")
+
+
+def m_number(draw, d):
+    """A number in the file (a count, a coordinate, an index) replaced by a token."""
+    spans = [m.span() for m in NUMBER.finditer(bytes(d[:1 << 16]))]
+    if spans:
+        a, b = draw(st.sampled_from(spans))
+        d[a:b] = draw(st.sampled_from(TOKENS)).encode()
+    return d
+
+
+def m_line(draw, d):
+    """A line deleted, duplicated or swapped with another."""
+    lines = _lines(bytes(d))
+    i, j = draw(st.integers(0, len(lines) - 1)), draw(st.integers(0, len(lines) - 1))
+    op = draw(st.sampled_from(["delete", "duplicate", "swap"]))
+    if op == "delete":
+        del lines[i]
+    elif op == "duplicate":
+        lines.insert(j, lines[i])
+    else:
+        lines[i], lines[j] = lines[j], lines[i]
+    return bytearray(b"\n".join(lines))
+
+
+ATTRIBUTE = re.compile(rb'(\w+)="([^"]*)"')
+TAG = re.compile(rb"<(/?)([A-Za-z_]\w*)")
+XML_VALUES = TOKENS + ["0, 0, 0", "1, 1, 1", "0, 0", "-1, -1, -1", "1e30, 1e30, 1e30", "0:1, 1000:1", "500:nan",
+                       "bk7", "none", "true", "maybe", "$spp", "$res", "cbox/nope.obj", "cbox/light.obj",
+                       "cbox/materials.xml", "white", "3.0.0", "0.6.0", "9.0.0"]
+
+
+def m_attribute(draw, d):
+    """An attribute's value replaced, or the attribute deleted or renamed."""
+    spans = list(ATTRIBUTE.finditer(bytes(d)))
+    if not spans:
+        return d
+    m = draw(st.sampled_from(spans))
+    op = draw(st.sampled_from(["value", "value", "value", "delete", "rename"]))
+    if op == "value":
+        d[m.start(2):m.end(2)] = draw(st.sampled_from(XML_VALUES)).encode()
+    elif op == "delete":
+        del d[m.start():m.end()]
+    else:
+        d[m.start(1):m.end(1)] = draw(st.sampled_from(["name", "value", "id", "type", "x", "angle", "filename",
+                                                       "origin", "bogus"])).encode()
+    return d
+
+
+def m_tag(draw, d):
+    """A tag's name swapped for another (often a known one)."""
+    spans = list(TAG.finditer(bytes(d)))
+    if spans:
+        m = draw(st.sampled_from(spans))
+        from clpt.mitsuba import KNOWN_TAGS
+        d[m.start(2):m.end(2)] = draw(st.sampled_from(sorted(KNOWN_TAGS) + ["bogus"])).encode()
+    return d
+
+
+BYTE_MUTATIONS = [m_flip, m_byte, m_delete, m_duplicate, m_truncate, m_insert]
+TEXT_MUTATIONS = BYTE_MUTATIONS + [m_number, m_number, m_number, m_line, m_line]
+XML_MUTATIONS = TEXT_MUTATIONS + [m_attribute, m_attribute, m_attribute, m_tag]
+
+
+@st.composite
+def mutations_of(draw, seeds: list[bytes], ops, most=4):
+    """A seed file with 1 to `most` mutations drawn from ops."""
+    d = bytearray(draw(st.sampled_from(seeds)))
+    for _ in range(draw(st.integers(1, most))):
+        d = draw(st.sampled_from(ops))(draw, d)
+    return bytes(d)
+
+
+# --- outcomes -------------------------------------------------------------------------------
+
+# A place in the message: a line (file:12: or line 12), a byte offset, an XML
+# element (<shape ...>), a scene key path (shapes[1].file), a checkpoint member.
+PLACE = re.compile(r"(:\d+:|\bline \d+|\bbyte \d+|<\w+|\w+\[\d+\]|\bmember '|\bheader\b|\belement\b)")
+
+
+def refusal(e: Exception, path: Path, need_place=True) -> str:
+    """Check a refusal's message (one line, naming the file, and a place unless
+    the reason is about the whole file); returns the outcome's name."""
+    msg = str(e)
+    one_line(msg, type(e).__name__)
+    if path.name not in msg:
+        raise Failure(f"the error does not name the file {path.name}: {msg!r}")
+    if need_place and not PLACE.search(msg) and not WHOLE_FILE.search(msg):
+        raise Failure(f"the error names no place (line, element, byte offset or member): {msg!r}")
+    return "refused"
+
+
+# Reasons that are about the whole file, so have no place.
+WHOLE_FILE = re.compile(r"(no such|empty|too large|has no triangles|not a regular file|is a folder|not a clpt "
+                        r"checkpoint|not UTF-8|cannot read the|no non-degenerate|not used by the scene|"
+                        r"written by clpt|another scene|does not match its own hash|after import)")
+
+
+def finite_image(img, what):
+    img = np.asarray(img)
+    if not np.isfinite(img).all() or img.min() < 0:
+        raise Failure(f"{what}: non-finite or negative image (min {np.nanmin(img)})")
+
+
+# --- Mitsuba XML scenes ---------------------------------------------------------------------
+
+def xml_seeds() -> list[bytes]:
+    """The test XML scenes, and the BSDFs they include (as a scene of its own);
+    cbox_bunny.xml with a shipped PLY in place of its $bunny (not in the repo)."""
+    seeds = [(DATA / n).read_bytes() for n in ("cbox_mesh.xml", "cbox_shapes.xml", "cbox/materials.xml")]
+    seeds.append((DATA / "cbox_bunny.xml").read_bytes().replace(b'value="$bunny"', b'value="cbox/bunny.ply"'))
+    return seeds
+
+
+class _Values:
+    """Values for a generated scene from a seeded random.Random (hypothesis
+    draws the seed; its own draws favour boundaries, which would make nearly
+    every value wild): sensible, or with probability `wild` per value one of
+    the tokens parsers trip on."""
+
+    def __init__(self, seed, wild):
+        self.rng, self.wild = random.Random(seed), wild
+
+    def is_wild(self):
+        return self.rng.random() < self.wild
+
+    def num(self, lo=-3.0, hi=3.0):
+        if self.is_wild():
+            return self.rng.choice(TOKENS)
+        return repr(round(self.rng.uniform(lo, hi), 4))
+
+    def vec(self, lo=-3.0, hi=3.0):
+        n = self.rng.choice([1, 2, 4]) if self.is_wild() else 3
+        return ", ".join(self.num(lo, hi) for _ in range(n))
+
+    def pick(self, good: list, bad: list = ()):
+        """One of good, or (when wild) one of bad."""
+        return self.rng.choice(bad if bad and self.is_wild() else good)
+
+    def int(self, lo, hi):
+        return self.rng.randint(lo, hi)
+
+
+def _color(v: _Values, name, emitter=False):
+    hi = 20.0 if emitter else 1.0
+    kind = v.pick((["rgb", "rgb", "float", "spectrum", "spectrum_pairs", "checkerboard"]))
+    if kind == "rgb":
+        return f'<rgb name="{name}" value="{v.vec(0, hi)}"/>'
+    if kind == "float":
+        return f'<float name="{name}" value="{v.num(0, hi)}"/>'
+    if kind == "spectrum":
+        return f'<spectrum name="{name}" value="{v.num(0, hi)}"/>'
+    if kind == "spectrum_pairs":
+        wavelengths = sorted(v.rng.sample(range(360, 831, 10), v.int(1, 4)))
+        pairs = ", ".join(f"{w if not v.is_wild() else v.num()}:{v.num(0, hi)}" for w in wavelengths)
+        return f'<spectrum name="{name}" value="{pairs}"/>'
+    return (f'<texture type="checkerboard" name="{name}">{_color(v, "color0", emitter)}'
+            f'{_color(v, "color1", emitter)}</texture>')
+
+
+def _bsdf(v: _Values, depth=0, ident=None):
+    t = v.pick(["diffuse", "diffuse", "conductor", "roughconductor", "dielectric", "thindielectric",
+                "roughdielectric", "plastic", "roughplastic"] + (["twosided", "blendbsdf", "mask"] if depth < 2 else []),
+               ["bogus", "hair"])
+    body = []
+    if t == "diffuse":
+        body.append(_color(v, "reflectance"))
+    elif t in ("conductor", "roughconductor"):
+        body.append(v.pick((['<string name="material" value="Au"/>', '<string name="material" '
+                                            'value="none"/>', f'<rgb name="eta" value="{v.vec(0, 3)}"/>', ""])))
+    elif t in ("dielectric", "thindielectric", "roughdielectric", "plastic", "roughplastic"):
+        body.append(v.pick(([f'<float name="int_ior" value="{v.num(1, 2.5)}"/>',
+                                            '<string name="int_ior" value="water"/>', ""])))
+        if t.endswith("plastic"):
+            body.append(_color(v, "diffuse_reflectance"))
+    if t.startswith("rough"):
+        body.append(f'<float name="alpha" value="{v.num(0, 1)}"/>')
+    if t in ("twosided", "mask"):
+        body.append(_bsdf(v, depth + 1))
+    if t == "blendbsdf":
+        body += [f'<float name="weight" value="{v.num(0, 1)}"/>', _bsdf(v, depth + 1), _bsdf(v, depth + 1)]
+    i = f' id="{ident}"' if ident else ""
+    return f'<bsdf type="{t}"{i}>{"".join(body)}</bsdf>'
+
+
+def _transform(v: _Values, name="to_world"):
+    ops = []
+    for _ in range(v.int(0, 3)):
+        op = v.pick((["translate", "scale", "rotate", "matrix", "lookat"]))
+        if op == "translate":
+            ops.append(f'<translate value="{v.vec()}"/>')
+        elif op == "scale":
+            ops.append(f'<scale value="{v.vec(0.01, 2)}"/>')
+        elif op == "rotate":
+            ops.append(f'<rotate value="{v.vec(-1, 1)}" angle="{v.num(-180, 180)}"/>')
+        elif op == "matrix":
+            vals = " ".join(v.num(-2, 2) for _ in range(12)) + " 0 0 0 1"
+            ops.append(f'<matrix value="{vals}"/>')
+        else:
+            ops.append(f'<lookat origin="{v.vec()}" target="{v.vec()}" up="0, 1, 0"/>')
+    return f'<transform name="{name}">{"".join(ops)}</transform>'
+
+
+def _shape(v: _Values, bsdf_ids, light=False):
+    t = v.pick(["rectangle", "rectangle", "cube", "sphere", "disk", "cylinder", "obj", "ply"],
+               ["bogus", "bsplinecurve", "instance"])
+    body = [_transform(v)]
+    if t == "sphere":
+        body.append(f'<point name="center" value="{v.vec()}"/><float name="radius" value="{v.num(0.01, 2)}"/>')
+    elif t == "cylinder":
+        body.append(f'<point name="p0" value="{v.vec()}"/><point name="p1" value="{v.vec()}"/>'
+                    f'<float name="radius" value="{v.num(0.01, 1)}"/>')
+    elif t == "obj":
+        body.append(f'<string name="filename" value="cbox/{v.pick(["small_box", "light"], ["nope"])}.obj"/>')
+    elif t == "ply":
+        body.append('<string name="filename" value="cbox/bunny.ply"/>')
+    if v.pick([True, False]):
+        body.append(f'<boolean name="flip_normals" value="{v.pick(["true", "false"], ["2", "yes"])}"/>')
+    if bsdf_ids and v.pick([True, False]):
+        body.append(f'<ref id="{v.pick(bsdf_ids, ["undefined"])}"/>')
+    elif v.pick([True, False]):
+        body.append(_bsdf(v))
+    if light or v.int(0, 2) == 0:
+        body.append(f'<emitter type="{v.pick(["area"], ["point", "bogus"])}">'
+                    f'{_color(v, "radiance", emitter=True)}</emitter>')
+    return f'<shape type="{t}">{"".join(body)}</shape>'
+
+
+@st.composite
+def xml_scenes(draw):
+    """A Mitsuba scene generated from the grammar of the elements clpt reads:
+    an integrator, a sensor with film and sampler, BSDFs by id (nested in
+    twosided, blendbsdf and mask), shapes of every supported type with
+    transforms, BSDFs, refs and area emitters. In one scene of two every value
+    is sensible; in the others a few are extreme or malformed."""
+    v = _Values(draw(st.integers(0, 2 ** 32 - 1)), draw(st.sampled_from([0.0, 0.0, 0.02, 0.1])))
+    parts = [f'<scene version="{v.pick(["3.0.0", "3.0.0", "2.0.0", "0.6.0"], ["x", "9.0.0", ""])}">']
+    spp = v.pick(["1", "2", "4"], ["0", "-1", "x", "1e3"])
+    if v.pick([True, False]):
+        parts.append(f'<default name="spp" value="{spp}"/>')
+        spp = "$spp"
+    if v.pick([True, False]):
+        parts.append(f'<integrator type="{v.pick(["path", "path", "direct", "volpath"], ["bdpt", ""])}">'
+                     f'<integer name="max_depth" value="{v.pick(["-1", "1", "4", "8"], ["0", "-2", "x"])}"/>'
+                     "</integrator>")
+    if v.int(0, 4):
+        fov = (f'<float name="fov" value="{v.num(1, 120)}"/>' if v.int(0, 4)
+               else f'<string name="focal_length" value="{v.pick(["50mm", "20"], ["0mm", "x"])}"/>')
+        sides = [v.pick([str(v.int(1, 16))], ["0", "65537", "x", "1e3"]) for _ in range(2)]
+        parts.append(f'<sensor type="{v.pick(["perspective", "perspective", "thinlens"], ["radiance"])}">'
+                     f'{fov}<string name="fov_axis" value="{v.pick(["x", "y", "smaller"], ["z"])}"/>'
+                     f'<transform name="to_world"><lookat origin="{v.vec(-5, 5)}" target="0, 0, 0" '
+                     f'up="{v.pick(["0, 1, 0", "0, 1, 0", "1, 1, 1"], ["0, 0, 0", "0, 1"])}"/></transform>'
+                     f'<sampler type="independent"><integer name="sample_count" value="{spp}"/></sampler>'
+                     f'<film type="hdrfilm"><integer name="width" value="{sides[0]}"/>'
+                     f'<integer name="height" value="{sides[1]}"/></film></sensor>')
+    ids = [f"m{i}" for i in range(v.int(0, 3))]
+    parts += [_bsdf(v, ident=i) for i in ids]
+    parts += [_shape(v, ids, light=i == 0) for i in range(v.int(1, 5))]
+    parts.append("</scene>")
+    return "\n".join(parts).encode()
+
+
+def xml_inputs():
+    """Mutated test scenes and generated ones, half and half."""
+    return st.one_of(mutations_of(xml_seeds(), XML_MUTATIONS), xml_scenes())
+
+
+def xml_workspace() -> Path:
+    """A folder holding what the XML scenes refer to (tests/data/cbox, and a
+    shipped PLY as cbox/bunny.ply); inputs are written beside it."""
+    d = Path(tempfile.mkdtemp(prefix="clpt-fuzz-xml-"))
+    shutil.copytree(DATA / "cbox", d / "cbox")
+    shutil.copy(MESHES / "ring.ply", d / "cbox" / "bunny.ply")
+    return d
