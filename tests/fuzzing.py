@@ -484,7 +484,7 @@ def refusal(e: Exception, path: Path, need_place=True) -> str:
 
 
 # Reasons that are about the whole file, so have no place.
-WHOLE_FILE = re.compile(r"(no such|empty|too large|has no triangles|not a regular file|is a folder|not a clpt "
+WHOLE_FILE = re.compile(r"(no such|empty|too large|has no triangles|has no faces|not a regular file|is a folder|not a clpt "
                         r"checkpoint|not UTF-8|cannot read the|no non-degenerate|not used by the scene|"
                         r"written by clpt|another scene|does not match its own hash|after import)")
 
@@ -666,3 +666,93 @@ def xml_workspace() -> Path:
     shutil.copytree(DATA / "cbox", d / "cbox")
     shutil.copy(MESHES / "ring.ply", d / "cbox" / "bunny.ply")
     return d
+
+
+# --- OBJ and PLY meshes -------------------------------------------------------------------------
+
+def _ply_text(vertices, faces, extra_vertex=(), extra_elements=""):
+    head = ["ply", "format ascii 1.0", "comment a fuzzing seed", f"element vertex {len(vertices)}",
+            "property float x", "property float y", "property float z",
+            *[f"property {t} {n}" for t, n in extra_vertex], extra_elements,
+            f"element face {len(faces)}", "property list uchar int vertex_indices", "end_header"]
+    body = [" ".join(repr(float(c)) for c in row) + "".join(" 1" for _ in extra_vertex) for row in vertices]
+    body += [f"{len(f)} " + " ".join(map(str, f)) for f in faces]
+    return ("\n".join(h for h in head if h) + "\n" + "\n".join(body) + "\n").encode()
+
+
+def mesh_seeds() -> dict[str, list[bytes]]:
+    """Real files to mutate, by format: the test scenes' OBJ files, a shipped
+    binary PLY, and small files of each kind the readers take (OBJ with
+    normals, texture coordinates, quads and negative indices; ASCII PLY with
+    mixed polygons, extra properties and elements; little- and big-endian
+    binary PLY with and without normals)."""
+    from meshgen import uv_sphere, write_obj, write_ply
+
+    v, t, n = uv_sphere(n_theta=4, n_phi=6)
+    tmp = Path(tempfile.mkdtemp(prefix="clpt-fuzz-seeds-"))
+    write_obj(tmp / "s.obj", v, t, n)
+    write_ply(tmp / "s.ply", v, t, n, binary=True)
+    write_ply(tmp / "p.ply", v, t, None, binary=True)
+    write_ply(tmp / "a.ply", v, t, n, binary=False)
+    seeds = {"obj": [(tmp / "s.obj").read_bytes()], "ply": [(tmp / f).read_bytes() for f in ("s.ply", "p.ply",
+                                                                                             "a.ply")]}
+    shutil.rmtree(tmp)
+    seeds["obj"] += [(DATA / "cbox" / f).read_bytes() for f in ("small_box.obj", "light.obj")]
+    seeds["obj"].append(b"# quads, texture coordinates, negative indices\no quad\nv 0 0 0\nv 1 0 0\nv 1 1 0\n"
+                        b"v 0 1 0\nvt 0 0\nvt 1 0\nvt 1 1\nvn 0 0 1\nusemtl white\ns off\n"
+                        b"f 1/1/1 2/2/1 3/3/1 4/1/1\nf -4/-3 -2/-2 -1/-1\nl 1 2\n")
+    square = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (3, 0, 0), (3, 1, 0)]
+    seeds["ply"].append(_ply_text(square, [(0, 1, 2, 3), (4, 5, 6), (0, 2, 3)], extra_vertex=[("uchar", "red")],
+                                  extra_elements="element material 0\nproperty float shine"))
+    big_endian = (MESHES / "ring.ply").read_bytes()
+    head, body = big_endian.split(b"end_header\n", 1)
+    verts = np.frombuffer(body, "<f4", 768 * 6)
+    faces = np.frombuffer(body[768 * 24:], dtype=[("n", "u1"), ("i", "<i4", (3,))])
+    be_faces = np.zeros(len(faces), dtype=[("n", "u1"), ("i", ">i4", (3,))])
+    be_faces["n"], be_faces["i"] = faces["n"], faces["i"]
+    seeds["ply"].append(head.replace(b"binary_little_endian", b"binary_big_endian") + b"end_header\n"
+                        + verts.astype(">f4").tobytes() + be_faces.tobytes())
+    seeds["ply"].append((MESHES / "ring.ply").read_bytes())
+    return seeds
+
+
+def mesh_inputs(fmt):
+    return mutations_of(mesh_seeds()[fmt], TEXT_MUTATIONS)
+
+
+def check_mesh_file(path: Path, render: bool, device=None) -> str:
+    """Read a mesh file; what loads must hold finite positions and unit normals
+    and index its own vertices, and (render) render finite, 4x4 at 1 spp, as
+    an emitter seen by a camera framing it."""
+    from clpt.meshio import MeshError, read_mesh
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            v, t, n = read_mesh(path)
+    except MeshError as e:
+        return refusal(e, path)
+    except Exception as e:  # noqa: BLE001
+        raise Failure(f"read_mesh raised {type(e).__name__}: {e}") from e
+    if not (np.isfinite(v).all() and len(t) and t.min() >= 0 and t.max() < len(v)):
+        raise Failure(f"{path.name}: loaded with non-finite vertices or indices out of range")
+    if n is not None and not (np.abs(np.linalg.norm(n, axis=1) - 1) < 1e-9).all():
+        raise Failure(f"{path.name}: loaded with normals that are not unit vectors")
+    if not render:
+        return "accepted"
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    c, r = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) or 1.0
+    cam = clpt.Camera(origin=tuple(c + (0.3 * r, 0.2 * r, 2 * r)), target=tuple(c), width=4, height=4)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            scene = clpt.Scene(camera=cam, shapes=[clpt.Mesh(vertices=v, triangles=t, normals=n, material="white",
+                                                             emission=(1.0, 1.0, 1.0), two_sided=True)]).check()
+            res = clpt.Renderer(scene, kernel="generic", device=device).render(1, max_depth=3, rr_depth=2, seed=1)
+    except clpt.SceneError as e:  # a mesh the renderer cannot frame (e.g. spanning 1e-300 to 1e300)
+        one_line(str(e), "render")
+        return "refused at render"
+    except Exception as e:  # noqa: BLE001
+        raise Failure(f"render raised {type(e).__name__}: {e}") from e
+    finite_image(res.image, path.name)
+    return "rendered"
