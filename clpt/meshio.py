@@ -21,15 +21,13 @@ import io
 import math
 import os
 import re
-import stat
-import struct
 import warnings
 from array import array
 from pathlib import Path
 
 import numpy as np
 
-from .scene import SceneError
+from .scene import SceneError, open_regular_file
 
 FORMATS = ("obj", "ply")
 
@@ -87,24 +85,22 @@ def _read_bytes(p: Path, name, fmt) -> bytes:
     from .preflight import available_host_bytes
 
     try:
-        with open(p, "rb", opener=lambda f, flags: os.open(f, flags | getattr(os, "O_NONBLOCK", 0))) as f:
-            st = os.fstat(f.fileno())
-            if stat.S_ISDIR(st.st_mode):
-                raise MeshError(f"{name}: is a folder, not a mesh file")
-            if not stat.S_ISREG(st.st_mode):
-                raise MeshError(f"{name}: not a regular file (a pipe or device); save the mesh to a file")
-            need = st.st_size * READ_BYTES_PER_FILE_BYTE[fmt]
-            avail = available_host_bytes()
-            if avail is not None and need > avail:
-                raise MeshError(f"{name}: a {st.st_size / 2**30:.1f} GiB mesh file needs about {need / 2**30:.1f} "
-                                f"GiB of memory to read and {avail / 2**30:.1f} GiB are available; too large")
+        f = open_regular_file(p, name, "mesh file")
+    except MeshError:
+        raise
+    except SceneError as e:
+        raise MeshError(str(e)) from None
+    with f:
+        size = os.fstat(f.fileno()).st_size
+        need = size * READ_BYTES_PER_FILE_BYTE[fmt]
+        avail = available_host_bytes()
+        if avail is not None and need > avail:
+            raise MeshError(f"{name}: a {size / 2**30:.1f} GiB mesh file needs about {need / 2**30:.1f} GiB of "
+                            f"memory to read and {avail / 2**30:.1f} GiB are available; too large")
+        try:
             data = f.read()
-    except FileNotFoundError:
-        raise MeshError(f"{name}: no such mesh file") from None
-    except IsADirectoryError:
-        raise MeshError(f"{name}: is a folder, not a mesh file") from None
-    except OSError as e:
-        raise MeshError(f"{name}: cannot read the mesh file: {e.strerror or e}") from None
+        except OSError as e:
+            raise MeshError(f"{name}: cannot read the mesh file: {e.strerror or e}") from None
     if not data:
         raise MeshError(f"{name}: the file is empty")
     return data

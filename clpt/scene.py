@@ -966,11 +966,11 @@ def parse_scene(text: str, source: str = "<string>", base_dir=None) -> Scene:
 MAX_SCENE_BYTES = 16 << 20
 
 
-def read_file_bytes(p: Path, name, what: str = "scene file", limit: int = MAX_SCENE_BYTES) -> bytes:
-    """The bytes of a file clpt reads whole (a scene, an included scene, a
-    spectrum): a regular file (a FIFO or a device would block or never end)
-    of at most `limit` bytes, checked before reading. Every failure is a
-    one-line SceneError naming the file as `name`."""
+def open_regular_file(p: Path, name, what: str, limit: int | None = None):
+    """The file open for reading in binary, checked first: it exists, is a
+    regular file (a FIFO or a device would block or never end) and has at
+    most `limit` bytes. Every failure is a one-line SceneError naming the
+    file as `name`."""
     import os
     import stat
 
@@ -986,15 +986,22 @@ def read_file_bytes(p: Path, name, what: str = "scene file", limit: int = MAX_SC
             raise SceneError(f"{name}: is a folder, not a {what}")
         if not stat.S_ISREG(st.st_mode):
             raise SceneError(f"{name}: not a regular file (a pipe or device); save the {what} to a file")
-        if st.st_size > limit:
-            raise SceneError(f"{name}: {st.st_size} bytes is too large for a {what} "
-                             f"(at most {limit >> 20} MiB)")
-        with os.fdopen(fd, "rb", closefd=False) as f:
-            data = f.read(limit + 1)
-    except OSError as e:
-        raise SceneError(f"{name}: cannot read the {what}: {e.strerror or e}") from None
-    finally:
+        if limit is not None and st.st_size > limit:
+            raise SceneError(f"{name}: {st.st_size} bytes is too large for a {what} (at most {limit >> 20} MiB)")
+        return os.fdopen(fd, "rb")
+    except BaseException:
         os.close(fd)
+        raise
+
+
+def read_file_bytes(p: Path, name, what: str = "scene file", limit: int = MAX_SCENE_BYTES) -> bytes:
+    """The bytes of a file clpt reads whole (a scene, an included scene, a
+    spectrum), of at most `limit` bytes (open_regular_file)."""
+    with open_regular_file(p, name, what, limit) as f:
+        try:
+            data = f.read(limit + 1)
+        except OSError as e:
+            raise SceneError(f"{name}: cannot read the {what}: {e.strerror or e}") from None
     if len(data) > limit:
         raise SceneError(f"{name}: too large for a {what} (at most {limit >> 20} MiB)")
     return data

@@ -756,3 +756,165 @@ def check_mesh_file(path: Path, render: bool, device=None) -> str:
         raise Failure(f"render raised {type(e).__name__}: {e}") from e
     finite_image(res.image, path.name)
     return "rendered"
+
+
+# --- checkpoints ----------------------------------------------------------------------------------
+
+def checkpoint_seeds() -> list[bytes]:
+    """Checkpoints written by clpt's writer for tiny (4x4) jobs of each kind:
+    plain, offline caustics (caustic planes), adaptive with a round's pixels
+    to redo, a mesh (the job's arrays), feature buffers and the filter. The
+    sums are random but of the right layout; every job uses the generic
+    kernel, so resuming one builds nothing new."""
+    from clpt.engine.accum import Accumulator
+    from clpt.engine.checkpoint import write_checkpoint
+    from clpt.engine.job import DeviceOptions, RenderJob
+    from meshgen import uv_sphere
+
+    v, t, n = uv_sphere(center=(0.3, -0.6, 0.2), radius=0.3, n_theta=4, n_phi=6)
+    box = clpt.load_scene("cornell_box")
+    with_mesh = copy.copy(box)
+    with_mesh.shapes = box.shapes + [clpt.Mesh(vertices=v, triangles=t, normals=n, material="white", name="ball")]
+    generic = DeviceOptions(kernel="generic")
+    jobs = [
+        (RenderJob(box, 8, 1, 8, 2, 4, 4, generic), {}, 4),
+        (RenderJob(clpt.load_scene("cornell_box_caustics"), 8, 2, 8, 2, 4, 4, DeviceOptions(kernel="generic"),
+                   photons=clpt.PhotonSettings(count=2000, mode="offline", offline_spp=2)), {"caustic": True}, 2),
+        (RenderJob(box, 8, 3, 8, 2, 4, 4, generic, adaptive=clpt.AdaptiveSettings(min_spp=2, pass_spp=2)), {}, 2),
+        (RenderJob(with_mesh, 4, 4, 8, 2, 4, 4, generic), {}, 2),
+        (RenderJob(box, 4, 5, 8, 2, 4, 4, DeviceOptions(kernel="generic", aux=True), filter=clpt.FilterSettings()),
+         {"aux": True}, 1),
+    ]
+    rng = np.random.default_rng(26)
+    tmp = Path(tempfile.mkdtemp(prefix="clpt-fuzz-ckpt-"))
+    seeds = []
+    for i, (job, layout, done) in enumerate(jobs):
+        sums = Accumulator(job.n_pix, **layout)
+        for k, plane in sums.planes.items():
+            plane[...] = rng.uniform(0, 2, plane.shape)
+        for p in ("", "c_") if "c_sum" in sums.planes else ("",):
+            sums.planes[p + "sum"][:, 3] = done
+        adaptive = job.adaptive is not None
+        redo = [{"kind": "pixels", "s0": 0, "n": 0, "iteration": 0, "round": 0, "pixels": [1, 5],
+                 "jobs": [[2, 8, 2, 0], [2, 8, 2, 0]]}] if adaptive else []
+        state = {"next": done, "prepass_done": True, "rounds": int(adaptive), "adaptive_over": False, "redo": redo}
+        write_checkpoint(tmp / f"{i}.ckpt", job, sums, state, elapsed=1.5)
+        seeds.append((tmp / f"{i}.ckpt").read_bytes())
+    shutil.rmtree(tmp)
+    return seeds
+
+
+def _members(data: bytes) -> dict:
+    import io
+    with np.load(io.BytesIO(data), allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def _archive(members: dict) -> bytes:
+    import io
+    buf = io.BytesIO()
+    np.savez(buf, **members)
+    return buf.getvalue()
+
+
+def _json_member(a) -> object:
+    return json.loads(bytes(a).decode())
+
+
+def _as_member(doc) -> np.ndarray:
+    return np.frombuffer(json.dumps(doc).encode(), dtype=np.uint8)
+
+
+@st.composite
+def checkpoint_edits(draw, seeds):
+    """A seed rewritten as a valid archive with a member changed: a value in
+    the meta or job JSON replaced, deleted or made extreme (then, half the
+    time, meta's job hash recomputed for the changed job, so the checks past
+    the hash are reached), a plane or mesh array damaged (non-finite or
+    negative values, another shape or type), a member dropped or added."""
+    from clpt.engine.checkpoint import Checkpoint, CheckpointError, _decode, _job_types
+
+    m = _members(draw(st.sampled_from(seeds)))
+    what = draw(st.sampled_from(["meta", "meta", "job", "job", "job", "array", "array", "drop", "add"]))
+    if what in ("meta", "job"):
+        doc = _json_member(m[what])
+        paths = [p for p, _ in _paths(doc) if p]
+        path = draw(st.sampled_from(paths))
+        action = draw(st.sampled_from(["replace", "replace", "extreme", "delete"]))
+        try:
+            _set(doc, path, _DELETE if action == "delete" else draw(values) if action == "replace"
+                 else draw(st.sampled_from(EXTREME_FLOATS + EXTREME_INTS)))
+        except (KeyError, IndexError, TypeError):
+            pass
+        m[what] = _as_member(doc)
+        if what == "job" and draw(st.booleans()):
+            meta = _json_member(m["meta"])
+            arrays = [m[f"job_array_{i}"] for i in range(sum(k.startswith("job_array_") for k in m))]
+            try:
+                meta["job_key"] = _decode(doc, arrays, _job_types(), lambda r: (_ for _ in ()).throw(
+                    CheckpointError(r))).key
+                m["meta"] = _as_member(meta)
+            except Exception:  # noqa: BLE001 - a job that does not decode: the reader must refuse it anyway
+                pass
+    elif what == "array":
+        name = draw(st.sampled_from(sorted(k for k in m if k.startswith(("plane_", "job_array_")))))
+        a = m[name].copy()
+        op = draw(st.sampled_from(["nan", "inf", "negative", "shape", "dtype", "huge"]))
+        flat = a.reshape(-1)
+        i = draw(st.integers(0, max(flat.size - 1, 0)))
+        if op in ("nan", "inf", "negative") and flat.size:
+            if a.dtype.kind == "f":
+                flat[i] = {"nan": np.nan, "inf": np.inf, "negative": -1e3}[op]
+            else:
+                flat[i] = {"nan": -1, "inf": np.iinfo(a.dtype).max, "negative": -7}[op]
+        elif op == "shape":
+            a = a.reshape(-1)[:max(flat.size - draw(st.integers(1, 3)), 0)] if flat.size else a
+        elif op == "dtype":
+            a = a.astype(draw(st.sampled_from([np.float32, np.int8, np.uint64, np.complex64, np.bool_])))
+        else:
+            a = np.repeat(a, 2, axis=0)
+        m[name] = a
+    elif what == "drop":
+        del m[draw(st.sampled_from(sorted(m)))]
+    else:
+        m[draw(st.sampled_from(["plane_bogus", "plane_aux", "job_array_99", "plane_c_sum"]))] = np.zeros((16, 4))
+    return _archive(m)
+
+
+def checkpoint_inputs():
+    """Byte-level damage (mostly caught by the zip format and its CRCs), and
+    edits that keep the archive valid, so the checks of its content are reached;
+    now and then an empty file or random bytes."""
+    seeds = checkpoint_seeds()
+    return st.one_of(mutations_of(seeds, BYTE_MUTATIONS), checkpoint_edits(seeds), checkpoint_edits(seeds),
+                     st.sampled_from([b""]), st.binary(max_size=200))
+
+
+def check_checkpoint_file(path: Path, render: bool, device=None) -> str:
+    """Read a checkpoint; what loads holds finite sums of the job's shape and
+    (render) resumes to a finite image in at most a few seconds."""
+    from clpt.engine.checkpoint import Checkpoint, CheckpointError
+
+    try:
+        ck = Checkpoint(path)
+    except CheckpointError as e:
+        return refusal(e, path)
+    except Exception as e:  # noqa: BLE001
+        raise Failure(f"Checkpoint raised {type(e).__name__}: {e}") from e
+    for k, v in ck.sums.planes.items():
+        if not np.isfinite(v).all():
+            raise Failure(f"{path.name}: loaded with non-finite sums in plane {k}")
+    if not render:
+        return "accepted"
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            r = clpt.Renderer(ck.job.scene, device=device, **ck.job.options.renderer_kwargs())
+            res = r.resume(ck, time_limit=3.0, out_checkpoint=path.with_suffix(".out.ckpt"))
+    except clpt.SceneError as e:
+        one_line(str(e), "resume")
+        return "refused at resume"
+    except Exception as e:  # noqa: BLE001
+        raise Failure(f"resume raised {type(e).__name__}: {e}") from e
+    finite_image(res.image, path.name)
+    return "resumed"
