@@ -1,7 +1,8 @@
-"""Property-based fuzzing of scene files and `clpt render` options (hypothesis
-strategies and the checks of one input), shared by tests/test_fuzz.py (a few
-hundred inputs, in the suite) and tests/fuzz_long.py (as many as time allows,
-counted by outcome).
+"""Property-based fuzzing of every file clpt reads (TOML and Mitsuba XML
+scenes, OBJ and PLY meshes, checkpoints: READERS at the end) and of `clpt
+render` options: hypothesis strategies and the checks of one input, shared by
+tests/test_fuzz*.py (a few hundred inputs each, in the suite) and
+tests/fuzz_long.py (as many as asked, counted by reader and outcome).
 
 An input passes when it is rendered to a finite, non-negative image, or is
 refused with a one-line error (SceneError, ValueError, TypeError in the API;
@@ -13,6 +14,7 @@ non-finite pixel, is a failure.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import math
 import random
@@ -22,6 +24,7 @@ import tempfile
 import tomllib
 import warnings
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from hypothesis import HealthCheck, settings
@@ -918,3 +921,35 @@ def check_checkpoint_file(path: Path, render: bool, device=None) -> str:
         raise Failure(f"resume raised {type(e).__name__}: {e}") from e
     finite_image(res.image, path.name)
     return "resumed"
+
+
+# --- the readers, for the fuzzers ---------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Reader:
+    """One kind of file clpt reads: a strategy of its inputs (bytes), the name
+    an input is written under (in a fresh folder, or in workspace() when it
+    refers to other files), and its check: check(path, render, device) returns
+    the outcome's name or raises Failure.
+
+    Textures and Mitsuba's `serialized` meshes are not read yet; each will be
+    one more entry: seed files to mutate (e.g. small EXR and PNG files, and
+    serialized meshes written by a test helper) and a check that loads the
+    file through its reader and renders what loads."""
+
+    name: str
+    inputs: Callable[[], object]
+    filename: str
+    check: Callable[..., str]
+    workspace: Callable[[], Path] = lambda: Path(tempfile.mkdtemp(prefix="clpt-fuzz-"))
+
+
+READERS = {
+    "toml": Reader("toml", scene_texts, "scene.toml", check_scene_file),
+    "xml": Reader("xml", xml_inputs, "fuzz.xml",
+                  lambda p, render, device=None: check_scene_file(p, render, device, need_place=True),
+                  workspace=xml_workspace),
+    "obj": Reader("obj", lambda: mesh_inputs("obj"), "fuzz.obj", check_mesh_file),
+    "ply": Reader("ply", lambda: mesh_inputs("ply"), "fuzz.ply", check_mesh_file),
+    "checkpoint": Reader("checkpoint", checkpoint_inputs, "fuzz.ckpt", check_checkpoint_file),
+}
