@@ -239,7 +239,8 @@ def _num(valid):
     return st.one_of(valid.map(str), st.sampled_from(NUMBER_WORDS))
 
 
-OUTPUTS = ["x.png", "x.exr", "x.jpg", "x.epx", "", "x", "/proc/x.exr", "sub/dir/x.png", ".", "x.tif", "x.hdr"]
+OUTPUTS = ["x.png", "x.exr", "x.jpg", "x.epx", "", "x", "/proc/x.exr", "/proc/nope/x.exr", "/dev/null/x.png",
+           "sub/dir/x.png", ".", "x.tif", "x.hdr"]
 
 # Options and the values to fuzz them with. Valid values are kept small so
 # that every accepted render is short (a valid 2^31 spp render would run for
