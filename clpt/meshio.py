@@ -122,7 +122,74 @@ def _finite_number(tok: bytes, fail, what):
 def _read_obj(data: bytes, path):
     """v (the first three numbers), vn and f statements; faces' corners as
     v, v/vt, v//vn or v/vt/vn, with 1-based or negative (relative) indices.
-    Every other statement is skipped."""
+    Every other statement is skipped. A regular file is read at once
+    (_obj_arrays); any other, and any damaged one, line by line (_obj_lines),
+    which names the line of the first problem."""
+    v, vn, c, cn, sizes = _obj_arrays(data) or _obj_lines(data, path)
+    # Only the vertices faces use, each once per normal it is used with (an OBJ
+    # corner pairs a position with a normal; clpt's vertices have one of each).
+    key = c if cn is None else c * (len(vn) + 1) + cn  # one integer per (vertex, normal) pair
+    uniq, inverse = np.unique(key, return_inverse=True)
+    if cn is None:
+        return v[uniq], fan_polygons(inverse.reshape(-1), sizes), None
+    return v[uniq // (len(vn) + 1)], fan_polygons(inverse.reshape(-1), sizes), vn[uniq % (len(vn) + 1)]
+
+
+def _obj_arrays(data: bytes):
+    """(positions, normals, corners' vertex and normal indices, polygon sizes)
+    of a regular OBJ file, parsed a statement kind at a time by numpy: one
+    space after each keyword, no line starting with white space, vertices of 3
+    numbers, every corner of the same form, no relative indices. None for any
+    other file, or a damaged one (which _obj_lines reads, and names the fault)."""
+    if b"\t" in data:
+        return None
+    lines = data.split(b"\n")
+    if any(ln[:1] == b" " for ln in lines):
+        return None
+    v = [ln for ln in lines if ln[:2] == b"v "]
+    vn = [ln for ln in lines if ln[:3] == b"vn "]
+    f = b" ".join(ln for ln in lines if ln[:2] == b"f ").split()
+    if not v or not f:
+        return None
+    try:
+        pos, nrm = _obj_numbers(v), _obj_numbers(vn)
+        starts = [i for i, t in enumerate(f) if t == b"f"]
+        sizes = np.diff(np.array(starts + [len(f)], dtype=np.int64)) - 1
+        corners = [t for t in f if t != b"f"]
+        slashes, double = corners[0].count(b"/"), b"//" in corners[0]
+        joined = b" ".join(corners)
+        if sizes.min() < 3 or joined.count(b"/") != slashes * len(corners) or \
+                joined.count(b"//") != double * len(corners) or slashes > 2:
+            return None
+        width = {0: 1, 1: 2, 2: 2 if double else 3}[slashes]
+        parts = joined.replace(b"/", b" ").split()
+        if len(parts) != width * len(corners):
+            return None
+        idx = np.array(list(map(int, parts)), dtype=np.int64).reshape(-1, width) - 1
+    except (ValueError, OverflowError):
+        return None
+    c = idx[:, 0]
+    cn = idx[:, -1] if slashes == 2 else None
+    if pos is None or (vn and nrm is None) or (c < 0).any() or (c >= len(pos)).any() or \
+            (cn is not None and (nrm is None or (cn < 0).any() or (cn >= len(nrm)).any())):
+        return None
+    return pos, np.zeros((0, 3)) if nrm is None else nrm, c, cn, sizes
+
+
+def _obj_numbers(rows):
+    """(N, 3) finite numbers of `v` or `vn` rows of exactly 3 numbers, or None
+    (no rows, or any other)."""
+    tok = b" ".join(rows).split()
+    if not rows or len(tok) != 4 * len(rows):
+        return None
+    del tok[::4]  # the keywords
+    out = np.array(list(map(float, tok)), dtype=np.float64).reshape(-1, 3)
+    return out if np.isfinite(out).all() else None
+
+
+def _obj_lines(data: bytes, path):
+    """What _obj_arrays gives, for any OBJ file, line by line; a MeshError at
+    the first line that is wrong."""
     verts, norms = array("d"), array("d")
     corners, corner_normals, sizes, face_lines = array("q"), array("q"), array("q"), array("q")
     all_normals = True
@@ -169,13 +236,8 @@ def _read_obj(data: bytes, path):
             raise MeshError(f"{path}:{face_lines[face]}: {what} {arr[bad[0]] + 1} does not exist "
                             f"(the file has {count} {'vertices' if what == 'vertex' else 'normals'})")
     v = np.frombuffer(verts, dtype=np.float64).reshape(-1, 3)
-    # Only the vertices faces use, each once per normal it is used with (an OBJ
-    # corner pairs a position with a normal; clpt's vertices have one of each).
-    keys = np.stack([c, cn], axis=1) if all_normals else c[:, None]
-    uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
-    vertices = v[uniq[:, 0]]
-    normals = np.frombuffer(norms, dtype=np.float64).reshape(-1, 3)[uniq[:, 1]] if all_normals else None
-    return vertices, fan_polygons(inverse.reshape(-1), sizes), normals
+    vn = np.frombuffer(norms, dtype=np.float64).reshape(-1, 3)
+    return v, vn, c, (cn if all_normals else None), sizes
 
 
 def _obj_index(tok: bytes, count: int, fail, what, corner) -> int:

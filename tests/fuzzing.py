@@ -747,19 +747,28 @@ def check_mesh_file(path: Path, render: bool, device=None) -> str:
     lo, hi = v.min(axis=0), v.max(axis=0)
     c, r = (lo + hi) / 2, float(np.linalg.norm(hi - lo)) or 1.0
     cam = clpt.Camera(origin=tuple(c + (0.3 * r, 0.2 * r, 2 * r)), target=tuple(c), width=4, height=4)
+
+    def render_it():  # a SceneError: a mesh the renderer cannot frame (e.g. spanning 1e-300 to 1e300)
+        scene = clpt.Scene(camera=cam, shapes=[clpt.Mesh(vertices=v, triangles=t, normals=n, material="white",
+                                                         emission=(1.0, 1.0, 1.0), two_sided=True)]).check()
+        return clpt.Renderer(scene, kernel="generic", device=device).render(1, max_depth=3, rr_depth=2, seed=1)
+    return rendered("render", render_it, path)
+
+
+def rendered(what: str, render, path: Path) -> str:
+    """render() (its warnings ignored) must give a finite, non-negative image
+    or raise a one-line SceneError; the outcome's name."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            scene = clpt.Scene(camera=cam, shapes=[clpt.Mesh(vertices=v, triangles=t, normals=n, material="white",
-                                                             emission=(1.0, 1.0, 1.0), two_sided=True)]).check()
-            res = clpt.Renderer(scene, kernel="generic", device=device).render(1, max_depth=3, rr_depth=2, seed=1)
-    except clpt.SceneError as e:  # a mesh the renderer cannot frame (e.g. spanning 1e-300 to 1e300)
-        one_line(str(e), "render")
-        return "refused at render"
+            res = render()
+    except clpt.SceneError as e:
+        one_line(str(e), what)
+        return f"refused at {what}"
     except Exception as e:  # noqa: BLE001
-        raise Failure(f"render raised {type(e).__name__}: {e}") from e
+        raise Failure(f"{what} raised {type(e).__name__}: {e}") from e
     finite_image(res.image, path.name)
-    return "rendered"
+    return "rendered" if what == "render" else f"{what}d"
 
 
 # --- checkpoints ----------------------------------------------------------------------------------
@@ -910,18 +919,8 @@ def check_checkpoint_file(path: Path, render: bool, device=None) -> str:
             raise Failure(f"{path.name}: loaded with non-finite sums in plane {k}")
     if not render:
         return "accepted"
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            r = clpt.Renderer(ck.job.scene, device=device, **ck.job.options.renderer_kwargs())
-            res = r.resume(ck, time_limit=3.0, out_checkpoint=path.with_suffix(".out.ckpt"))
-    except clpt.SceneError as e:
-        one_line(str(e), "resume")
-        return "refused at resume"
-    except Exception as e:  # noqa: BLE001
-        raise Failure(f"resume raised {type(e).__name__}: {e}") from e
-    finite_image(res.image, path.name)
-    return "resumed"
+    return rendered("resume", lambda: clpt.Renderer(ck.job.scene, device=device, **ck.job.options.renderer_kwargs())
+                    .resume(ck, time_limit=3.0, out_checkpoint=path.with_suffix(".out.ckpt")), path)
 
 
 # --- the readers, for the fuzzers ---------------------------------------------------------------

@@ -35,6 +35,21 @@ def test_fuzzed_meshes_load_or_fail_in_one_line(tmp_path_factory, fmt):
     run()
 
 
+@bounded(300)
+@given(data=fuzzing.mesh_inputs("obj"))
+def test_a_regular_obj_file_reads_the_same_at_once_as_line_by_line(data):
+    """The whole-file parse (taken for regular files only) agrees array for
+    array with the line-by-line one, which is the reference (and names the
+    line of any fault)."""
+    from clpt.meshio import _obj_arrays, _obj_lines
+
+    fast = _obj_arrays(data)
+    if fast is not None:
+        slow = _obj_lines(data, "fuzz.obj")
+        for a, b in zip(fast, slow):
+            assert (a is None and b is None) or np.array_equal(a, b)
+
+
 @bounded(12)
 @given(data=fuzzing.mesh_inputs("obj") | fuzzing.mesh_inputs("ply"))
 def test_fuzzed_meshes_render_finite(tmp_path_factory, device_spec, data):
