@@ -267,6 +267,11 @@ class _Element:
         self.props: list[tuple] = []  # (name, type) or (name, count type, item type)
 
     @property
+    def face_list(self):
+        """The list property of vertex indices (of a face element), or None."""
+        return next((p for p in self.props if len(p) == 3 and p[0] in FACE_LISTS), None)
+
+    @property
     def has_lists(self):
         return any(len(p) == 3 for p in self.props)
 
@@ -336,11 +341,10 @@ def _read_ply(data: bytes, path):
             raise MeshError(f"{path}:{ve.line}: header: the vertex element has no '{k}' property")
     if ve.has_lists:
         raise MeshError(f"{path}:{ve.line}: header: vertices with list properties are not supported")
-    lists = [p for p in fe.props if len(p) == 3 and p[0] in FACE_LISTS]
-    if not lists:
+    if fe.face_list is None:
         raise MeshError(f"{path}:{fe.line}: header: the face element has no 'vertex_indices' list")
-    if PLY_TYPES[lists[0][2]][0] == "f":
-        raise MeshError(f"{path}:{fe.line}: header: vertex indices must be integers (got {lists[0][2]})")
+    if PLY_TYPES[fe.face_list[2]][0] == "f":
+        raise MeshError(f"{path}:{fe.line}: header: vertex indices must be integers (got {fe.face_list[2]})")
     if fe.count == 0:
         raise MeshError(f"{path}: the file has no faces")
     reader = _PlyText(data, off, path) if fmt == "ascii" else _PlyBinary(data, off, path, PLY_FORMATS[fmt])
@@ -358,7 +362,7 @@ def _read_ply(data: bytes, path):
     bad = np.flatnonzero((corners < 0) | (corners >= nv))
     if len(bad):
         face = int(np.searchsorted(np.cumsum(sizes), bad[0], side="right"))
-        raise MeshError(f"{path}: {where(face)}: face {face} has vertex index {corners[bad[0]]}, "
+        raise MeshError(f"{path}{where(face)}: face {face} has vertex index {corners[bad[0]]}, "
                         f"out of range (the file has {nv} vertices)")
     return pos[:, :3], fan_polygons(corners, sizes), normals
 
@@ -397,6 +401,7 @@ class _PlyText:
                 vals.extend(_finite_number(tok[i], lambda r: self._fail(lineno, r), "a vertex") for i in cols)
             return np.frombuffer(vals, dtype=np.float64).reshape(-1, len(cols))
         corners, sizes, lines = array("q"), array("q"), array("q")
+        face_list = e.face_list if wanted else None
         for lineno, tok in self._records(e):
             i = 0
             for prop in e.props:
@@ -407,8 +412,9 @@ class _PlyText:
                     continue
                 k = self._int(tok[i], lineno, f"the count of '{prop[0]}'")
                 if k < 0 or i + 1 + k > len(tok):
-                    self._fail(lineno, f"'{prop[0]}' has {k} items, the line {len(tok) - i - 1}")
-                if wanted and prop is self._face_list(e):
+                    self._fail(lineno, f"'{prop[0]}' has {k} items but the line has {len(tok) - i - 1} more "
+                                       "values")
+                if prop is face_list:
                     if k < 3:
                         self._fail(lineno, f"a face has {k} vertices (a polygon needs at least 3)")
                     corners.extend(self._int(t, lineno, "a vertex index") for t in tok[i + 1:i + 1 + k])
@@ -420,11 +426,7 @@ class _PlyText:
         if not wanted:
             return None
         return (np.frombuffer(corners, dtype=np.int64), np.frombuffer(sizes, dtype=np.int64),
-                lambda f: f"line {lines[f]}")
-
-    @staticmethod
-    def _face_list(e):
-        return next(p for p in e.props if len(p) == 3 and p[0] in FACE_LISTS)
+                lambda f: f":{lines[f]}")
 
     def _int(self, tok, lineno, what):
         try:
@@ -474,7 +476,7 @@ class _PlyBinary:
                 self._fail(at + int(bad[0]) * dt.itemsize, f"vertex {bad[0]} is not finite "
                                                          f"({', '.join(f'{x:g}' for x in out[bad[0]])})")
             return out
-        face_list = next((p for p in e.props if len(p) == 3 and p[0] in FACE_LISTS), None) if wanted else None
+        face_list = e.face_list if wanted else None
         out = self._fixed(e, face_list)
         if out is None:
             out = self._walk(e, face_list)
@@ -517,7 +519,7 @@ class _PlyBinary:
         if k < 3:
             self._fail(at, f"face 0 has {k} vertices (a polygon needs at least 3)")
         corners = rec[f"l{j}"].astype(np.int64).reshape(-1)
-        return corners, np.full(e.count, k, dtype=np.int64), lambda f: f"byte {at + f * dt.itemsize}"
+        return corners, np.full(e.count, k, dtype=np.int64), lambda f: f": byte {at + f * dt.itemsize}"
 
     def _walk(self, e, face_list):
         """Records one by one (lists of different lengths)."""
@@ -543,7 +545,7 @@ class _PlyBinary:
         if face_list is None:
             return ()
         return (np.frombuffer(corners, dtype=np.int64), np.frombuffer(sizes, dtype=np.int64),
-                lambda f: f"byte {offsets[f]}")
+                lambda f: f": byte {offsets[f]}")
 
 
 def check_mesh(vertices, triangles, normals=None, source="<mesh>"):

@@ -66,6 +66,7 @@ class _Node:
     file: str
     line: int
     children: list = field(default_factory=list)
+    via: str = ""  # where the file was included from (itself with its own via), if it was
 
     def where(self) -> str:
         return f"{self.file}:{self.line}"
@@ -83,7 +84,7 @@ class _Node:
 MAX_DEPTH = 64
 
 
-def _read_xml(path: Path, shown: str) -> _Node:
+def _read_xml(path: Path, shown: str, via: str = "") -> _Node:
     """The file's element tree. Every problem is a one-line SceneError with the
     line: bad XML, an encoding the XML declaration names but Python lacks,
     elements nested deeper than MAX_DEPTH, and DTD entity declarations (no
@@ -97,7 +98,7 @@ def _read_xml(path: Path, shown: str) -> _Node:
         if len(stack) >= MAX_DEPTH:
             raise SceneError(f"{shown}:{p.CurrentLineNumber}: <{tag}>: elements are nested more than "
                              f"{MAX_DEPTH} deep")
-        n = _Node(tag, dict(attrs), shown, p.CurrentLineNumber)
+        n = _Node(tag, dict(attrs), shown, p.CurrentLineNumber, via=via)
         (stack[-1].children if stack else root).append(n)
         stack.append(n)
 
@@ -365,10 +366,11 @@ class _Props:
         n = self._get(name, ("integer",))
         if n is None:
             return default
+        text = _attr(n, "value")  # a SceneError is a ValueError: not inside the try
         try:
-            return int(_attr(n, "value").strip())
+            return int(text.strip())
         except ValueError:
-            n.fail(f"bad integer {n.attrs['value']!r}")
+            n.fail(f"bad integer {text!r}")
 
     def boolean(self, name, default=False):
         n = self._get(name, ("boolean",))
@@ -550,7 +552,7 @@ class _Loader:
                     chain = " -> ".join(str(s) for s in (*stack, key))
                     c.fail(f"include cycle: {chain}")
                 shown = str(p)
-                sub = _read_xml(p, shown)
+                sub = _read_xml(p, shown, via=c.where())
                 if sub.tag != "scene":
                     sub.fail("an included file must have <scene> as its root")
                 out += self.expand(sub, (*stack, key))
@@ -570,7 +572,11 @@ class _Loader:
             if n.tag in OBJECT_TAGS and "id" in n.attrs:
                 i = n.attrs["id"]
                 if i in self.ids:
-                    n.fail(f"duplicate id {i!r} (first defined at {self.ids[i].where()})")
+                    first = self.ids[i]
+                    if first.where() == n.where() and n.via:  # one file, included twice
+                        raise SceneError(f"{n.via}: <include>: {n.file} is included a second time (first at "
+                                         f"{first.via}), so its id {i!r} is defined twice")
+                    n.fail(f"duplicate id {i!r} (first defined at {first.where()})")
                 self.ids[i] = n
             self.register(n.children)
         for n in nodes:

@@ -31,7 +31,7 @@ from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 
 import clpt
-from clpt.resources import scene_path
+from clpt.resources import scene_dir, scene_path
 
 def bounded(n):
     """Settings for a test of n inputs, the same ones every run
@@ -342,7 +342,7 @@ def check_command(argv, output, tmp: Path, run_main, device=None) -> str:
 
 TESTS = Path(__file__).resolve().parent
 DATA = TESTS / "data"
-MESHES = Path(clpt.__file__).resolve().parent.parent / "scenes" / "meshes"
+MESHES = scene_dir() / "meshes"  # the shipped meshes, from the installed package as from the source tree
 
 # Text that parsers trip on, spliced into files in place of numbers, values and bytes.
 TOKENS = ["", " ", "0", "-0", "1", "-1", "3", "nan", "NaN", "inf", "-inf", "1e309", "-1e309", "1e-320", "3.4e38",
@@ -471,8 +471,10 @@ def mutations_of(draw, seeds: list[bytes], ops, most=4):
 # --- outcomes -------------------------------------------------------------------------------
 
 # A place in the message: a line (file:12: or line 12), a byte offset, an XML
-# element (<shape ...>), a scene key path (shapes[1].file), a checkpoint member.
-PLACE = re.compile(r"(:\d+:|\bline \d+|\bbyte \d+|<\w+|\w+\[\d+\]|\bmember '|\bheader\b|\belement\b)")
+# element (<shape ...>), a scene key path (shapes[1].file), a checkpoint member,
+# a mesh's vertex, normal, face or triangle by number.
+PLACE = re.compile(r"(:\d+:|\bline \d+|\bbyte \d+|<\w+|\w+\[\d+\]|\bmember '|\bheader\b|\belement\b|"
+                   r"\b(vertex|normal|face|triangle) \d+)")
 
 
 def refusal(e: Exception, path: Path, need_place=True) -> str:

@@ -138,3 +138,15 @@ def test_non_finite_sums_and_a_schedule_outside_the_job_are_refused(tmp_path, se
 def test_a_pipe_is_refused_before_reading(tmp_path):
     os.mkfifo(tmp_path / "pipe.ckpt")
     _refused(tmp_path / "pipe.ckpt", r"pipe.ckpt: not a regular file")
+
+
+def test_settings_of_the_wrong_type_are_refused(tmp_path, seeds):
+    """A job whose options were not DeviceOptions raised TypeError (asdict)."""
+    m = fuzzing._members(seeds[0])
+    job = fuzzing._json_member(m["job"])
+    job["f"]["options"] = 5
+    _refused(_rewrite(tmp_path / "i.ckpt", seeds[0], job=fuzzing._as_member(job)),
+             r"i.ckpt: member 'job': options has the wrong type \(int 5\)")
+    job["f"]["options"] = {"$": "DeviceOptions", "f": {"nee": "yes"}}
+    _refused(_rewrite(tmp_path / "j.ckpt", seeds[0], job=fuzzing._as_member(job)),
+             r"j.ckpt: member 'job': DeviceOptions.nee must be a bool \(got 'yes'\)")

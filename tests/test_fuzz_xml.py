@@ -116,3 +116,18 @@ def test_a_pipe_or_a_huge_file_is_refused_before_reading(workspace):
         f.truncate(clpt.scene.MAX_SCENE_BYTES + 1)
     with pytest.raises(clpt.SceneError, match=r"big.xml: \d+ bytes is too large for a scene file"):
         clpt.load_scene(big)
+
+
+def test_an_integer_without_a_value_is_refused(workspace):
+    """It raised KeyError: 'value' (the missing attribute's SceneError, a
+    ValueError, was caught as a bad integer)."""
+    _refused(workspace, SCENE.format('<integrator type="path"><integer name="max_depth"/></integrator>'),
+             r"s.xml:5: <integer name=\"max_depth\">: missing attribute 'value'")
+
+
+def test_a_file_included_twice_is_named_where_it_is_included(workspace):
+    """The duplicate ids were reported inside the included file, at the
+    same place twice, without naming the scene that includes it twice."""
+    text = SCENE.format('<include filename="cbox/materials.xml"/>\n<include filename="cbox/materials.xml"/>')
+    _refused(workspace, text, r"s.xml:6: <include>: .*cbox/materials.xml is included a second time \(first at "
+                              r".*s.xml:5\), so its id 'white' is defined twice")

@@ -167,10 +167,40 @@ def _decode(data, arrays, types, fail):
     fail(f"unexpected value {str(data)[:60]!r}")
 
 
+def _check_types(obj, fail):
+    """A settings dataclass's fields of the type of their defaults (fields
+    whose default is None, or typed `object`, may hold anything)."""
+    for f in dataclasses.fields(obj):
+        v, d = getattr(obj, f.name), f.default
+        if d is None or d is dataclasses.MISSING or f.type == "object":
+            continue
+        ok = (type(v) is bool if isinstance(d, bool) else
+              isinstance(v, (int, float)) and not isinstance(v, bool) if isinstance(d, float) else
+              isinstance(v, int) and not isinstance(v, bool) if isinstance(d, int) else isinstance(v, type(d)))
+        if not ok:
+            fail(f"{type(obj).__name__}.{f.name} must be a {type(d).__name__} (got {v!r})")
+
+
 def _check_job(job, fail):
-    """A decoded job's own settings in range, and its scene checked."""
+    """A decoded job's own settings of the right types and in range, and its
+    scene checked."""
+    from ..adaptive import AdaptiveSettings
+    from ..denoise import FilterSettings, OidnSettings
+    from ..photons import PhotonSettings
+    from ..scene import Scene
+    from .job import DeviceOptions
+
     if not isinstance(job, RenderJob):
         fail(f"not a render job (a {type(job).__name__})")
+    for name, types in (("scene", Scene), ("options", DeviceOptions), ("photons", (PhotonSettings, type(None))),
+                        ("adaptive", (AdaptiveSettings, type(None))),
+                        ("filter", (FilterSettings, OidnSettings, type(None))), ("aux_specular", str)):
+        v = getattr(job, name)
+        if not isinstance(v, types):
+            fail(f"{name} has the wrong type ({type(v).__name__} {str(v)[:40]})")
+    for s in (job.options, job.photons, job.adaptive, job.filter, job.scene.render):
+        if s is not None:
+            _check_types(s, fail)
     for name, lo, hi in (("spp", 1, 2 ** 32 - 1), ("seed", 0, 2 ** 32 - 1), ("max_depth", 0, 2 ** 31 - 1),
                          ("rr_depth", 0, 2 ** 31 - 1), ("width", 1, 1 << 16), ("height", 1, 1 << 16)):
         v = getattr(job, name)
