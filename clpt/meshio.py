@@ -155,11 +155,13 @@ def _obj_arrays(data: bytes):
         pos, nrm = _obj_numbers(v), _obj_numbers(vn)
         starts = [i for i, t in enumerate(f) if t == b"f"]
         sizes = np.diff(np.array(starts + [len(f)], dtype=np.int64)) - 1
+        if sizes.min() < 3:
+            return None
         corners = [t for t in f if t != b"f"]
         slashes, double = corners[0].count(b"/"), b"//" in corners[0]
         joined = b" ".join(corners)
-        if sizes.min() < 3 or joined.count(b"/") != slashes * len(corners) or \
-                joined.count(b"//") != double * len(corners) or slashes > 2:
+        if joined.count(b"/") != slashes * len(corners) or joined.count(b"//") != double * len(corners) or \
+                slashes > 2:
             return None
         width = {0: 1, 1: 2, 2: 2 if double else 3}[slashes]
         parts = joined.replace(b"/", b" ").split()

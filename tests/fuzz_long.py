@@ -25,6 +25,7 @@ import signal
 import sys
 import tempfile
 import time
+import traceback
 from pathlib import Path
 
 os.environ.setdefault("CLPT_CACHE_DIR", tempfile.mkdtemp(prefix="clpt-fuzz-cache-"))
@@ -61,6 +62,8 @@ def main():
     ap.add_argument("--device", default=os.environ.get("CLPT_TEST_DEVICE"), help="--device for the renders")
     ap.add_argument("--timeout", type=int, default=60, help="seconds one input may take")
     ap.add_argument("--max-rss-gib", type=float, default=6.0, help="peak memory that counts as a blow-up")
+    ap.add_argument("--first-seed", type=int, default=1, help="hypothesis seed of the first chunk (then +1 each): "
+                                                            "another first seed, other inputs")
     ap.add_argument("--json", default=None)
     a = ap.parse_args()
     if a.inputs is None and a.minutes is None:
@@ -86,7 +89,11 @@ def main():
             counts[(kind, outcome)] += 1
         except fuzzing.Failure as e:
             counts[(kind, "FAILURE")] += 1
-            failures.append(f"{kind}: {str(e)[:1500]} for {what!r}"[:2000])
+            where = ""
+            if e.__cause__ is not None:  # an exception where a refusal was due: where it was raised
+                tb = traceback.extract_tb(e.__cause__.__traceback__)[-3:]
+                where = " [" + "; ".join(f"{Path(f.filename).name}:{f.lineno} {f.line}" for f in tb) + "]"
+            failures.append(f"{kind}: {str(e)[:1500]}{where} for {what!r}"[:2500])
         except Hang:
             counts[(kind, f"HANG (> {a.timeout} s)")] += 1
             failures.append(f"{kind}: hang for {what!r}"[:2000])
@@ -128,7 +135,7 @@ def main():
     runs = {n: command_run(Path(tempfile.mkdtemp(prefix="clpt-fuzz-cli-"))) if n == "cli"
             else file_run(fuzzing.READERS[n], fuzzing.READERS[n].workspace()) for n in names}
 
-    chunk = 0
+    chunk = a.first_seed - 1
     while time.monotonic() < t_end:
         todo = [n for n in names if a.inputs is None or tried[n] < a.inputs]
         if not todo:

@@ -490,7 +490,8 @@ def refusal(e: Exception, path: Path, need_place=True) -> str:
 
 
 # Reasons that are about the whole file, so have no place.
-WHOLE_FILE = re.compile(r"(no such|empty|too large|has no triangles|has no faces|not a regular file|is a folder|not a clpt "
+WHOLE_FILE = re.compile(r"(no such|empty|too large|has no triangles|has no faces|not a regular file|is a folder|"
+                        r"not a clpt "
                         r"checkpoint|not UTF-8|cannot read the|no non-degenerate|not used by the scene|"
                         r"written by clpt|another scene|does not match its own hash|after import)")
 
@@ -559,7 +560,8 @@ def _color(v: _Values, name, emitter=False):
 
 def _bsdf(v: _Values, depth=0, ident=None):
     t = v.pick(["diffuse", "diffuse", "conductor", "roughconductor", "dielectric", "thindielectric",
-                "roughdielectric", "plastic", "roughplastic"] + (["twosided", "blendbsdf", "mask"] if depth < 2 else []),
+                "roughdielectric", "plastic", "roughplastic"]
+               + (["twosided", "blendbsdf", "mask"] if depth < 2 else []),
                ["bogus", "hair"])
     body = []
     if t == "diffuse":

@@ -150,3 +150,9 @@ def test_settings_of_the_wrong_type_are_refused(tmp_path, seeds):
     job["f"]["options"] = {"$": "DeviceOptions", "f": {"nee": "yes"}}
     _refused(_rewrite(tmp_path / "j.ckpt", seeds[0], job=fuzzing._as_member(job)),
              r"j.ckpt: member 'job': DeviceOptions.nee must be a bool \(got 'yes'\)")
+
+    job["f"]["options"] = fuzzing._json_member(m["job"])["f"]["options"]
+    job["f"]["scene"]["f"]["materials"] = {"$d": [[1, {"$": "Material", "f": {}}],
+                                                  ["white", {"$": "Material", "f": {}}]]}
+    _refused(_rewrite(tmp_path / "k.ckpt", seeds[0], job=fuzzing._as_member(job)),
+             r"k.ckpt: member 'job': the scene's materials must be a table by name")  # was TypeError (sorting keys)

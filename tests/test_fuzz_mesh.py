@@ -85,13 +85,15 @@ def test_an_obj_file_that_is_not_utf8_is_read_without_guessing_its_encoding(tmp_
              "does not exist")
     _refused(p, "v 0 0 nan\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", r"m.obj:1: a vertex is not finite \(nan\)")
     _refused(p, TRIANGLE + "f -4 1 2\n", r"m.obj:4: vertex index -4 does not exist")
+    _refused(p, TRIANGLE + "f 1 2 3\nf ", r"m.obj:5: a face needs at least 3 vertices \(got 0\)")  # was IndexError
 
 
 def test_a_damaged_ply_in_a_toml_scene_is_reported_as_the_file_not_the_transform(tmp_path):
     """A ragged array from a damaged PLY was reported as the mesh's transform
     ("shapes[1].transform: setting an array element with a sequence.")."""
     (tmp_path / "m.ply").write_text(PLY_HEAD.format("ascii", 3, 1) + "0 0 0\n1 0 0\n0 1\n3 0 1 2\n")
-    (tmp_path / "s.toml").write_text('[camera]\norigin = [0, 0, 3]\ntarget = [0, 0, 0]\nfov = 40\n[[shapes]]\ntype = "mesh"\nfile = "m.ply"\nmaterial = "white"\nemission = 1\n'
+    (tmp_path / "s.toml").write_text('[camera]\norigin = [0, 0, 3]\ntarget = [0, 0, 0]\nfov = 40\n'
+                                     '[[shapes]]\ntype = "mesh"\nfile = "m.ply"\nmaterial = "white"\nemission = 1\n'
                                      'transform = { scale = 2 }\n')
     with pytest.raises(clpt.SceneError, match=r"shapes\[0\]\.file: .*m.ply:12: a vertex has 2 values, the header "
                                               r"says 3") as e:
@@ -104,7 +106,8 @@ def test_counts_beyond_the_file_are_refused_before_allocating(tmp_path, fmt):
     """A header that claims 10^12 vertices is refused at the byte (or line)
     where the file ends, without allocating for them."""
     body = np.array([0, 0, 0, 1, 0, 0, 0, 1, 0], "<f4").tobytes() if fmt != "ascii" else b"0 0 0\n1 0 0\n0 1 0\n"
-    match = (rf"m.ply: byte {len(PLY_HEAD.format(fmt, 10 ** 12, 1))}: the file ends inside the vertex element \(1000000000000 records of 12 bytes"
+    match = (rf"m.ply: byte {len(PLY_HEAD.format(fmt, 10 ** 12, 1))}: the file ends inside the vertex element "
+             r"\(1000000000000 records of 12 bytes"
              if fmt != "ascii" else r"m.ply:12: the file ends after 3 of its 1000000000000 vertex records")
     _refused(tmp_path / "m.ply", PLY_HEAD.format(fmt, 10 ** 12, 1).encode() + body, match)
 

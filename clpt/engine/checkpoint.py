@@ -24,6 +24,7 @@ import dataclasses
 import json
 import math
 import os
+import warnings
 import zipfile
 from pathlib import Path
 
@@ -141,7 +142,7 @@ def _decode(data, arrays, types, fail):
         kw = {k: _decode(v, arrays, types, fail) for k, v in data["f"].items()}
         try:
             return cls(**kw)
-        except (SceneError, ValueError, TypeError, KeyError, IndexError, OverflowError) as e:
+        except Exception as e:  # noqa: BLE001 - fields from a file: whatever the class refuses, it is damage
             fail(f"{cls.__name__}: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
     if "$t" in data and isinstance(data["$t"], list):
         return tuple(_decode(x, arrays, types, fail) for x in data["$t"])
@@ -201,6 +202,8 @@ def _check_job(job, fail):
     for s in (job.options, job.photons, job.adaptive, job.filter, job.scene.render):
         if s is not None:
             _check_types(s, fail)
+    if not isinstance(job.scene.materials, dict) or not all(isinstance(k, str) for k in job.scene.materials):
+        fail("the scene's materials must be a table by name")
     for name, lo, hi in (("spp", 1, 2 ** 32 - 1), ("seed", 0, 2 ** 32 - 1), ("max_depth", 0, 2 ** 31 - 1),
                          ("rr_depth", 0, 2 ** 31 - 1), ("width", 1, 1 << 16), ("height", 1, 1 << 16)):
         v = getattr(job, name)
@@ -210,12 +213,12 @@ def _check_job(job, fail):
         if s is not None and hasattr(s, "check"):
             try:
                 s.check()
-            except (SceneError, ValueError, TypeError) as e:
-                fail(str(e))
+            except Exception as e:  # noqa: BLE001 - settings from a file: any failure of their check is damage
+                fail(str(e).splitlines()[0] if str(e) else type(e).__name__)
     try:
         job.scene.check()
-    except (SceneError, ValueError, TypeError, AttributeError) as e:
-        fail(f"its scene: {e}")
+    except Exception as e:  # noqa: BLE001 - a scene from a file: any failure of its check is damage
+        fail(f"its scene: {str(e).splitlines()[0] if str(e) else type(e).__name__}")
 
 
 # --- reading ------------------------------------------------------------------------------------
@@ -314,7 +317,6 @@ class Checkpoint:
         def job_fail(reason):
             z.fail("job", reason)
 
-        import warnings
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a mesh's degenerate triangles were dropped (and warned) at its load
             try:
