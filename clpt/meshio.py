@@ -31,9 +31,14 @@ from .scene import SceneError, open_regular_file
 
 FORMATS = ("obj", "ply")
 
-# What reading needs, in bytes per byte of the file: the file itself and the
-# arrays built from it (text is denser in numbers than binary, never the reverse).
-READ_BYTES_PER_FILE_BYTE = {"obj": 3, "ply": 3}
+# What reading needs at its peak, in bytes per byte of the file (measured with
+# tracemalloc on a 160,000-triangle sphere, normals and not): the file itself,
+# the arrays built from it and check_mesh's copies. A binary PLY is the
+# densest (9.5: float32 and int32 become float64 and int64); an OBJ read line
+# by line 3.3, an ASCII PLY 3.9. OBJ's whole-file parse is faster but holds
+# every token as a Python object (11 to 14): it is taken only where that fits.
+READ_BYTES_PER_FILE_BYTE = {"obj": 4, "ply": 10}
+OBJ_WHOLE_FILE_BYTES_PER_FILE_BYTE = 15
 MAX_PLY_HEADER_BYTES = 1 << 16
 MAX_INDEX = 2 ** 62  # larger indices and counts cannot be in range of any file that fits in memory
 
@@ -125,7 +130,11 @@ def _read_obj(data: bytes, path):
     Every other statement is skipped. A regular file is read at once
     (_obj_arrays); any other, and any damaged one, line by line (_obj_lines),
     which names the line of the first problem."""
-    v, vn, c, cn, sizes = _obj_arrays(data) or _obj_lines(data, path)
+    from .preflight import available_host_bytes
+
+    avail = available_host_bytes()
+    whole = avail is None or len(data) * OBJ_WHOLE_FILE_BYTES_PER_FILE_BYTE <= avail
+    v, vn, c, cn, sizes = (whole and _obj_arrays(data)) or _obj_lines(data, path)
     # Only the vertices faces use, each once per normal it is used with (an OBJ
     # corner pairs a position with a normal; clpt's vertices have one of each).
     key = c if cn is None else c * (len(vn) + 1) + cn  # one integer per (vertex, normal) pair

@@ -27,12 +27,14 @@ AUX_BYTES_PER_PIXEL = 420
 ADAPTIVE_BYTES_PER_PIXEL = 30
 PHOTON_BYTES = 130  # traced, sorted and keyed copies of each photon
 
-# Measured peak resident memory of `clpt render` of a scene with one mesh
-# (meshes of 2^18 and 2^20 triangles against none, Intel's CPU runtime, 64x64):
-# bytes per triangle of the mesh's arrays, its packed records, their BVH and
-# the device's copies, and per triangle of an emissive mesh's light table.
-MESH_BYTES_PER_TRIANGLE = 1400
-MESH_LIGHT_BYTES_PER_TRIANGLE = 200
+# Measured peak resident memory of `clpt render` of the Cornell box with one
+# mesh (spheres of 0.26 and 1.05 million triangles against one of 6; Intel's
+# CPU runtime, 64x64, 1 spp, generic kernel): bytes per triangle of the mesh's
+# arrays, its packed records, their BVH and the device's copies (990 and 1340
+# on average, 1450 between the two), and what an emissive mesh's light table
+# adds (150 and 290).
+MESH_BYTES_PER_TRIANGLE = 1450
+MESH_LIGHT_BYTES_PER_TRIANGLE = 300
 
 MAX_EXPOSURE = 64.0  # stops; 2^64 already saturates every float image
 
