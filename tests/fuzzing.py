@@ -849,7 +849,7 @@ def checkpoint_edits(draw, seeds):
     time, meta's job hash recomputed for the changed job, so the checks past
     the hash are reached), a plane or mesh array damaged (non-finite or
     negative values, another shape or type), a member dropped or added."""
-    from clpt.engine.checkpoint import Checkpoint, CheckpointError, _decode, _job_types
+    from clpt.engine.checkpoint import CheckpointError, _decode, _job_types
 
     m = _members(draw(st.sampled_from(seeds)))
     what = draw(st.sampled_from(["meta", "meta", "job", "job", "job", "array", "array", "drop", "add"]))
