@@ -35,6 +35,15 @@ def test_fuzzed_checkpoints_load_or_fail_in_one_line(tmp_path_factory, data):
     fuzzing.check_checkpoint_file(p, render=False)
 
 
+@pytest.mark.parametrize("i", range(5))
+def test_each_kind_of_checkpoint_resumes_finite(tmp_path, device_spec, seeds, i):
+    """The undamaged seeds (plain, offline caustics, adaptive, a mesh, feature
+    buffers and the filter) load and resume; few damaged ones load at all."""
+    p = tmp_path / "seed.ckpt"
+    p.write_bytes(seeds[i])
+    assert fuzzing.check_checkpoint_file(p, render=True, device=device_spec) == "resumed"
+
+
 @bounded(8)
 @given(data=fuzzing.checkpoint_edits(fuzzing.checkpoint_seeds()))
 def test_fuzzed_checkpoints_that_load_resume_finite(tmp_path_factory, device_spec, data):
