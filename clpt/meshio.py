@@ -393,6 +393,8 @@ class _PlyText:
 
     def _records(self, e):
         n, lineno = 0, 0
+        if e.count == 0:
+            return
         for lineno, line in self.lines:
             tok = line.split()
             if tok:

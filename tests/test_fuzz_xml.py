@@ -31,6 +31,14 @@ def _write(workspace, data, name="fuzz.xml"):
     return p
 
 
+def test_the_seed_scenes_load(workspace):
+    """The mutations start from scenes that load (all but the included BSDFs,
+    which are no scene on their own), so what they refuse is the damage."""
+    outcomes = [fuzzing.check_scene_file(_write(workspace, s), render=False, need_place=True)
+                for s in fuzzing.xml_seeds()]
+    assert outcomes == ["accepted", "accepted", "refused", "accepted"]
+
+
 @bounded(300)
 @given(data=fuzzing.mutations_of(fuzzing.xml_seeds(), fuzzing.XML_MUTATIONS))
 def test_mutated_xml_scenes_load_or_fail_in_one_line(workspace, data):
