@@ -147,3 +147,12 @@ def test_a_pipe_or_a_mesh_too_large_for_memory_is_refused_before_reading(tmp_pat
     monkeypatch.setattr("clpt.preflight.available_host_bytes", lambda: 50)
     _refused(p, TRIANGLE + "f 1 2 3\n", r"m.obj: a 0.0 GiB mesh file needs about 0.0 GiB of memory to read and "
              r"0.0 GiB are available; too large")
+
+
+def test_a_big_endian_ply_reads_as_its_little_endian_twin(tmp_path):
+    """The seed written big-endian from a shipped PLY gives its arrays exactly."""
+    *_, big, little = fuzzing.mesh_seeds()["ply"]
+    (tmp_path / "b.ply").write_bytes(big)
+    (tmp_path / "l.ply").write_bytes(little)
+    for a, b in zip(read_mesh(tmp_path / "b.ply"), read_mesh(tmp_path / "l.ply")):
+        assert np.array_equal(a, b)
