@@ -40,8 +40,9 @@ from test_fuzz import run_main  # noqa: E402
 CHUNK = 200  # inputs per hypothesis run
 
 
-class Hang(Exception):
-    pass
+class Hang(BaseException):
+    """An input over its time limit (a BaseException, so that no check's
+    `except Exception` takes it for the input's own error)."""
 
 
 def _alarm(signum, frame):
