@@ -544,7 +544,7 @@ class _Values:
 
 def _color(v: _Values, name, emitter=False):
     hi = 20.0 if emitter else 1.0
-    kind = v.pick((["rgb", "rgb", "float", "spectrum", "spectrum_pairs", "checkerboard"]))
+    kind = v.pick(["rgb", "rgb", "float", "spectrum", "spectrum_pairs", "checkerboard"])
     if kind == "rgb":
         return f'<rgb name="{name}" value="{v.vec(0, hi)}"/>'
     if kind == "float":
@@ -568,11 +568,11 @@ def _bsdf(v: _Values, depth=0, ident=None):
     if t == "diffuse":
         body.append(_color(v, "reflectance"))
     elif t in ("conductor", "roughconductor"):
-        body.append(v.pick((['<string name="material" value="Au"/>', '<string name="material" '
-                                            'value="none"/>', f'<rgb name="eta" value="{v.vec(0, 3)}"/>', ""])))
+        body.append(v.pick(['<string name="material" value="Au"/>', '<string name="material" value="none"/>',
+                            f'<rgb name="eta" value="{v.vec(0, 3)}"/>', ""]))
     elif t in ("dielectric", "thindielectric", "roughdielectric", "plastic", "roughplastic"):
-        body.append(v.pick(([f'<float name="int_ior" value="{v.num(1, 2.5)}"/>',
-                                            '<string name="int_ior" value="water"/>', ""])))
+        body.append(v.pick([f'<float name="int_ior" value="{v.num(1, 2.5)}"/>',
+                            '<string name="int_ior" value="water"/>', ""]))
         if t.endswith("plastic"):
             body.append(_color(v, "diffuse_reflectance"))
     if t.startswith("rough"):
@@ -588,7 +588,7 @@ def _bsdf(v: _Values, depth=0, ident=None):
 def _transform(v: _Values, name="to_world"):
     ops = []
     for _ in range(v.int(0, 3)):
-        op = v.pick((["translate", "scale", "rotate", "matrix", "lookat"]))
+        op = v.pick(["translate", "scale", "rotate", "matrix", "lookat"])
         if op == "translate":
             ops.append(f'<translate value="{v.vec()}"/>')
         elif op == "scale":
