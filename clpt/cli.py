@@ -243,8 +243,11 @@ def cmd_render(a) -> int:
         a.scene = a.scene or "cornell_box"
         scene = _load(a)
         default_out = Path(Path(a.scene).stem + ".png")
+    preflight.check_scene_memory(scene)
     out = preflight.check_output(a.output if a.output is not None else str(default_out))
     ckpt = Path(a.checkpoint) if a.checkpoint else (Path(a.resume) if a.resume else Path(f"{out}.ckpt"))
+    if a.checkpoint:  # written during the render: its folder is tried now, as the output's was
+        preflight.check_folder(ckpt.parent, "--checkpoint", a.checkpoint)
     if a.save_sample_map is not None:
         preflight.check_output(a.save_sample_map, "--save-sample-map")
     job0 = ck.job if ck is not None else None
@@ -279,7 +282,8 @@ def cmd_render(a) -> int:
         preflight.warn_unused_options(a, r.packed.has_caustics, _warn)
     preflight.check_memory(width, height, aux=r.features.aux, adaptive=adaptive is not None,
                            photons=photons.resolved(width * height).count if photons and r.features.photons else 0,
-                           cpu_device=all(st.dctx.is_cpu for st in r.states))
+                           cpu_device=all(st.dctx.is_cpu for st in r.states),
+                           resources=preflight.scene_resource_bytes(scene))
     if a.verbose:
         print(f"devices: {r.device_choice}", file=sys.stderr)
         for st in r.states:
