@@ -256,7 +256,7 @@ def _why(device, photons: bool) -> str:
     return "the first device that renders here (no GPU, no measured CPU runtime)"
 
 
-def default_device(photons: bool = False, lanes: int | None = None, found=None) -> DefaultChoice:
+def default_device(photons: bool = False, found=None) -> DefaultChoice:
     """The device to render on when none is named: the best candidate (see
     _rank) that passes its check; raises DeviceError naming the fix if none
     does. Checks that make the render wait run in the order of path-tracing
@@ -268,6 +268,9 @@ def default_device(photons: bool = False, lanes: int | None = None, found=None) 
     found = _all_devices() if found is None else found
     if not found:
         raise DeviceError(_NO_DEVICE)
+    # Each device is checked at its own width, whatever lanes a render asks for: the default
+    # must not change with lanes (a crashing compiler may pass at 4 lanes and fail at 16).
+    lanes = None
     skipped, base = [], None
     for d in _rank(found, False):
         r = check_device(d, lanes, False, found)
@@ -339,8 +342,8 @@ def select_devices(spec=None, *, photons: bool = False, lanes: int | None = None
 
 def choose_devices(spec=None, *, photons: bool = False, lanes: int | None = None) -> Selection:
     """The devices for a selection, and why. Without one: PYOPENCL_CTX, else
-    default_device() for the kernel's kind (photons) at `lanes`. Named
-    devices are checked (clpt/probe.py): one named alone that cannot render
+    default_device() for the kernel's kind (photons). Named devices are
+    checked at `lanes` (clpt/probe.py): one named alone that cannot render
     is an error, never a silent switch; in a list or "all", those that cannot
     are left out with a warning, and simulators are left out of "all"."""
     import warnings
@@ -363,7 +366,7 @@ def choose_devices(spec=None, *, photons: bool = False, lanes: int | None = None
         if env:
             spec, why = env, f"PYOPENCL_CTX={env}"
     if spec is None:
-        choice = default_device(photons, lanes, found)
+        choice = default_device(photons, found)
         for line in choice.skipped:
             if line not in _reported:  # once a process: every Renderer would say it again
                 _reported.add(line)
