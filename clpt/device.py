@@ -167,16 +167,17 @@ class DeviceWarning(UserWarning):
 # device type they report (Oclgrind reports a GPU); only by name.
 SIMULATORS = ("oclgrind",)
 
-# Samples/s of CPU runtimes that ranked the default CPU device, per kind of
+# Samples/s of CPU runtimes that rank the default CPU device, per kind of
 # kernel: path tracing alone, and with the caustic photon gather. Measured on
-# the 2-core AVX-512 machine with Intel's runtime 2026.2 and Debian's PoCL 3.1
-# (`clpt bench cornell_box cornell_box_caustics --device intel,pocl --width 128
-# --height 128`; cornell_box for "plain", cornell_box_caustics with its
-# default photon merging for "photons"). A runtime not listed ranks after
-# these; a GPU before every CPU.
+# the 2-core AVX-512 machine (AMD EPYC, Zen 4) with Intel's runtime 2026.2 and
+# Debian's PoCL 3.1, each at its default lanes (`clpt bench cornell_box
+# cornell_box_caustics --device intel,pocl --width 128 --height 128 --max-depth
+# 64 --rounds 5 --no-cold`, medians; cornell_box for "plain",
+# cornell_box_caustics with its default photon merging for "photons"). A
+# runtime not listed ranks after these; a GPU before every CPU.
 CPU_RUNTIME_RATES = {
-    "plain": {"intel": 23.6, "pocl": 18.0},
-    "photons": {"intel": 2.6, "pocl": 7.5},
+    "plain": {"intel": 13.4, "pocl": 9.55},
+    "photons": {"intel": 1.89, "pocl": 4.81},
 }
 
 
