@@ -62,7 +62,8 @@ def _tev_address(text):
 def _add_render_options(p):
     p.add_argument("--device", "-d", default=None, help="device index, platform:device, name substring, "
                                                         "'all', or a comma list (default: PYOPENCL_CTX, a GPU, "
-                                                        "else the CPU)")
+                                                        "else the CPU runtime measured fastest for the scene "
+                                                        "that renders here; see clpt devices -v)")
     p.add_argument("--lanes", type=int, default=None, choices=(1, 2, 4, 8, 16),
                    help="paths per work-item (default: tuned per device; see `clpt devices -v`)")
     p.add_argument("--local-size", type=int, default=None, help="work-group size (default: tuned per device)")
@@ -436,13 +437,13 @@ def cmd_devices(a) -> int:
         reg = runtimes.registration()
         if reg is not None:
             print(f"runtimes: {reg.note}")
-        for photons, kind in ((False, "path tracing"), (True, "with photon merging")):
+        for photons, kind in ((False, "for path tracing"), (True, "with photon merging")):
             try:
                 c = devmod.default_device(photons)
-                print(f"default for {kind}: {devmod.device_label(c.device)}: {c.why}"
+                print(f"default {kind}: {devmod.device_label(c.device)}: {c.why}"
                       + "".join(f"; {s}" for s in c.skipped))
             except devmod.DeviceError as e:
-                print(f"default for {kind}: none ({e})")
+                print(f"default {kind}: none ({e})")
     return 0
 
 
