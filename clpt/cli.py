@@ -726,8 +726,12 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     """Scene warnings as one line each, like the errors."""
     from .scene import SceneWarning
 
+    import pyopencl as cl
+
     from .device import DeviceWarning
 
+    if issubclass(category, cl.CompilerWarning):
+        return  # compiler remarks are not the user's business (builds in threads can slip past program.build's filter)
     if issubclass(category, (SceneWarning, DeviceWarning)):
         print(f"clpt: warning: {message}", file=sys.stderr)
     else:

@@ -197,11 +197,12 @@ def _where(device, found) -> tuple[int, int] | None:
     return None
 
 
-def check_device(device, lanes: int | None = None, photons: bool = False, found=None, *, wait: bool = True):
+def check_device(device, lanes: int | None = None, photons: bool = False, found=None, *, wait: bool = True,
+                 background: bool = True):
     """The device's check (clpt/probe.py) at the lanes it would render with;
     an ok result without running anything for simulators, sub-devices and
-    when CLPT_DEVICE_CHECK=0. wait=False: the cached result, else None after
-    starting the check in the background."""
+    when CLPT_DEVICE_CHECK=0. wait=False: the cached result, else None (after
+    starting the check in the background, unless background=False)."""
     from . import probe, tune
 
     n = lanes or tune.predict(device).lanes  # the width of the Cornell box's kernel on this device
@@ -211,7 +212,7 @@ def check_device(device, lanes: int | None = None, photons: bool = False, found=
     identity, label = DeviceContext.identity_of(device), device_label(device)
     if not wait:
         hit = probe.cached(identity, n)
-        if hit is None:
+        if hit is None and background:
             probe.check_in_background(identity, label, n, where)
         return hit
     return probe.check(device, identity, label, n, where)
@@ -285,7 +286,11 @@ def default_device(photons: bool = False, found=None) -> DefaultChoice:
     for d in _rank(found, photons):
         if d == base:
             break
-        r = check_device(d, lanes, photons, found, wait=False)
+        # One background check at a time: on a few cores each one slows the render down.
+        started = any("in the background" in line for line in skipped)
+        r = check_device(d, lanes, photons, found, wait=False, background=not started)
+        if r is None and started:
+            continue
         if r is None:
             skipped.append(f"checking {device_label(d)} in the background (faster with photon merging where "
                            f"measured); later renders take it if it renders here")
