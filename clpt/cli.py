@@ -62,7 +62,8 @@ def _tev_address(text):
 def _add_render_options(p):
     p.add_argument("--device", "-d", default=None, help="device index, platform:device, name substring, "
                                                         "'all', or a comma list (default: PYOPENCL_CTX, a GPU, "
-                                                        "else the CPU)")
+                                                        "else the CPU runtime measured fastest for the scene "
+                                                        "that renders here; see clpt devices -v)")
     p.add_argument("--lanes", type=int, default=None, choices=(1, 2, 4, 8, 16),
                    help="paths per work-item (default: tuned per device; see `clpt devices -v`)")
     p.add_argument("--local-size", type=int, default=None, help="work-group size (default: tuned per device)")
@@ -243,8 +244,11 @@ def cmd_render(a) -> int:
         a.scene = a.scene or "cornell_box"
         scene = _load(a)
         default_out = Path(Path(a.scene).stem + ".png")
+    preflight.check_scene_memory(scene)
     out = preflight.check_output(a.output if a.output is not None else str(default_out))
     ckpt = Path(a.checkpoint) if a.checkpoint else (Path(a.resume) if a.resume else Path(f"{out}.ckpt"))
+    if a.checkpoint:  # written during the render: its folder is tried now, as the output's was
+        preflight.check_folder(ckpt.parent, "--checkpoint", a.checkpoint)
     if a.save_sample_map is not None:
         preflight.check_output(a.save_sample_map, "--save-sample-map")
     job0 = ck.job if ck is not None else None
@@ -279,7 +283,8 @@ def cmd_render(a) -> int:
         preflight.warn_unused_options(a, r.packed.has_caustics, _warn)
     preflight.check_memory(width, height, aux=r.features.aux, adaptive=adaptive is not None,
                            photons=photons.resolved(width * height).count if photons and r.features.photons else 0,
-                           cpu_device=all(st.dctx.is_cpu for st in r.states))
+                           cpu_device=all(st.dctx.is_cpu for st in r.states),
+                           resources=preflight.scene_resource_bytes(scene))
     if a.verbose:
         print(f"devices: {r.device_choice}", file=sys.stderr)
         for st in r.states:
@@ -432,13 +437,13 @@ def cmd_devices(a) -> int:
         reg = runtimes.registration()
         if reg is not None:
             print(f"runtimes: {reg.note}")
-        for photons, kind in ((False, "path tracing"), (True, "with photon merging")):
+        for photons, kind in ((False, "for path tracing"), (True, "with photon merging")):
             try:
                 c = devmod.default_device(photons)
-                print(f"default for {kind}: {devmod.device_label(c.device)}: {c.why}"
+                print(f"default {kind}: {devmod.device_label(c.device)}: {c.why}"
                       + "".join(f"; {s}" for s in c.skipped))
             except devmod.DeviceError as e:
-                print(f"default for {kind}: none ({e})")
+                print(f"default {kind}: none ({e})")
     return 0
 
 
@@ -721,8 +726,12 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
     """Scene warnings as one line each, like the errors."""
     from .scene import SceneWarning
 
+    import pyopencl as cl
+
     from .device import DeviceWarning
 
+    if issubclass(category, cl.CompilerWarning):
+        return  # compiler remarks are not the user's business (builds in threads can slip past program.build's filter)
     if issubclass(category, (SceneWarning, DeviceWarning)):
         print(f"clpt: warning: {message}", file=sys.stderr)
     else:

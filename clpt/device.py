@@ -167,16 +167,17 @@ class DeviceWarning(UserWarning):
 # device type they report (Oclgrind reports a GPU); only by name.
 SIMULATORS = ("oclgrind",)
 
-# Samples/s of CPU runtimes that ranked the default CPU device, per kind of
+# Samples/s of CPU runtimes that rank the default CPU device, per kind of
 # kernel: path tracing alone, and with the caustic photon gather. Measured on
-# the 2-core AVX-512 machine with Intel's runtime 2026.2 and Debian's PoCL 3.1
-# (`clpt bench cornell_box cornell_box_caustics --device intel,pocl --width 128
-# --height 128`; cornell_box for "plain", cornell_box_caustics with its
-# default photon merging for "photons"). A runtime not listed ranks after
-# these; a GPU before every CPU.
+# the 2-core AVX-512 machine (AMD EPYC, Zen 4) with Intel's runtime 2026.2 and
+# Debian's PoCL 3.1, each at its default lanes (`clpt bench cornell_box
+# cornell_box_caustics --device intel,pocl --width 128 --height 128 --max-depth
+# 64 --rounds 5 --no-cold`, medians; cornell_box for "plain",
+# cornell_box_caustics with its default photon merging for "photons"). A
+# runtime not listed ranks after these; a GPU before every CPU.
 CPU_RUNTIME_RATES = {
-    "plain": {"intel": 23.6, "pocl": 18.0},
-    "photons": {"intel": 2.6, "pocl": 7.5},
+    "plain": {"intel": 13.4, "pocl": 9.55},
+    "photons": {"intel": 1.89, "pocl": 4.81},
 }
 
 
@@ -196,11 +197,12 @@ def _where(device, found) -> tuple[int, int] | None:
     return None
 
 
-def check_device(device, lanes: int | None = None, photons: bool = False, found=None, *, wait: bool = True):
+def check_device(device, lanes: int | None = None, photons: bool = False, found=None, *, wait: bool = True,
+                 background: bool = True):
     """The device's check (clpt/probe.py) at the lanes it would render with;
     an ok result without running anything for simulators, sub-devices and
-    when CLPT_DEVICE_CHECK=0. wait=False: the cached result, else None after
-    starting the check in the background."""
+    when CLPT_DEVICE_CHECK=0. wait=False: the cached result, else None (after
+    starting the check in the background, unless background=False)."""
     from . import probe, tune
 
     n = lanes or tune.predict(device).lanes  # the width of the Cornell box's kernel on this device
@@ -210,7 +212,7 @@ def check_device(device, lanes: int | None = None, photons: bool = False, found=
     identity, label = DeviceContext.identity_of(device), device_label(device)
     if not wait:
         hit = probe.cached(identity, n)
-        if hit is None:
+        if hit is None and background:
             probe.check_in_background(identity, label, n, where)
         return hit
     return probe.check(device, identity, label, n, where)
@@ -256,7 +258,7 @@ def _why(device, photons: bool) -> str:
     return "the first device that renders here (no GPU, no measured CPU runtime)"
 
 
-def default_device(photons: bool = False, lanes: int | None = None, found=None) -> DefaultChoice:
+def default_device(photons: bool = False, found=None) -> DefaultChoice:
     """The device to render on when none is named: the best candidate (see
     _rank) that passes its check; raises DeviceError naming the fix if none
     does. Checks that make the render wait run in the order of path-tracing
@@ -268,6 +270,9 @@ def default_device(photons: bool = False, lanes: int | None = None, found=None) 
     found = _all_devices() if found is None else found
     if not found:
         raise DeviceError(_NO_DEVICE)
+    # Each device is checked at its own width, whatever lanes a render asks for: the default
+    # must not change with lanes (a crashing compiler may pass at 4 lanes and fail at 16).
+    lanes = None
     skipped, base = [], None
     for d in _rank(found, False):
         r = check_device(d, lanes, False, found)
@@ -281,7 +286,11 @@ def default_device(photons: bool = False, lanes: int | None = None, found=None) 
     for d in _rank(found, photons):
         if d == base:
             break
-        r = check_device(d, lanes, photons, found, wait=False)
+        # One background check at a time: on a few cores each one slows the render down.
+        started = any("in the background" in line for line in skipped)
+        r = check_device(d, lanes, photons, found, wait=False, background=not started)
+        if r is None and started:
+            continue
         if r is None:
             skipped.append(f"checking {device_label(d)} in the background (faster with photon merging where "
                            f"measured); later renders take it if it renders here")
@@ -339,8 +348,8 @@ def select_devices(spec=None, *, photons: bool = False, lanes: int | None = None
 
 def choose_devices(spec=None, *, photons: bool = False, lanes: int | None = None) -> Selection:
     """The devices for a selection, and why. Without one: PYOPENCL_CTX, else
-    default_device() for the kernel's kind (photons) at `lanes`. Named
-    devices are checked (clpt/probe.py): one named alone that cannot render
+    default_device() for the kernel's kind (photons). Named devices are
+    checked at `lanes` (clpt/probe.py): one named alone that cannot render
     is an error, never a silent switch; in a list or "all", those that cannot
     are left out with a warning, and simulators are left out of "all"."""
     import warnings
@@ -363,7 +372,7 @@ def choose_devices(spec=None, *, photons: bool = False, lanes: int | None = None
         if env:
             spec, why = env, f"PYOPENCL_CTX={env}"
     if spec is None:
-        choice = default_device(photons, lanes, found)
+        choice = default_device(photons, found)
         for line in choice.skipped:
             if line not in _reported:  # once a process: every Renderer would say it again
                 _reported.add(line)

@@ -25,7 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .scene import Camera, Material, Quad, RenderSettings, Scene, SceneError, SceneWarning, Sphere, _suggest
+from .scene import (Camera, Material, Quad, RenderSettings, Scene, SceneError, SceneWarning, Sphere, _suggest,
+                    read_file_bytes)
 from .spectrum import constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb_checked
 
 
@@ -65,6 +66,7 @@ class _Node:
     file: str
     line: int
     children: list = field(default_factory=list)
+    via: str = ""  # where the file was included from (itself with its own via), if it was
 
     def where(self) -> str:
         return f"{self.file}:{self.line}"
@@ -77,32 +79,48 @@ class _Node:
         raise SceneError(f"{self.where()}: {self.label()}: {reason}")
 
 
-def _read_xml(path: Path, shown: str) -> _Node:
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise SceneError(f"{shown}: no such scene file") from None
-    except OSError as e:
-        raise SceneError(f"{shown}: cannot read the scene file: {e}") from None
+# Elements nested deeper than this are refused: the loader walks the tree
+# recursively, and real scenes nest a handful of levels.
+MAX_DEPTH = 64
+
+
+def _read_xml(path: Path, shown: str, via: str = "") -> _Node:
+    """The file's element tree. Every problem is a one-line SceneError with the
+    line: bad XML, an encoding the XML declaration names but Python lacks,
+    elements nested deeper than MAX_DEPTH, and DTD entity declarations (no
+    Mitsuba scene has them, and entities that expand to entities blow up)."""
+    data = read_file_bytes(path, shown)
     p = xml.parsers.expat.ParserCreate()
     stack: list[_Node] = []
     root: list[_Node] = []
 
     def start(tag, attrs):
-        n = _Node(tag, dict(attrs), shown, p.CurrentLineNumber)
+        if len(stack) >= MAX_DEPTH:
+            raise SceneError(f"{shown}:{p.CurrentLineNumber}: <{tag}>: elements are nested more than "
+                             f"{MAX_DEPTH} deep")
+        n = _Node(tag, dict(attrs), shown, p.CurrentLineNumber, via=via)
         (stack[-1].children if stack else root).append(n)
         stack.append(n)
 
     def end(tag):
         stack.pop()
 
+    def entity(name, *args):
+        raise SceneError(f"{shown}:{p.CurrentLineNumber}: entity declarations (<!ENTITY {name} ...>) are not "
+                         "supported")
+
     p.StartElementHandler = start
     p.EndElementHandler = end
+    p.EntityDeclHandler = entity
     try:
         p.Parse(data, True)
+    except SceneError:
+        raise
     except xml.parsers.expat.ExpatError as e:
         raise SceneError(f"{shown}:{e.lineno}: XML syntax error: {xml.parsers.expat.ErrorString(e.code)} "
                          f"(column {e.offset + 1})") from None
+    except (LookupError, UnicodeError, ValueError) as e:  # an encoding="..." Python cannot decode
+        raise SceneError(f"{shown}:{p.CurrentLineNumber}: cannot decode the file: {e}") from None
     return root[0]
 
 
@@ -122,6 +140,14 @@ def _numbers(node: _Node, text: str, what: str = "value") -> list[float]:
             node.fail(f"{what} must be finite (got {tok})")
         out.append(x)
     return out
+
+
+def _number(node: _Node, text: str, what: str = "value") -> float:
+    """Exactly one number."""
+    v = _numbers(node, text, what)
+    if len(v) != 1:
+        node.fail(f"{what} must be one number (got {len(v)})")
+    return v[0]
 
 
 def _attr(node: _Node, key: str) -> str:
@@ -144,7 +170,7 @@ def _vec3(node: _Node, default=None, *, attrs=("x", "y", "z")) -> np.ndarray:
             node.fail("needs value=\"x, y, z\" or x, y, z attributes")
         return np.array(default, dtype=np.float64)
     d = default if default is not None else (0.0, 0.0, 0.0)
-    return np.array([_numbers(node, node.attrs[a], a)[0] if a in node.attrs else d[i]
+    return np.array([_number(node, node.attrs[a], a) if a in node.attrs else d[i]
                      for i, a in enumerate(attrs)])
 
 
@@ -195,7 +221,7 @@ def _transform(node: _Node) -> np.ndarray:
             axis = _vec3(op, (0.0, 0.0, 0.0))
             if np.linalg.norm(axis) == 0:
                 op.fail("needs an axis: value=\"x, y, z\" or x, y, z attributes")
-            t = rotation_matrix(axis, _numbers(op, _attr(op, "angle"), "angle")[0])
+            t = rotation_matrix(axis, _number(op, _attr(op, "angle"), "angle"))
         elif op.tag == "matrix":
             v = _numbers(op, _attr(op, "value"))
             if len(v) == 16:
@@ -340,10 +366,11 @@ class _Props:
         n = self._get(name, ("integer",))
         if n is None:
             return default
+        text = _attr(n, "value")  # a SceneError is a ValueError: not inside the try
         try:
-            return int(_attr(n, "value").strip())
+            return int(text.strip())
         except ValueError:
-            n.fail(f"bad integer {n.attrs['value']!r}")
+            n.fail(f"bad integer {text!r}")
 
     def boolean(self, name, default=False):
         n = self._get(name, ("boolean",))
@@ -525,7 +552,7 @@ class _Loader:
                     chain = " -> ".join(str(s) for s in (*stack, key))
                     c.fail(f"include cycle: {chain}")
                 shown = str(p)
-                sub = _read_xml(p, shown)
+                sub = _read_xml(p, shown, via=c.where())
                 if sub.tag != "scene":
                     sub.fail("an included file must have <scene> as its root")
                 out += self.expand(sub, (*stack, key))
@@ -545,7 +572,11 @@ class _Loader:
             if n.tag in OBJECT_TAGS and "id" in n.attrs:
                 i = n.attrs["id"]
                 if i in self.ids:
-                    n.fail(f"duplicate id {i!r} (first defined at {self.ids[i].where()})")
+                    first = self.ids[i]
+                    if first.where() == n.where() and n.via:  # one file, included twice
+                        raise SceneError(f"{n.via}: <include>: {n.file} is included a second time (first at "
+                                         f"{first.via}), so its id {i!r} is defined twice")
+                    n.fail(f"duplicate id {i!r} (first defined at {first.where()})")
                 self.ids[i] = n
             self.register(n.children)
         for n in nodes:
@@ -589,7 +620,11 @@ class _Loader:
         if "filename" in n.attrs:
             path = self.resolve(n, n.attrs["filename"])
             wl, vals = [], []
-            for i, line in enumerate(path.read_text().splitlines()):
+            try:
+                text = read_file_bytes(path, path, "spectrum file").decode("utf-8")
+            except UnicodeDecodeError as e:
+                n.fail(f"{path}: not UTF-8 text ({e.reason} at byte {e.start})")
+            for i, line in enumerate(text.splitlines()):
                 line = line.split("#", 1)[0].strip()
                 if not line:
                     continue
@@ -894,8 +929,11 @@ class _Loader:
         from .meshio import transform_mesh
         from .scene import Mesh
 
-        verts, normals = transform_mesh(np.asarray(verts, dtype=np.float64),
-                                        None if normals is None else np.asarray(normals, dtype=np.float64), m)
+        try:
+            verts, normals = transform_mesh(np.asarray(verts, dtype=np.float64),
+                                            None if normals is None else np.asarray(normals, dtype=np.float64), m)
+        except ValueError as e:  # a singular or non-finite to_world
+            node.fail(f"to_world: {e}")
         tris = np.asarray(tris)
         if (np.linalg.det(m[:3, :3]) < 0) != flip:
             tris = tris[:, ::-1]

@@ -27,11 +27,50 @@ AUX_BYTES_PER_PIXEL = 420
 ADAPTIVE_BYTES_PER_PIXEL = 30
 PHOTON_BYTES = 130  # traced, sorted and keyed copies of each photon
 
+# Measured peak resident memory of `clpt render` of the Cornell box with one
+# mesh (spheres of 0.26 and 1.05 million triangles against one of 6; Intel's
+# CPU runtime, 64x64, 1 spp, generic kernel): bytes per triangle of the mesh's
+# arrays, its packed records, their BVH and the device's copies (990 and 1340
+# on average, 1450 between the two), and what an emissive mesh's light table
+# adds (150 and 290).
+MESH_BYTES_PER_TRIANGLE = 1450
+MESH_LIGHT_BYTES_PER_TRIANGLE = 300
+
 MAX_EXPOSURE = 64.0  # stops; 2^64 already saturates every float image
 
 
+def _reason(e: OSError) -> str:
+    r = e.strerror or str(e)
+    return r[:1].lower() + r[1:]
+
+
+def check_folder(folder: Path, what: str, path) -> Path:
+    """Make sure a file can be written in `folder` by doing it: create the
+    folder (and those above it) and create and remove a temporary file in it.
+    Permission bits are not asked (os.access says yes to root everywhere, and
+    read-only or virtual file systems refuse what the bits allow)."""
+    folder = folder if str(folder) else Path(".")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise SceneError(f"{what} {path}: {folder} is not a folder") from None
+    except OSError as e:
+        raise SceneError(f"{what} {path}: cannot create the folder {folder} ({_reason(e)})") from None
+    if not folder.is_dir():
+        raise SceneError(f"{what} {path}: {folder} is not a folder")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".clpt-probe-", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise SceneError(f"{what} {path}: cannot write in {folder} ({_reason(e)})") from None
+    return folder
+
+
 def check_output(path, what: str = "-o") -> Path:
-    """An output path that can be written, in a format OpenImageIO writes."""
+    """An output path that can be written, in a format OpenImageIO writes:
+    its folder is created and written to (check_folder), an existing file
+    opened for writing (not truncated)."""
     import OpenImageIO as oiio
 
     if path is None or str(path).strip() == "":
@@ -46,27 +85,12 @@ def check_output(path, what: str = "-o") -> Path:
                          f"use .png, .jpg or .exr")
     if p.is_dir():
         raise SceneError(f"{what} {path}: is a folder; give a file name")
-    parent = p.parent if str(p.parent) else Path(".")
-    ancestor = parent
-    while not ancestor.exists():  # save_image creates missing folders
-        if ancestor.parent == ancestor:
-            break
-        ancestor = ancestor.parent
-    if not ancestor.is_dir():
-        raise SceneError(f"{what} {path}: {ancestor} is not a folder")
-    if p.exists() and not os.access(p, os.W_OK):
-        raise SceneError(f"{what} {path}: the file exists and is not writable")
-    if not os.access(ancestor, os.W_OK | os.X_OK):
-        raise SceneError(f"{what} {path}: cannot write in {ancestor} (permission denied)")
-    if ancestor == parent:
-        # Permissions can pass where writes fail (read-only or virtual file systems):
-        # try a file beside the output.
+    check_folder(p.parent, what, path)
+    if p.exists():
         try:
-            fd, probe = tempfile.mkstemp(prefix=".clpt-probe-", dir=parent)
-            os.close(fd)
-            os.unlink(probe)
+            os.close(os.open(p, os.O_WRONLY | getattr(os, "O_NONBLOCK", 0)))
         except OSError as e:
-            raise SceneError(f"{what} {path}: cannot write in {parent} ({e.strerror or e})") from None
+            raise SceneError(f"{what} {path}: the file exists and cannot be written ({_reason(e)})") from None
     return p
 
 
@@ -133,11 +157,46 @@ def warn_unused_options(a, scene_has_casters: bool, warn):
 
 
 def host_bytes_needed(width: int, height: int, aux: bool = False, adaptive: bool = False, photons: int = 0,
-                      cpu_device: bool = True) -> int:
+                      cpu_device: bool = True, resources: int = 0) -> int:
     """Peak host memory of a render, from the measured costs above (a CPU
-    device's buffers are host memory too)."""
+    device's buffers are host memory too); resources: scene_resource_bytes."""
     per_px = BYTES_PER_PIXEL + (AUX_BYTES_PER_PIXEL if aux else 0) + (ADAPTIVE_BYTES_PER_PIXEL if adaptive else 0)
-    return HOST_BASE_BYTES + width * height * per_px + (photons * PHOTON_BYTES if cpu_device else 0)
+    return HOST_BASE_BYTES + width * height * per_px + (photons * PHOTON_BYTES if cpu_device else 0) + resources
+
+
+def scene_resources(scene) -> list[tuple[str, int]]:
+    """(what, bytes) of each of the scene's resources while it renders, from
+    the measured costs above: its meshes. Textures, when clpt reads them,
+    add an entry each here (their texels, and any mip levels)."""
+    from .scene import Mesh
+
+    out = []
+    for s in scene.shapes:
+        if isinstance(s, Mesh):
+            light = scene.surface(s).is_emissive
+            per = MESH_BYTES_PER_TRIANGLE + (MESH_LIGHT_BYTES_PER_TRIANGLE if light else 0)
+            out.append((f"mesh {s.name or ''} of {len(s.triangles)} triangles".replace("  ", " "),
+                        len(s.triangles) * per))
+    return out
+
+
+def scene_resource_bytes(scene) -> int:
+    return sum(b for _, b in scene_resources(scene))
+
+
+def check_scene_memory(scene, available: int | None = None):
+    """Refuse a scene whose resources alone will not fit in memory, before
+    they are packed for the devices (the render's own buffers are checked
+    with them by check_memory, once its size and options are known)."""
+    items = scene_resources(scene)
+    need = HOST_BASE_BYTES + sum(b for _, b in items)
+    avail = available_host_bytes() if available is None else available
+    if not items or avail is None or need <= avail:
+        return
+    what, most = max(items, key=lambda x: x[1])
+    raise SceneError(f"{scene.source}: its meshes need about {need / 2**30:.1f} GiB of memory to render "
+                     f"({len(items)} mesh{'es' if len(items) > 1 else ''}, the largest a {what}: "
+                     f"{most / 2**30:.1f} GiB) and {max(avail, 0) / 2**30:.1f} GiB are available")
 
 
 def available_host_bytes() -> int | None:
@@ -173,19 +232,22 @@ def available_host_bytes() -> int | None:
 
 
 def check_memory(width: int, height: int, aux: bool, adaptive: bool, photons: int, cpu_device: bool = True,
-                 available: int | None = None):
-    """Refuse a render that will not fit in memory, saying what size would."""
-    need = host_bytes_needed(width, height, aux, adaptive, photons, cpu_device)
+                 available: int | None = None, resources: int = 0):
+    """Refuse a render that will not fit in memory, saying what size would;
+    resources: the scene's (scene_resource_bytes)."""
+    need = host_bytes_needed(width, height, aux, adaptive, photons, cpu_device, resources)
     avail = available_host_bytes() if available is None else available
     if avail is None or need <= avail:
         return
-    per_px = (need - HOST_BASE_BYTES - (photons * PHOTON_BYTES if cpu_device else 0)) / (width * height)
-    room = avail - (need - width * height * per_px)
+    fixed = HOST_BASE_BYTES + (photons * PHOTON_BYTES if cpu_device else 0) + resources
+    per_px = (need - fixed) / (width * height)
+    room = avail - fixed
     fit = ""
     if room > 0:
         k = math.sqrt(room / per_px / (width * height))
         fit = f"; at most about {max(1, int(width * k))}x{max(1, int(height * k))} fits"
-    raise SceneError(f"a {width}x{height} render needs about {need / 2**30:.1f} GiB of memory and "
+    meshes = f" ({resources / 2**30:.1f} GiB of it for the scene's meshes)" if resources else ""
+    raise SceneError(f"a {width}x{height} render needs about {need / 2**30:.1f} GiB of memory{meshes} and "
                      f"{max(avail, 0) / 2**30:.1f} GiB are available{fit}")
 
 
@@ -194,11 +256,12 @@ def fallback_path(out: Path) -> Path:
     in the temp folder when that folder is not writable."""
     name = f"{out.stem or 'render'}.clpt-unsaved.exr"
     beside = (out.parent if str(out.parent) else Path(".")) / name
-    try:
-        if beside.parent.is_dir() and os.access(beside.parent, os.W_OK | os.X_OK) and beside != out:
+    if beside != out and beside.parent.is_dir():
+        try:
+            check_folder(beside.parent, "", out)
             return beside
-    except OSError:
-        pass
+        except SceneError:
+            pass
     return Path(tempfile.gettempdir()) / name
 
 

@@ -192,6 +192,8 @@ class Renderer:
         self._local = self._processes = None
         wants_photons = self.packed.has_caustics and photons is not False
         selection = choose_devices(device, photons=wants_photons, lanes=lanes)
+        # What Dask workers select: the name the user gave (a worker's own default if none).
+        self._worker_device = device if device is None or isinstance(device, (str, int)) else None
         self.device_choice = selection.why  # render -v
         self.devices = [DeviceContext(d) for d in selection.devices]
         names = [d.label for d in self.devices]
@@ -357,8 +359,10 @@ class Renderer:
             kw = {**self.options.renderer_kwargs(), **changes}
             if kw.get("photons") is None and self.photon_settings is not None:
                 kw["photons"] = self.photon_settings
-            self._twins[key] = Renderer(self.scene, device=[d.device for d in self.devices],
-                                        use_cache=self.options.use_cache, experimental=self.experimental, **kw)
+            twin = Renderer(self.scene, device=[d.device for d in self.devices], use_cache=self.options.use_cache,
+                            experimental=self.experimental, **kw)
+            twin._worker_device = self._worker_device
+            self._twins[key] = twin
         return self._twins[key]
 
     def _executor(self, executor):
@@ -379,7 +383,7 @@ class Renderer:
             raise SettingsError(f"render: executor must be None, 'processes', a dask.distributed Client or an "
                                 f"executor object (got {executor!r})")
         if hasattr(executor, "scheduler_info") and hasattr(executor, "submit"):  # a distributed.Client
-            return DaskExecutor(executor)
+            return DaskExecutor(executor, device=getattr(self, "_worker_device", None))
         return executor
 
     def _run(self, job, schedule, initial, elapsed_before, *, progress=None, preview=None, time_limit=None,

@@ -966,35 +966,50 @@ def parse_scene(text: str, source: str = "<string>", base_dir=None) -> Scene:
 MAX_SCENE_BYTES = 16 << 20
 
 
-def _read_scene_text(p: Path, name) -> str:
-    """The file's text: a regular file (a FIFO or a device would block or never
-    end) of at most MAX_SCENE_BYTES."""
+def open_regular_file(p: Path, name, what: str, limit: int | None = None):
+    """The file open for reading in binary, checked first: it exists, is a
+    regular file (a FIFO or a device would block or never end) and has at
+    most `limit` bytes. Every failure is a one-line SceneError naming the
+    file as `name`."""
     import os
     import stat
 
     try:
         fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
     except FileNotFoundError:
-        raise SceneError(f"{name}: no such scene file") from None
+        raise SceneError(f"{name}: no such {what}") from None
     except OSError as e:
-        raise SceneError(f"{name}: cannot read the scene file: {e.strerror or e}") from None
+        raise SceneError(f"{name}: cannot read the {what}: {e.strerror or e}") from None
     try:
         st = os.fstat(fd)
         if stat.S_ISDIR(st.st_mode):
-            raise SceneError(f"{name}: is a folder, not a scene file")
+            raise SceneError(f"{name}: is a folder, not a {what}")
         if not stat.S_ISREG(st.st_mode):
-            raise SceneError(f"{name}: not a regular file (a pipe or device); save the scene to a file")
-        if st.st_size > MAX_SCENE_BYTES:
-            raise SceneError(f"{name}: {st.st_size} bytes is too large for a scene file "
-                             f"(at most {MAX_SCENE_BYTES >> 20} MiB)")
-        with os.fdopen(fd, "rb", closefd=False) as f:
-            data = f.read(MAX_SCENE_BYTES + 1)
-    except OSError as e:
-        raise SceneError(f"{name}: cannot read the scene file: {e.strerror or e}") from None
-    finally:
+            raise SceneError(f"{name}: not a regular file (a pipe or device); save the {what} to a file")
+        if limit is not None and st.st_size > limit:
+            raise SceneError(f"{name}: {st.st_size} bytes is too large for a {what} (at most {limit >> 20} MiB)")
+        return os.fdopen(fd, "rb")
+    except BaseException:
         os.close(fd)
-    if len(data) > MAX_SCENE_BYTES:
-        raise SceneError(f"{name}: too large for a scene file (at most {MAX_SCENE_BYTES >> 20} MiB)")
+        raise
+
+
+def read_file_bytes(p: Path, name, what: str = "scene file", limit: int = MAX_SCENE_BYTES) -> bytes:
+    """The bytes of a file clpt reads whole (a scene, an included scene, a
+    spectrum), of at most `limit` bytes (open_regular_file)."""
+    with open_regular_file(p, name, what, limit) as f:
+        try:
+            data = f.read(limit + 1)
+        except OSError as e:
+            raise SceneError(f"{name}: cannot read the {what}: {e.strerror or e}") from None
+    if len(data) > limit:
+        raise SceneError(f"{name}: too large for a {what} (at most {limit >> 20} MiB)")
+    return data
+
+
+def _read_scene_text(p: Path, name) -> str:
+    """The file's text (read_file_bytes), which must be UTF-8."""
+    data = read_file_bytes(p, name)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as e:

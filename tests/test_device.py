@@ -73,9 +73,10 @@ def _machine(monkeypatch, devices, broken=(), known=None, background=None):
     known = {d.name for d in devices} if known is None else set(known)
     background = [] if background is None else background
 
-    def check(d, lanes=None, photons=False, found=None, wait=True):
+    def check(d, lanes=None, photons=False, found=None, wait=True, **kw):
         if not wait and d.name not in known:
-            background.append(d.name)
+            if kw.get("background", True):
+                background.append(d.name)
             return None
         checked.append(d.name)
         known.add(d.name)
@@ -131,6 +132,17 @@ def test_a_first_render_never_waits_for_a_check_ranked_ahead_only_for_photons(mo
     c = devmod.default_device(photons=True)
     assert c.device.name == "EPYC" and c.skipped == ("skipped pthread-old (Portable Computing Language, driver 3.0): "
                                                      "cannot render at 16 lanes: LLVM ERROR: boom",)
+
+
+def test_one_background_check_at_a_time(monkeypatch):
+    bg = []
+    two = [_dev("Portable Computing Language", "pthread-a", CPU), _dev("Portable Computing Language", "pthread-b", CPU)]
+    _machine(monkeypatch, two + [_dev("Intel(R) OpenCL", "EPYC", CPU)], known={"EPYC"}, background=bg)
+    c = devmod.default_device(photons=True)
+    assert c.device.name == "EPYC" and bg == ["pthread-a"] and len(c.skipped) == 1
+    # A candidate checked before still counts while another is checked in the background.
+    _machine(monkeypatch, two + [_dev("Intel(R) OpenCL", "EPYC", CPU)], known={"EPYC", "pthread-b"}, background=bg)
+    assert devmod.default_device(photons=True).device.name == "pthread-b"
 
 
 def test_no_device_that_renders_is_an_error_with_the_fix(monkeypatch):

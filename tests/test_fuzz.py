@@ -10,15 +10,11 @@ import traceback
 import pytest
 
 hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import given  # noqa: E402
 
 import fuzzing  # noqa: E402
 from clpt.cli import main  # noqa: E402
-
-def bounded(n):
-    """n inputs, the same ones every run (derandomized), no time limit per input."""
-    return settings(max_examples=n, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck),
-                    database=None)
+from fuzzing import bounded  # noqa: E402
 
 
 def run_main(argv):

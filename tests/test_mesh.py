@@ -229,7 +229,7 @@ def test_polygons_are_fan_triangulated(tmp_path, fmt, faces):
     if faces != "mixed":  # ours: in order, from the first vertex
         # The OBJ reader keeps only the vertices faces use: compare positions.
         np.testing.assert_allclose(vr[t], v[np.array(expect)], rtol=1e-6)  # PLY: float32
-    else:  # trimesh's own fan of mixed sizes: the same triangles, in its order and rotation
+    else:  # a mix of sizes: compared as sets of triangles (whatever their order and rotation)
         def canon(tris):
             tris = np.round(np.asarray(tris, dtype=float), 5)
             out = []

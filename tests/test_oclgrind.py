@@ -230,11 +230,15 @@ def test_a_cached_build_runs_clean_on_oclgrind(tmp_path):
 
 # --- the checks themselves ---------------------------------------------------------------------
 
-_OOB = """
+# A context on Oclgrind's device, for the planted faults below.
+_ON_OCLGRIND = """
 import numpy as np, pyopencl as cl
 p = [p for p in cl.get_platforms() if p.name.strip() == "Oclgrind"][0]
 ctx = cl.Context(p.get_devices())
 q = cl.CommandQueue(ctx)
+"""
+
+_OOB = _ON_OCLGRIND + """
 src = "__kernel void k(__global const float *a, __global float *b, uint n) { size_t i = get_global_id(0); b[i] = a[i + n]; }"
 prg = cl.Program(ctx, src).build()
 a = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 64)
@@ -258,11 +262,7 @@ def test_the_checks_catch_an_out_of_bounds_read(tmp_path):
     assert run_checked(_OOB, [0], tmp_path)[2] == []  # in bounds: nothing reported
 
 
-_RACE = """
-import numpy as np, pyopencl as cl
-p = [p for p in cl.get_platforms() if p.name.strip() == "Oclgrind"][0]
-ctx = cl.Context(p.get_devices())
-q = cl.CommandQueue(ctx)
+_RACE = _ON_OCLGRIND + """
 src = "__kernel void k(__global uint *b, uint shared) { uint i = get_global_id(0); b[shared ? 0 : i] = i; }"
 prg = cl.Program(ctx, src).build()
 b = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 64)

@@ -130,8 +130,10 @@ def _worker_device(job, device):
     w = _WORKER_CACHE.get(key)
     if w is None:
         _WORKER_CACHE.clear()
-        dctx = DeviceContext(select_devices(device)[0])
         packed = job.options.pack(job.scene)
+        # Without a device named: the default for this kind of kernel, as the client's own would be.
+        photons = packed.has_caustics and job.options.photons is not False
+        dctx = DeviceContext(select_devices(device, photons=photons)[0])
         w = DeviceWorker(dctx, packed, device_features(dctx, packed, job.options), job.options.use_cache)
         w.started = None
         _WORKER_CACHE[key] = w
