@@ -1,4 +1,4 @@
-"""Per-pixel sums (kernels/accum.h) stay accurate over 10^6 samples: in
+"""Per-pixel sums (kernels/film.h) stay accurate over 10^6 samples: in
 double, and in Kahan-compensated float on devices without fp64."""
 
 import numpy as np

@@ -64,7 +64,7 @@ def kernel_source(packed: PackedScene | None, features: Features) -> str:
 
 
 class _Sums:
-    """Per-pixel sums on a device (accum.h's layout)."""
+    """Per-pixel sums on a device (kernels/film.h's layout)."""
 
     def __init__(self, dctx, n_pix: int, accum_double: bool):
         self.dctx, self.n_pix, self.accum_double = dctx, n_pix, accum_double
