@@ -12,7 +12,8 @@ filter (aux sums and filtered image), and for scenes with caustic photons
 each photon mode (merge, online, offline) over two progressive photon maps,
 plus both adaptive schemes (pixel lists, per-pixel depths). Each variant
 keeps the image, per-pixel counts and variances, the caustic buffer, the
-feature images, the filtered image and the ray counts. Builds go to a cache
+feature images, the filtered image and the ray counts. A differing image is
+also measured against its noise (the standard error of each pixel's mean). Builds go to a cache
 of their own (CLPT_CACHE_DIR, default /tmp/clpt-bitident-cache), keyed by
 source as always, so a changed kernel is always rebuilt.
 """
@@ -123,7 +124,14 @@ def main(argv=None):
     for k in bad:
         if k in before and before[k].shape == got[k].shape:
             d = np.abs(before[k].astype(np.float64) - got[k].astype(np.float64))
-            print(f"  {k}: max |diff| {d.max():.3g}, {np.count_nonzero(d)} of {d.size} differ")
+            noise = ""
+            base = k[:-len("image")]
+            if k.endswith("/image") and base + "lum_var" in before:
+                # Against the noise: the standard error of each pixel's mean (luminance's, from the sums).
+                se = np.sqrt(before[base + "lum_var"] / np.maximum(before[base + "count"], 1))
+                z = d.max(axis=-1) / np.where(se > 0, se, np.inf)
+                noise = f", at most {z.max():.2g} standard errors of the pixel's mean"
+            print(f"  {k}: max |diff| {d.max():.3g}, {np.count_nonzero(d)} of {d.size} differ{noise}")
         else:
             print(f"  {k}: missing before or shape changed")
     print(f"{same} of {len(got)} arrays bit-identical")
