@@ -91,11 +91,11 @@ typedef struct {
 
 // A lobe of m chosen by Russian roulette over pr (u.lobe), and a direction
 // in it, at a vertex with shading normal n facing -d (front: d arrives from
-// outside). `alive` masks the lanes sampled. With nondelta 0 (a constant
-// where this is inlined: photons, which stop at the first non-delta vertex)
-// only the mirror and refraction are compiled.
-CLPT_INLINE BsdfSample bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask front, vmask alive, BsdfU u,
-                                   int mode, int nondelta)
+// outside), into *out. `alive` masks the lanes sampled. With nondelta 0 (a
+// constant where this is inlined: photons, which stop at the first
+// non-delta vertex) only the mirror and refraction are compiled.
+CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask front, vmask alive, BsdfU u,
+                             int mode, int nondelta, BsdfSample *out)
 {
     BsdfSample bs;
     // --- Russian roulette over the lobes --------------------------------------
@@ -153,5 +153,5 @@ CLPT_INLINE BsdfSample bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, 
     // The pdf of the direction under the whole non-delta mixture (what light
     // sampling's weight is measured against), not only the chosen lobe's.
     bs.pdf = nondelta ? VSEL((vreal)R(0), bsdf_pdf(m, pr, d, n, bs.wi), is_d || is_s) : (vreal)R(0);
-    return bs;
+    *out = bs;
 }

@@ -147,12 +147,13 @@ CLPT_INLINE void light_point(const Scene *sc, uint r, int kind, vmask pick, Ligh
     *err = (vreal)(max_abs4(p) + max_abs4(eu) + max_abs4(ev));
 }
 
-// A light picked by power and a point on it. With at_x (a constant where
-// this is inlined), as seen from the shading point x, for next event
-// estimation: wi, dist, the solid-angle pdf and validity are filled and p is
-// recomputed as x + dist wi; without, for photon emission: the point, its
-// normal, the area pdf and err.
-CLPT_INLINE LightSample light_sample(const Scene *sc, V3 x, LightU u, int at_x)
+// A light picked by power and a point on it, into *out. With at_x (a
+// constant where this is inlined), as seen from the shading point x, for
+// next event estimation: wi, dist, the solid-angle pdf and validity are
+// filled and p is recomputed as x + dist wi; without, for photon emission:
+// the point, its normal, the area pdf and err. (An always-inlined function
+// returns no struct: Oclgrind cannot run the noalias scope its inlining leaves.)
+CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, LightSample *out)
 {
     LightSample ls;
     ls.p = ls.n = ls.Le = ls.wi = v3_zero();
@@ -214,7 +215,7 @@ CLPT_INLINE LightSample light_sample(const Scene *sc, V3 x, LightU u, int at_x)
         ls.pdf = VSEL(ls.pdf, pdf_sa * info.y, pick);
         ls.valid = ls.valid || (pick && emits && pdf_sa > R(0) && pdf_sa < R(INFINITY));
     }
-    return ls;
+    *out = ls;
 }
 
 // Solid-angle pdf with which light_sample, called at x, draws the point y on

@@ -89,7 +89,7 @@ inline PathState path_state_make(vmask active)
 }
 
 // A new camera ray through (px, py) + u of the image for the lanes in start.
-CLPT_INLINE void path_start(PathState *ps, const CameraRec *cam, vreal px, vreal py, CameraU u, vmask start)
+inline void path_start(PathState *ps, const CameraRec *cam, vreal px, vreal py, CameraU u, vmask start)
 {
     V3 d = camera_ray(cam->corner, cam->dx, cam->dy, px + u.x, py + u.y);
     ps->o = v3_sel(ps->o, v3_splat(cam->origin), start);
@@ -106,7 +106,7 @@ CLPT_INLINE void path_start(PathState *ps, const CameraRec *cam, vreal px, vreal
 
 // The vertex at hit h of the lanes in `active` (rr_depth: the depth from
 // which absorption may end paths).
-CLPT_INLINE Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmask active, uint rr_depth)
+inline Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmask active, uint rr_depth)
 {
     Vertex v;
     v.h = h;
@@ -125,7 +125,7 @@ CLPT_INLINE Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmas
 // Emission at the vertex towards the path, times the throughput and its
 // multiple-importance weight; *sees: the lanes it reaches (an emitter's
 // side that emits; not a path the photon map owns).
-CLPT_INLINE V3 path_emission(const Scene *sc, const PhotonLookup *pl, const PathState *ps, const Vertex *v,
+inline V3 path_emission(const Scene *sc, const PhotonLookup *pl, const PathState *ps, const Vertex *v,
                              vmask *sees)
 {
     vmask s = v->hit && (v->front || v->m.two_sided != R(0));
@@ -161,7 +161,7 @@ CLPT_INLINE V3 path_emission(const Scene *sc, const PhotonLookup *pl, const Path
 // merge_p (Russian roulette on the technique, which bounds its cost); the
 // weights count that in (the host folds it into mis_k), so both sides still
 // see the same pdfs.
-CLPT_INLINE void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState *ps, Vertex *v,
+inline void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState *ps, Vertex *v,
                               const Sampler *sp, vreal max_depth, vmask *go, VisibleSurface *vis, real lum_scale)
 {
     v->at_x = v->hit && ps->own == (real)OWN_BEFORE_X && v->m.nondelta != R(0);
@@ -197,11 +197,12 @@ CLPT_INLINE void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathS
 // Next event estimation at the vertex for the lanes in nee: a light sample
 // weighted against BSDF sampling by the power heuristic, added to ps->L
 // where its shadow ray is clear. Returns the shadow rays traced.
-CLPT_INLINE uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, vmask nee, const Sampler *sp)
+inline uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, vmask nee, const Sampler *sp)
 {
     if (!VANY(nee))
         return 0;
-    LightSample ls = light_sample(sc, v->x, sample_light(sp, ps->depth), 1);
+    LightSample ls;
+    light_sample(sc, v->x, sample_light(sp, ps->depth), 1, &ls);
     vreal cos_x = v3_dot(v->n, ls.wi);
     nee = nee && ls.valid && cos_x > R(0) && v3_dot(v->ng, ls.wi) > R(0);
     if (!VANY(nee))
@@ -223,9 +224,10 @@ CLPT_INLINE uint path_direct_light(const Scene *sc, PathState *ps, const Vertex 
 // Scattering at the vertex for the lanes in go: a lobe and a direction from
 // the BSDF, the throughput, and the next ray (kept on the side of the
 // geometric surface its lobe meant). Returns the lanes whose path goes on.
-CLPT_INLINE vmask path_scatter(const Scene *sc, PathState *ps, const Vertex *v, vmask go, BsdfU u)
+inline vmask path_scatter(const Scene *sc, PathState *ps, const Vertex *v, vmask go, BsdfU u)
 {
-    BsdfSample bs = bsdf_sample(&v->m, v->pr, ps->d, v->n, v->front, go, u, TRANSPORT_RADIANCE, 1);
+    BsdfSample bs;
+    bsdf_sample(&v->m, v->pr, ps->d, v->n, v->front, go, u, TRANSPORT_RADIANCE, 1, &bs);
     vmask cont = go && bs.chosen;
     ps->beta = v3_sel(ps->beta, v3_mul(ps->beta, bs.weight), cont);
     ps->o = v3_sel(ps->o, offset_scattered(sc, v->x, v3_sel(v3_neg(v->n), v->n, bs.up), bs.wi, v->h.err), cont);
@@ -245,7 +247,7 @@ CLPT_INLINE vmask path_scatter(const Scene *sc, PathState *ps, const Vertex *v, 
 // keep it so (own); for merging, a non-delta lobe starts a chain (with its
 // pdf, if a merge happened at this vertex), purely specular vertices extend
 // it, and a delta lobe of a vertex with a non-delta part ends it (chain).
-CLPT_INLINE void path_class_update(PathState *ps, const Vertex *v, vmask cont, real mis_k)
+inline void path_class_update(PathState *ps, const Vertex *v, vmask cont, real mis_k)
 {
     vmask pure_delta = v->m.nondelta == R(0);
     vreal own = ps->own;

@@ -65,18 +65,18 @@ typedef struct {
 // The photon map of a launch: its buffers and the launch record's settings.
 // The offline pre-pass gathers only a few times per pixel: subsampling noise
 // would not average out there, so the host gives it an unbounded budget.
-inline PhotonMap photon_map_make(const PhotonLookup *pl, __global const float4 *pos, __global const float4 *dir,
-                                 __global const float4 *pow, __global const uint *bucket_start,
-                                 __global const uint *occ)
+// (Filled through a pointer: a struct returned by an inlined function whose
+// storage lives on leaves a noalias scope declaration Oclgrind cannot run.)
+inline void photon_map_init(PhotonMap *pm, const PhotonLookup *pl, __global const float4 *pos,
+                            __global const float4 *dir, __global const float4 *pow, __global const uint *bucket_start,
+                            __global const uint *occ)
 {
-    PhotonMap pm;
-    pm.pos = pos; pm.dir = dir; pm.pow = pow;
-    pm.bucket_start = bucket_start;
-    pm.mask = pl->mask; pm.max_photons = pl->max_photons; pm.budget = pl->budget;
-    pm.radius = pl->radius; pm.inv_cell = pl->inv_cell; pm.cone_k = pl->cone_k;
-    pm.mis_k = pl->mis_k;
-    pm.occ = occ; pm.occ_mask = pl->occ_mask;
-    return pm;
+    pm->pos = pos; pm->dir = dir; pm->pow = pow;
+    pm->bucket_start = bucket_start;
+    pm->mask = pl->mask; pm->max_photons = pl->max_photons; pm->budget = pl->budget;
+    pm->radius = pl->radius; pm->inv_cell = pl->inv_cell; pm->cone_k = pl->cone_k;
+    pm->mis_k = pl->mis_k;
+    pm->occ = occ; pm->occ_mask = pl->occ_mask;
 }
 
 #if CLPT_LANES == 1

@@ -38,7 +38,8 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
 
     // --- emission ---------------------------------------------------------------
     EmitU ue = sample_photon_emission(&sp);
-    LightSample lp = light_sample(sc, v3_zero(), ue.light, 0);
+    LightSample lp;
+    light_sample(sc, v3_zero(), ue.light, 0, &lp);
     AimSample aim = aim_at_casters(sc, lp.p, lp.n, lp.two_sided, L.aim, ue.caster, ue.u1, ue.u2);
     vreal cos_y = v3_dot(aim.w, lp.n);
     vmask emits = cos_y > R(0) || (lp.two_sided && cos_y < R(0));
@@ -76,8 +77,9 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
         n = hit_shading_normal(sc, &h, ng_side);
         // Russian roulette over the delta lobes, absorption always allowed;
         // flux, not radiance, crosses a refraction.
-        BsdfSample bs = bsdf_sample(&m, lobe_probs(&m, live && !live), d, n, front, live,
-                                    sample_photon_bounce(&sp, b), TRANSPORT_IMPORTANCE, 0);
+        BsdfSample bs;
+        bsdf_sample(&m, lobe_probs(&m, live && !live), d, n, front, live, sample_photon_bounce(&sp, b),
+                    TRANSPORT_IMPORTANCE, 0, &bs);
         live = live && bs.chosen;
         flux = v3_sel(flux, v3_mul(flux, bs.weight), live);
         o = v3_sel(o, offset_scattered(sc, x, v3_sel(v3_neg(n), n, bs.up), bs.wi, h.err), live);

@@ -124,9 +124,14 @@ inline uint vpopcount(vmask m)
 // scene called bvh_walk1 out of line and walked shuffled rays.
 #define INLINE_VEC3 inline __attribute__((always_inline))
 // Always inlined for another reason: a function with a constant mode
-// parameter (scene_walk's closest or any hit, bsdf_sample's transport mode)
-// becomes one plain function per mode only where it is inlined, and a path
-// event is one function for reading, not for the compiler to call.
+// parameter that picks whole loops (scene_walk's and the BVH walk's closest
+// or any hit, light_sample's shading point or emission, bsdf_sample's
+// transport mode) becomes one plain function per mode only where it is
+// inlined. Such a function returns no struct (it fills one through a
+// pointer): inlining a struct-returning function leaves an
+// llvm.experimental.noalias.scope.decl where the struct's storage stays in
+// memory, which Oclgrind 21.10 cannot run. (The path events are plain
+// `inline`, single call sites the compilers inline anyway.)
 #define CLPT_INLINE inline __attribute__((always_inline))
 
 // --- three-component vectors of lanes (structure of arrays) ----------------

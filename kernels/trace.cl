@@ -47,7 +47,8 @@ __kernel void trace_paths(__global const real4 *scene, __constant TraceLaunch *l
     const Scene *sc = &scd;
     const PhotonLookup *pl = &L.photons;
 #if CLPT_PHOTONS
-    PhotonMap pmd = photon_map_make(pl, ph_pos, ph_dir, ph_pow, bucket_start, ph_occ);
+    PhotonMap pmd;
+    photon_map_init(&pmd, pl, ph_pos, ph_dir, ph_pow, bucket_start, ph_occ);
 #endif
     uint gid = get_global_id(0);
     uint n_pix = L.width * L.height;
