@@ -756,13 +756,14 @@ def _serialized_extent(data: bytes, path, version: int, shape_index: int):
     if shape_index >= count:
         raise MeshError(f"{path}: shape_index {shape_index} is out of range (the file holds {count} shapes, "
                         f"0 to {count - 1})")
-    offsets = np.frombuffer(data, "<u8" if width == 8 else "<u4", count, table).astype(np.int64)
-    start = int(offsets[shape_index])
+    # Python ints: an offset of 2^63 or more must not wrap to a negative int64.
+    offsets = [int(o) for o in np.frombuffer(data, "<u8" if width == 8 else "<u4", count, table)]
+    start = offsets[shape_index]
     if start + 4 > table:
         raise MeshError(f"{path}: byte {table + shape_index * width}: shape {shape_index} starts at byte {start}, "
                         f"beyond the shapes' data (which ends at byte {table})")
     later = offsets[shape_index + 1:]
-    end = int(later[0]) if len(later) and start < later[0] <= table else table
+    end = later[0] if later and start < later[0] <= table else table
     return start, end
 
 
