@@ -151,7 +151,8 @@ def _read_obj(data: bytes, path):
     # coordinates are not kept, but they split vertices (at a UV seam), which
     # matters to the normals computed for a mesh without them (vertex_normals).
     cols = [c] + [x + 1 for x in (ct, cn) if x is not None]  # -1 (none) -> 0
-    uniq, inverse = np.unique(_row_keys(cols), return_inverse=True, axis=0)
+    keys = _row_keys(cols)
+    uniq, inverse = np.unique(keys, return_inverse=True, axis=0 if keys.ndim == 2 else None)
     first = np.zeros(len(uniq), dtype=np.int64)
     first[inverse.reshape(-1)] = np.arange(len(c))  # a corner of each unique vertex
     tris = fan_polygons(inverse.reshape(-1), sizes)

@@ -605,7 +605,7 @@ def _transform(v: _Values, name="to_world"):
 
 
 def _shape(v: _Values, bsdf_ids, light=False):
-    t = v.pick(["rectangle", "rectangle", "cube", "sphere", "disk", "cylinder", "obj", "ply"],
+    t = v.pick(["rectangle", "rectangle", "cube", "sphere", "disk", "cylinder", "obj", "ply", "serialized"],
                ["bogus", "bsplinecurve", "instance"])
     body = [_transform(v)]
     if t == "sphere":
@@ -617,6 +617,11 @@ def _shape(v: _Values, bsdf_ids, light=False):
         body.append(f'<string name="filename" value="cbox/{v.pick(["small_box", "light"], ["nope"])}.obj"/>')
     elif t == "ply":
         body.append('<string name="filename" value="cbox/bunny.ply"/>')
+    elif t == "serialized":
+        body.append(f'<string name="filename" value="cbox/shapes.serialized"/>'
+                    f'<integer name="shape_index" value="{v.pick(["0", "1", "2"], ["3", "-1", "x"])}"/>')
+    if t in ("obj", "ply", "serialized") and v.pick([True, False]):
+        body.append(f'<boolean name="face_normals" value="{v.pick(["true", "false"])}"/>')
     if v.pick([True, False]):
         body.append(f'<boolean name="flip_normals" value="{v.pick(["true", "false"], ["2", "yes"])}"/>')
     if bsdf_ids and v.pick([True, False]):
@@ -670,11 +675,13 @@ def xml_inputs():
 
 
 def xml_workspace() -> Path:
-    """A folder holding what the XML scenes refer to (tests/data/cbox, and a
-    shipped PLY as cbox/bunny.ply); inputs are written beside it."""
+    """A folder holding what the XML scenes refer to (tests/data/cbox, a
+    shipped PLY as cbox/bunny.ply and a serialized seed as
+    cbox/shapes.serialized); inputs are written beside it."""
     d = Path(tempfile.mkdtemp(prefix="clpt-fuzz-xml-"))
     shutil.copytree(DATA / "cbox", d / "cbox")
     shutil.copy(MESHES / "ring.ply", d / "cbox" / "bunny.ply")
+    shutil.copy(DATA / "serialized" / "shapes_v4.serialized", d / "cbox" / "shapes.serialized")
     return d
 
 
