@@ -2,15 +2,19 @@
 
 The readers here are clpt's own, so that every damaged file is refused with
 one line naming the file, the place and the reason (a line of an OBJ or ASCII
-PLY file, a byte offset in a binary PLY file, a vertex or face by number), and
+PLY file, a byte offset in a binary PLY file, a shape and byte of a Mitsuba
+.serialized file, a vertex or face by number), and
 so that sizes are checked before anything is allocated: the memory reading
 needs against what the machine has, and the counts a PLY header declares
-against the bytes that follow it. They read positions, polygons and per-vertex
+against the bytes that follow it (and a .serialized header's against what its
+compressed bytes can hold). They read positions, polygons and per-vertex
 normals, and nothing else (texture coordinates, colours, materials, groups and
 other elements are skipped). Polygons are fanned into triangles from their
-first vertex, in order. Nothing is merged, reordered or repaired, so triangle
-i of the file is triangle i here, less the degenerate ones, which are dropped
-with one warning giving their count.
+first vertex, in order. Nothing is reordered or repaired, so triangle i of the
+file is triangle i here, less the degenerate ones, which are dropped with one
+warning giving their count; an OBJ file's vertices are its distinct (position,
+texture coordinate, normal) triples, as Mitsuba makes them. vertex_normals
+computes smooth normals for a mesh without them, as Mitsuba does.
 
 Every problem with a file is a ``MeshError`` (a SceneError, so a ValueError).
 """
@@ -29,7 +33,7 @@ import numpy as np
 
 from .scene import SceneError, open_regular_file
 
-FORMATS = ("obj", "ply")
+FORMATS = ("obj", "ply", "serialized")
 
 # What reading needs at its peak, in bytes per byte of the file (measured with
 # tracemalloc on a 160,000-triangle sphere, normals and not): the file itself,
@@ -37,7 +41,7 @@ FORMATS = ("obj", "ply")
 # densest (9.5: float32 and int32 become float64 and int64); an OBJ read line
 # by line 3.3, an ASCII PLY 3.9. OBJ's whole-file parse is faster but holds
 # every token as a Python object (11 to 14): it is taken only where that fits.
-READ_BYTES_PER_FILE_BYTE = {"obj": 4, "ply": 10}
+READ_BYTES_PER_FILE_BYTE = {"obj": 4, "ply": 10, "serialized": 1}  # serialized: see SERIALIZED_READ_BYTES_PER_BYTE
 OBJ_WHOLE_FILE_BYTES_PER_FILE_BYTE = 15
 MAX_PLY_HEADER_BYTES = 1 << 16
 MAX_INDEX = 2 ** 62  # larger indices and counts cannot be in range of any file that fits in memory
@@ -69,17 +73,23 @@ def fan_polygons(corners, sizes):
     return np.stack([corners[first], corners[first + j], corners[first + j + 1]], axis=1)
 
 
-def read_mesh(path):
+def read_mesh(path, shape_index=0):
     """(vertices float64 (N,3), triangles int64 (M,3), normals float64 (N,3) or None).
 
     Normals are the file's per-vertex normals, normalized, or None when it
-    has none (or only some of its faces have them, in an OBJ file)."""
+    has none (or only some of its faces have them, in an OBJ file).
+    shape_index picks one of the meshes of a Mitsuba .serialized file."""
     p = Path(path)
     fmt = p.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
         raise MeshError(f"{path}: unsupported mesh format {p.suffix or '(no extension)'!r}; "
                         f"supported: {', '.join('.' + f for f in FORMATS)}")
+    if shape_index != 0 and fmt != "serialized":
+        raise MeshError(f"{path}: shape_index {shape_index}: only a .serialized file holds several meshes")
     data = _read_bytes(p, path, fmt)
+    if fmt == "serialized":
+        v, t, n = _read_serialized(data, path, shape_index)
+        return check_mesh(v, t, n, source=f"{path}: shape {shape_index}")
     v, t, n = (_read_obj if fmt == "obj" else _read_ply)(data, path)
     return check_mesh(v, t, n, source=str(path))
 
@@ -134,18 +144,38 @@ def _read_obj(data: bytes, path):
 
     avail = available_host_bytes()
     whole = avail is None or len(data) * OBJ_WHOLE_FILE_BYTES_PER_FILE_BYTE <= avail
-    v, vn, c, cn, sizes = (whole and _obj_arrays(data)) or _obj_lines(data, path)
-    # Only the vertices faces use, each once per normal it is used with (an OBJ
-    # corner pairs a position with a normal; clpt's vertices have one of each).
-    key = c if cn is None else c * (len(vn) + 1) + cn  # one integer per (vertex, normal) pair
-    uniq, inverse = np.unique(key, return_inverse=True)
-    if cn is None:
-        return v[uniq], fan_polygons(inverse.reshape(-1), sizes), None
-    return v[uniq // (len(vn) + 1)], fan_polygons(inverse.reshape(-1), sizes), vn[uniq % (len(vn) + 1)]
+    v, vn, c, ct, cn, sizes = (whole and _obj_arrays(data)) or _obj_lines(data, path)
+    # Only the vertices faces use, each once per (position, texture coordinate,
+    # normal) triple it is used with, as Mitsuba keys them: an OBJ corner pairs a
+    # position with the others, clpt's vertices have one of each. Texture
+    # coordinates are not kept, but they split vertices (at a UV seam), which
+    # matters to the normals computed for a mesh without them (vertex_normals).
+    cols = [c] + [x + 1 for x in (ct, cn) if x is not None]  # -1 (none) -> 0
+    keys = _row_keys(cols)
+    uniq, inverse = np.unique(keys, return_inverse=True, axis=0 if keys.ndim == 2 else None)
+    first = np.zeros(len(uniq), dtype=np.int64)
+    first[inverse.reshape(-1)] = np.arange(len(c))  # a corner of each unique vertex
+    tris = fan_polygons(inverse.reshape(-1), sizes)
+    return v[c[first]], tris, (None if cn is None else vn[cn[first]])
+
+
+def _row_keys(cols):
+    """One int64 per row of the index columns when their ranges' product fits
+    (a fast np.unique), else the (rows, k) array itself."""
+    if len(cols) == 1:
+        return cols[0]
+    spans = [int(x.max()) + 1 for x in cols[1:]]
+    if (int(cols[0].max()) + 1) * math.prod(spans) < 2 ** 62:
+        key = cols[0].copy()
+        for x, span in zip(cols[1:], spans):
+            key = key * span + x
+        return key
+    return np.stack(cols, axis=1)
 
 
 def _obj_arrays(data: bytes):
-    """(positions, normals, corners' vertex and normal indices, polygon sizes)
+    """(positions, normals, corners' vertex, texture coordinate and normal
+    indices (None where no corner has one), polygon sizes)
     of a regular OBJ file, parsed a statement kind at a time by numpy: one
     space after each keyword, no line starting with white space, vertices of 3
     numbers, every corner of the same form, no relative indices. None for any
@@ -181,10 +211,13 @@ def _obj_arrays(data: bytes):
         return None
     c = idx[:, 0]
     cn = idx[:, -1] if slashes == 2 else None
+    ct = idx[:, 1] if slashes == 1 or (slashes == 2 and not double) else None
+    n_vt = sum(1 for ln in lines if ln[:2] == b"vt" and ln[2:3] in b" \r")
     if pos is None or (vn and nrm is None) or (c < 0).any() or (c >= len(pos)).any() or \
-            (cn is not None and (nrm is None or (cn < 0).any() or (cn >= len(nrm)).any())):
+            (cn is not None and (nrm is None or (cn < 0).any() or (cn >= len(nrm)).any())) or \
+            (ct is not None and ((ct < 0).any() or (ct >= n_vt).any())):
         return None
-    return pos, np.zeros((0, 3)) if nrm is None else nrm, c, cn, sizes
+    return pos, np.zeros((0, 3)) if nrm is None else nrm, c, ct, cn, sizes
 
 
 def _obj_numbers(rows):
@@ -200,10 +233,12 @@ def _obj_numbers(rows):
 
 def _obj_lines(data: bytes, path):
     """What _obj_arrays gives, for any OBJ file, line by line; a MeshError at
-    the first line that is wrong."""
+    the first line that is wrong. A corner without a texture coordinate has
+    index -1 (when others have one)."""
     verts, norms = array("d"), array("d")
     corners, corner_normals, sizes, face_lines = array("q"), array("q"), array("q"), array("q")
-    all_normals = True
+    corner_uvs = array("q")
+    all_normals, any_uv, n_vt = True, False, 0
     for lineno, line in enumerate(io.BytesIO(data), 1):
         tok = line.split()
         if not tok or tok[0][:1] == b"#":
@@ -218,6 +253,8 @@ def _obj_lines(data: bytes, path):
                 fail(f"'{kw.decode()}' needs 3 numbers (got {len(tok) - 1})")
             what = "a vertex" if kw == b"v" else "a normal"
             (verts if kw == b"v" else norms).extend(_finite_number(x, fail, what) for x in tok[1:4])
+        elif kw == b"vt":
+            n_vt += 1  # counted (for relative indices and the range), never read
         elif kw == b"f":
             if len(tok) < 4:
                 fail(f"a face needs at least 3 vertices (got {len(tok) - 1})")
@@ -227,6 +264,11 @@ def _obj_lines(data: bytes, path):
                 if len(parts) > 3:
                     fail(f"bad face corner {c.decode('latin-1')!r} (v, v/vt, v//vn or v/vt/vn)")
                 corners.append(_obj_index(parts[0], nv, fail, "vertex", c))
+                if len(parts) >= 2 and parts[1]:
+                    any_uv = True
+                    corner_uvs.append(_obj_index(parts[1], n_vt, fail, "texture coordinate", c))
+                else:
+                    corner_uvs.append(-1)
                 if len(parts) == 3 and parts[2]:
                     corner_normals.append(_obj_index(parts[2], nn, fail, "normal", c))
                 else:
@@ -238,17 +280,19 @@ def _obj_lines(data: bytes, path):
         raise MeshError(f"{path}: the file has no faces")
     c = np.frombuffer(corners, dtype=np.int64)
     cn = np.frombuffer(corner_normals, dtype=np.int64)
+    ct = np.frombuffer(corner_uvs, dtype=np.int64)
     sizes = np.frombuffer(sizes, dtype=np.int64)
     nv, nn = len(verts) // 3, len(norms) // 3
-    for arr, count, what in ((c, nv, "vertex"), (cn, nn, "normal")):
+    for arr, count, what, plural in ((c, nv, "vertex", "vertices"), (cn, nn, "normal", "normals"),
+                                     (ct, n_vt, "texture coordinate", "texture coordinates")):
         bad = np.flatnonzero(arr >= count)
         if len(bad):
             face = int(np.searchsorted(np.cumsum(sizes), bad[0], side="right"))
             raise MeshError(f"{path}:{face_lines[face]}: {what} {arr[bad[0]] + 1} does not exist "
-                            f"(the file has {count} {'vertices' if what == 'vertex' else 'normals'})")
+                            f"(the file has {count} {plural})")
     v = np.frombuffer(verts, dtype=np.float64).reshape(-1, 3)
     vn = np.frombuffer(norms, dtype=np.float64).reshape(-1, 3)
-    return v, vn, c, (cn if all_normals else None), sizes
+    return v, vn, c, (ct if any_uv else None), (cn if all_normals else None), sizes
 
 
 def _obj_index(tok: bytes, count: int, fail, what, corner) -> int:
@@ -559,6 +603,212 @@ class _PlyBinary:
             return ()
         return (np.frombuffer(corners, dtype=np.int64), np.frombuffer(sizes, dtype=np.int64),
                 lambda f: f": byte {offsets[f]}")
+
+
+# --- Mitsuba's serialized meshes ----------------------------------------------------------------
+#
+# The format (documented in Mitsuba 3's src/shapes/serialized.cpp), little-endian:
+# per shape, an uncompressed uint16 0x041C and uint16 version (3 or 4), then a zlib
+# stream of: uint32 flags, (version 4) a NUL-terminated UTF-8 name, uint64 vertex and
+# triangle counts, the positions (x y z ...), the normals, texture coordinates (u v)
+# and vertex colours (r g b) where the flags say so, all float32 or (flag 0x2000)
+# float64, and the triangles as uint32 (uint64 past 2^32 vertices). After the last
+# shape: each shape's file offset (uint64 in version 4, uint32 in version 3) and a
+# uint32 count, read only to find a shape_index other than 0.
+
+SERIALIZED_MAGIC = 0x041C
+SERIALIZED_HAS_NORMALS, SERIALIZED_HAS_UVS, SERIALIZED_HAS_COLORS = 0x0001, 0x0002, 0x0008
+SERIALIZED_DOUBLE = 0x2000
+# zlib's DEFLATE expands at most 1032:1: a header claiming more than this many
+# bytes per compressed byte that follows is damaged (or a decompression bomb), and
+# is refused before anything is decompressed or allocated.
+ZLIB_MAX_RATIO = 1032
+MAX_SERIALIZED_NAME = 1 << 16
+# Peak memory of reading, per byte of the decompressed stream: the stream, the
+# float64 and int64 arrays made from it and check_mesh's copies (float32 positions
+# and uint32 triangles become 8-byte values: 2x, held about twice over).
+SERIALIZED_READ_BYTES_PER_BYTE = 5
+
+
+def _read_serialized(data: bytes, path, shape_index: int):
+    """(vertices, triangles, normals or None) of one shape of a .serialized
+    file. Every fault is a one-line MeshError naming the shape and the byte
+    (of the file, or of the shape's decompressed stream)."""
+    import struct
+    import zlib
+
+    def fail(at, reason, inner=False):
+        where = f"shape {shape_index}, {'uncompressed ' if inner else ''}byte {at}"
+        raise MeshError(f"{path}: {where}: {reason}")
+
+    if len(data) < 4:
+        fail(0, f"the file has {len(data)} bytes, too few for the header")
+    magic, version = struct.unpack_from("<HH", data, 0)
+    if magic != SERIALIZED_MAGIC:
+        fail(0, f"not a Mitsuba serialized mesh (it starts with 0x{magic:04x}, not 0x{SERIALIZED_MAGIC:04x})")
+    if version not in (3, 4):
+        fail(2, f"format version {version} is not supported (3 and 4 are)")
+    if shape_index < 0:
+        raise MeshError(f"{path}: shape_index must be >= 0 (got {shape_index})")
+    start, end = 0, len(data)
+    if shape_index > 0:
+        start, end = _serialized_extent(data, path, version, shape_index)
+        at_magic, at_version = struct.unpack_from("<HH", data, start)
+        if (at_magic, at_version) != (magic, version):
+            fail(start, f"the shape's header is 0x{at_magic:04x} {at_version}, not the file's "
+                        f"0x{magic:04x} {version}")
+    stream = memoryview(data)[start + 4:end]
+    z = zlib.decompressobj()
+    out = bytearray()
+    fed = []
+
+    def inflate(n):
+        """Decompress up to n bytes in all (never more: a bomb stops here);
+        whether there were that many."""
+        try:
+            while len(out) < n:
+                chunk = z.decompress(z.unconsumed_tail if fed else stream, n - len(out))
+                fed.append(True)
+                if not chunk:
+                    break
+                out.extend(chunk)
+        except zlib.error as e:
+            fail(start + 4, f"the compressed data is damaged ({e})")
+        return len(out) >= n
+
+    head = 4 + (MAX_SERIALIZED_NAME if version == 4 else 0) + 16
+    inflate(head)
+    if len(out) < 4:
+        fail(len(out), "the stream ends inside the header (flags)", inner=True)
+    flags = struct.unpack_from("<I", out, 0)[0]
+    at = 4
+    if version == 4:
+        nul = out.find(b"\0", 4)
+        if nul < 0:
+            fail(4, f"the shape's name has no end (NUL) in {len(out) - 4} bytes", inner=True)
+        at = nul + 1
+    if len(out) < at + 16:
+        fail(len(out), "the stream ends inside the header (vertex and triangle counts)", inner=True)
+    n_vert, n_tri = struct.unpack_from("<QQ", out, at)
+    at += 16
+    real = 8 if flags & SERIALIZED_DOUBLE else 4
+    index = 8 if n_vert > 0xFFFFFFFF else 4
+    per_vertex = 3 + 3 * bool(flags & SERIALIZED_HAS_NORMALS) + 2 * bool(flags & SERIALIZED_HAS_UVS) \
+        + 3 * bool(flags & SERIALIZED_HAS_COLORS)
+    need = at + n_vert * per_vertex * real + n_tri * 3 * index
+    if need > ZLIB_MAX_RATIO * len(stream) + 64:
+        fail(at - 16, f"the header declares {n_vert} vertices and {n_tri} triangles ({need} bytes), more than "
+                      f"the {len(stream)} compressed bytes that follow can hold", inner=True)
+    from .preflight import available_host_bytes
+
+    avail = available_host_bytes()
+    if avail is not None and need * SERIALIZED_READ_BYTES_PER_BYTE > avail:
+        raise MeshError(f"{path}: shape {shape_index}: {n_vert} vertices and {n_tri} triangles need about "
+                        f"{need * SERIALIZED_READ_BYTES_PER_BYTE / 2**30:.1f} GiB of memory to read and "
+                        f"{avail / 2**30:.1f} GiB are available; too large")
+    if not inflate(need):
+        fail(len(out), f"the stream ends after {len(out)} of its {need} bytes (the header declares {n_vert} "
+                       f"vertices and {n_tri} triangles)", inner=True)
+    ft = np.dtype("<f8" if real == 8 else "<f4")
+
+    def take(count, dtype, what):
+        """The next count rows of 3 (offset, float64 or int64 array), each
+        row checked by what(rows) -> mask of bad rows, named by its offset."""
+        nonlocal at
+        a = np.frombuffer(out, dtype, count * 3, at).reshape(count, 3)
+        first, at = at, at + count * 3 * dtype.itemsize
+        a = a.astype(np.int64 if dtype.kind == "u" else np.float64)
+        bad = np.flatnonzero(what[0](a))
+        if len(bad):
+            i = int(bad[0])
+            fail(first + i * 3 * dtype.itemsize, f"{what[1]} {i} {what[2](a[i])}", inner=True)
+        return a
+
+    def listed(row):
+        return ", ".join(f"{x:g}" for x in row)
+
+    not_finite = lambda a: ~np.isfinite(a).all(axis=1)  # noqa: E731
+    v = take(n_vert, ft, (not_finite, "vertex", lambda r: f"is not finite ({listed(r)})"))
+    n = None
+    if flags & SERIALIZED_HAS_NORMALS:
+        n = take(n_vert, ft, (lambda a: not_finite(a) | ~(np.abs(a).max(axis=1, initial=0) > 0), "normal",
+                              lambda r: f"is zero or not finite ({listed(r)})"))
+    at += n_vert * real * (2 * bool(flags & SERIALIZED_HAS_UVS) + 3 * bool(flags & SERIALIZED_HAS_COLORS))
+    t = take(n_tri, np.dtype("<u8" if index == 8 else "<u4"),
+             (lambda a: (a >= n_vert).any(axis=1), "triangle",
+              lambda r: f"has vertex index {int(r.max())}, out of range (the shape has {n_vert} vertices)"))
+    return v, t, n
+
+
+def _serialized_extent(data: bytes, path, version: int, shape_index: int):
+    """(start, end) in the file of shape shape_index, from the dictionary of
+    offsets at its end."""
+    import struct
+
+    width = 8 if version == 4 else 4
+    size = len(data)
+    if size < 8:
+        raise MeshError(f"{path}: byte {size}: the file ends before its dictionary of shapes")
+    count = struct.unpack_from("<I", data, size - 4)[0]
+    table = size - 4 - count * width
+    if count == 0 or table < 4:
+        raise MeshError(f"{path}: byte {size - 4}: the dictionary of shapes lists {count} shapes, "
+                        f"which the {size}-byte file cannot hold")
+    if shape_index >= count:
+        raise MeshError(f"{path}: shape_index {shape_index} is out of range (the file holds {count} shapes, "
+                        f"0 to {count - 1})")
+    # Python ints: an offset of 2^63 or more must not wrap to a negative int64.
+    offsets = [int(o) for o in np.frombuffer(data, "<u8" if width == 8 else "<u4", count, table)]
+    start = offsets[shape_index]
+    if start + 4 > table:
+        raise MeshError(f"{path}: byte {table + shape_index * width}: shape {shape_index} starts at byte {start}, "
+                        f"beyond the shapes' data (which ends at byte {table})")
+    later = offsets[shape_index + 1:]
+    end = later[0] if later and start < later[0] <= table else table
+    return start, end
+
+
+# --- vertex normals ------------------------------------------------------------------------------
+
+
+def vertex_normals(vertices, triangles):
+    """Smooth per-vertex normals of a mesh that has none, as Mitsuba 3
+    computes them (Mesh::recompute_vertex_normals, after Thuermer and
+    Wuethrich, "Computing vertex normals from polygonal facets", JGT 1998):
+    the sum over a vertex's triangles of each one's unit normal weighted by its
+    angle at that vertex, normalized. Angles, not areas, so that a vertex's
+    normal does not depend on how the surface around it is cut into triangles.
+    Triangles of zero area add nothing; a vertex with no other triangle gets
+    Mitsuba's placeholder (1, 0, 0). Triangles face by their winding, so the
+    normals lie on the side of the geometric normal (the right-hand rule).
+    In float64, where Mitsuba works in float32."""
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    p = [v[t[:, k]] for k in range(3)]
+    n = cross_rows(p[1] - p[0], p[2] - p[0])
+    length = norm_rows(n)
+    keep = length > 0
+    t, p, n = t[keep], [x[keep] for x in p], n[keep] / length[keep, None]
+    out = np.zeros_like(v)
+    for k in range(3):
+        a, b = p[(k + 1) % 3] - p[k], p[(k + 2) % 3] - p[k]
+        angle = _unit_angle(a / norm_rows(a)[:, None], b / norm_rows(b)[:, None])
+        for axis in range(3):
+            out[:, axis] += np.bincount(t[:, k], n[:, axis] * angle, minlength=len(v))
+    length = norm_rows(out)
+    ok = length > 0
+    out[ok] /= length[ok, None]
+    out[~ok] = (1.0, 0.0, 0.0)
+    return out
+
+
+def _unit_angle(a, b):
+    """The angle between rows of unit vectors, accurate near 0 and pi (where
+    acos of the dot product is not): 2 asin(|a - b| / 2), or its supplement."""
+    dot = np.einsum("ij,ij->i", a, b)
+    near = 2 * np.arcsin(np.minimum(norm_rows(a - b) / 2, 1.0))
+    far = np.pi - 2 * np.arcsin(np.minimum(norm_rows(a + b) / 2, 1.0))
+    return np.where(dot < 0, far, near)
 
 
 def check_mesh(vertices, triangles, normals=None, source="<mesh>"):

@@ -35,6 +35,12 @@ from .spectrum import constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_t
 # lossless loops (facing perfect mirrors) ever reach.
 UNLIMITED_DEPTH = 1024
 
+# Mitsuba 0.6's global-illumination integrators that Mitsuba 3 dropped. Their
+# maxDepth and rrDepth mean what path's do (path segments), so a 0.6 scene set up
+# for one of them (17 of the 78 real scenes in shared/REAL_SCENES.md use sppm)
+# keeps its depth; clpt renders it with its own path tracer and photon merging.
+LEGACY_INTEGRATORS = ("sppm", "ppm", "photonmapper", "bdpt", "pssmlt", "mlt", "erpt", "volpath_simple")
+
 # Segments of the triangle fan a disk becomes (its radius is scaled so that the
 # fan keeps the disk's area, and so a light's power).
 DISK_SEGMENTS = 96
@@ -524,12 +530,16 @@ class _Loader:
                     return self.params[name]
                 node.attrs[k] = _PARAM.sub(rep, v)
 
-    def expand(self, node: _Node, stack: tuple) -> list:
+    def expand(self, node: _Node, stack: tuple, legacy: bool = False) -> list:
         """The node's children with parameters substituted and includes inlined,
-        recursively, in document order (defaults take effect where they stand)."""
+        recursively, in document order (defaults take effect where they stand).
+        legacy: the children come from a Mitsuba 0.x file, so they are
+        upgraded to Mitsuba 3's names as they are read (_upgrade_node)."""
         out = []
         for c in node.children:
             self.substitute(c)
+            if legacy:
+                _upgrade_node(c)
             if c.tag not in KNOWN_TAGS:
                 c.fail(f"unknown tag{_suggest(c.tag, KNOWN_TAGS)}")
             for a in c.attrs:
@@ -555,13 +565,19 @@ class _Loader:
                 sub = _read_xml(p, shown, via=c.where())
                 if sub.tag != "scene":
                     sub.fail("an included file must have <scene> as its root")
-                out += self.expand(sub, (*stack, key))
+                self.substitute(sub)
+                # Each file is upgraded by its own version (as Mitsuba does); one without a
+                # version is read as its includer.
+                sub_legacy = legacy if "version" not in sub.attrs else _major_version(sub) < 2
+                out += self.expand(sub, (*stack, key), sub_legacy)
                 continue
             if c.tag == "path":
                 d = Path(_attr(c, "value"))
                 self.search_dirs.append(d if d.is_absolute() else Path(c.file).parent / d)
                 continue
-            c.children = self.expand(c, stack)
+            c.children = self.expand(c, stack, legacy)
+            if legacy:
+                _upgrade_object(c)
             out.append(c)
         return out
 
@@ -898,18 +914,26 @@ class _Loader:
             i, j = np.arange(k), (np.arange(k) + 1) % k
             tris = np.vstack([np.stack([i, j, k + j], axis=1), np.stack([i, k + j, k + i], axis=1)])
             out.append(self._mesh(node, verts, tris, np.vstack([radial, radial]), m, flip, kw))
-        elif t in ("obj", "ply"):
+        elif t in ("obj", "ply", "serialized"):
             from .meshio import read_mesh
 
             path = self.resolve(node, p.string("filename") or node.fail("missing property 'filename'"))
+            index = p.integer("shape_index", 0) if t == "serialized" else 0
+            if index < 0:
+                p.props["shape_index"].fail(f"must be >= 0 (got {index})")
             try:
-                verts, tris, normals = read_mesh(path)
+                verts, tris, normals = read_mesh(path, shape_index=index)
             except (SceneError, ValueError, OSError) as e:
                 node.fail(str(e))
-            if p.boolean("face_normals", False):
-                normals = None
-            p.boolean("flip_tex_coords")
-            out.append(self._mesh(node, verts, tris, normals, m, flip, kw))
+            face_normals = p.boolean("face_normals", False)
+            if t == "obj":
+                p.boolean("flip_tex_coords")
+            if t in ("obj", "ply") and p.has("max_smooth_angle"):  # Mitsuba 0.6's crease angle (maxSmoothAngle)
+                p.float("max_smooth_angle")
+                self.warn(node, "max_smooth_angle (Mitsuba 0.6) is not supported: normals are computed as "
+                                "Mitsuba 3 does, smooth across every edge", key=("max_smooth_angle",))
+            out.append(self._file_mesh(node, verts, tris, None if face_normals else normals, not face_normals,
+                                       m, flip, kw))
         else:
             self.warn(node, f"shape '{t}' is not supported; left out", key=("shape", t))
             return
@@ -924,6 +948,29 @@ class _Loader:
         if (np.linalg.det(m[:3, :3]) < 0) != flip:
             eu, ev = ev, eu
         return Quad(corner=_floats3(corner), edge_u=_floats3(eu), edge_v=_floats3(ev), **kw)
+
+    def _file_mesh(self, node, verts, tris, normals, smooth, m, flip, kw):
+        """A mesh read from a file, as Mitsuba 3 makes it. With the file's own
+        normals: as _mesh. Without: the triangles face by their winding in
+        world space (Mitsuba reverses nothing for a mirroring to_world), and
+        unless `smooth` is off (face_normals), Mitsuba's smooth vertex normals
+        are computed from the world-space positions (meshio.vertex_normals),
+        so that a coarse mesh is shaded as Mitsuba shades it, not faceted."""
+        if normals is not None:
+            return self._mesh(node, verts, tris, normals, m, flip, kw)
+        from .meshio import transform_mesh, vertex_normals
+        from .scene import Mesh
+
+        try:
+            verts, _ = transform_mesh(np.asarray(verts, dtype=np.float64), None, m)
+        except ValueError as e:  # a singular or non-finite to_world
+            node.fail(f"to_world: {e}")
+        tris = np.asarray(tris)
+        normals = vertex_normals(verts, tris) if smooth else None
+        if flip:
+            tris = tris[:, ::-1]
+            normals = None if normals is None else -normals
+        return Mesh(vertices=verts, triangles=tris, normals=normals, **kw)
 
     def _mesh(self, node, verts, tris, normals, m, flip, kw):
         from .meshio import transform_mesh
@@ -985,8 +1032,11 @@ class _Loader:
                                   "samples uniformly over each pixel (a box filter)", key=("rfilter",))
                 rp.used.update(rp.props)
                 rp.finish()
+            # Output settings, which do not change the radiance clpt renders (and for Mitsuba
+            # 0.6's ldrfilm, its tone mapping, which the film warning above covers).
             fp.finish(quiet=("pixel_format", "component_format", "file_format", "banner", "high_quality_edges",
-                             "sample_border", "compensate", "srgb_primaries"))
+                             "sample_border", "compensate", "srgb_primaries", "attach_log")
+                      + (("tonemap_method", "gamma", "exposure", "key", "burn") if fp.type == "ldrfilm" else ()))
         for s in p.nested("sampler"):
             sp = self.props(s)
             spp = sp.integer("sample_count", 4)
@@ -1031,8 +1081,13 @@ class _Loader:
     def integrator(self, node: _Node, settings: dict):
         p = self.props(node)
         t = p.type
-        if t in ("path", "volpath", "volpathmis", "ptracer"):
-            if t != "path":
+        if t in ("path", "volpath", "volpathmis", "ptracer") + LEGACY_INTEGRATORS:
+            if t in LEGACY_INTEGRATORS:
+                self.warn(node, f"integrator '{t}' (Mitsuba 0.6) is rendered by clpt's path tracer and its photon "
+                                "merging: max_depth and rr_depth are used, its other settings are not",
+                          key=("integrator", t))
+                p.used.update(k for k in p.props if k not in ("max_depth", "rr_depth", "hide_emitters"))
+            elif t != "path":
                 self.warn(node, f"integrator '{t}' is rendered by clpt's path tracer", key=("integrator", t))
             depth = p.integer("max_depth", -1)
             if depth < -1:
@@ -1064,20 +1119,13 @@ class _Loader:
         if root.tag != "scene":
             root.fail("the root element must be <scene>")
         self.substitute(root)
-        version = root.attrs.get("version")
-        if version is None:
+        if "version" not in root.attrs:
             root.fail("missing attribute 'version' (e.g. version=\"3.0.0\")")
-        try:
-            major = int(version.split(".")[0])
-        except ValueError:
-            root.fail(f"bad version {version!r}")
-        if major < 2:
-            _upgrade_names(root)
-            self.warn(root, f"version {version}: Mitsuba 0.x names (toWorld, sampleCount, intIOR, ...) are read "
-                            "as Mitsuba 3's; other 0.x features are not", key=("version",))
-        elif major > 3:
-            self.warn(root, f"version {version} is newer than the Mitsuba 3 subset clpt reads", key=("version",))
-        nodes = self.expand(root, (self.root_path.resolve(),))
+        major = _major_version(root)
+        if major > 3:
+            self.warn(root, f"version {root.attrs['version']} is newer than the Mitsuba 3 subset clpt reads",
+                      key=("version",))
+        nodes = self.expand(root, (self.root_path.resolve(),), legacy=major < 2)
         self.register(nodes)
         unused = self.given - self.used_params
         if unused:
@@ -1156,14 +1204,70 @@ class _Loader:
         self.shape(n, shapes, to_world)
 
 
-def _upgrade_names(node: _Node):
-    """Mitsuba 0.x camelCase property names -> Mitsuba 3's snake_case, in place."""
-    if "name" in node.attrs:
-        nm = node.attrs["name"]
-        nm = {"intIOR": "int_ior", "extIOR": "ext_ior", "toWorld": "to_world"}.get(nm, nm)
-        node.attrs["name"] = re.sub(r"(?<=[a-z0-9])([A-Z])", lambda m: "_" + m.group(1).lower(), nm)
-    for c in node.children:
-        _upgrade_names(c)
+# --- Mitsuba 0.x files ------------------------------------------------------------------------
+#
+# Mitsuba 3 reads a file whose version is below 2.0 after an upgrade (parser.cpp's
+# transform_upgrade; before 3.7, xml.cpp's upgrade_tree): every property name from
+# camelCase to snake_case (toWorld -> to_world, intIOR -> int_ior, sampleCount ->
+# sample_count), but never a <default>'s name, since the $references to it are not
+# renamed either; a diffuse BSDF's diffuse_reflectance -> reflectance; a texture's
+# uoffset/voffset/uscale/vscale -> a to_uv transform; and (up to 3.6) the tag
+# <lookAt> -> <lookat>. Each file is upgraded by its own version.
+
+
+def camel_to_snake(name: str) -> str:
+    """Mitsuba 3's upgrade of a 0.x property name: an upper-case run after a
+    lower-case letter becomes '_' and the run in lower case (intIOR -> int_ior,
+    fovAxis -> fov_axis); ASCII letters only, as C's islower/isupper."""
+    return re.sub(r"(?<=[a-z])([A-Z]+)", lambda m: "_" + m.group(1).lower(), name)
+
+
+def _major_version(node: _Node) -> int:
+    version = node.attrs["version"]
+    try:
+        return int(version.split(".")[0])
+    except ValueError:
+        node.fail(f"bad version {version!r}")
+
+
+def _upgrade_node(node: _Node):
+    """A 0.x element's own upgrade, before it is checked: the tag <lookAt>,
+    and its property name (not a <default>'s: $references keep 0.x names)."""
+    if node.tag == "lookAt":
+        node.tag = "lookat"
+    if "name" in node.attrs and node.tag != "default":
+        node.attrs["name"] = camel_to_snake(node.attrs["name"])
+
+
+# A 0.x texture's placement, as to_uv's operations (x: u, y: v). uvscale is Mitsuba
+# 0.6's default for both uscale and vscale; Mitsuba 3's upgrade leaves it out.
+_UV_OFFSETS = ("uoffset", "voffset")
+_UV_SCALES = ("uscale", "vscale", "uvscale")
+
+
+def _upgrade_object(node: _Node):
+    """A 0.x object's upgrade once its children are read: a diffuse BSDF's
+    diffuse_reflectance, and a texture's uv offsets and scales (as a to_uv
+    transform: translate, then scale)."""
+    named = {c.attrs.get("name"): c for c in node.children if c.tag in PROPERTY_TAGS + OBJECT_TAGS}
+    if node.tag == "bsdf" and node.attrs.get("type") == "diffuse" and "diffuse_reflectance" in named \
+            and "reflectance" not in named:
+        named["diffuse_reflectance"].attrs["name"] = "reflectance"
+    uv = {k: c for k, c in named.items() if k in _UV_OFFSETS + _UV_SCALES and c.tag in ("float", "integer")}
+    if not uv or "to_uv" in named:
+        return
+    first = min(c.line for c in uv.values())
+
+    def op(tag, keys, default):
+        attrs = {}
+        for axis, k in zip("xy", keys):
+            c = uv.get(k) or (uv.get("uvscale") if tag == "scale" else None)
+            attrs[axis] = c.attrs.get("value", default) if c is not None else default
+        return _Node(tag, attrs, node.file, first, via=node.via)
+
+    ops = [op("translate", _UV_OFFSETS, "0"), op("scale", _UV_SCALES[:2], "1")]
+    node.children = [c for c in node.children if all(c is not u for u in uv.values())]
+    node.children.append(_Node("transform", {"name": "to_uv"}, node.file, first, ops, node.via))
 
 
 def load_mitsuba(path, params: dict | None = None, *, strict: bool = False) -> Scene:

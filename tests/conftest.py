@@ -1,5 +1,5 @@
-"""Shared fixtures: one OpenCL device per test session (PoCL by default; set
-CLPT_TEST_DEVICE to a `--device` selection to test another), an isolated
+"""Shared fixtures: one OpenCL device per test session (the path-tracing
+default, pinned; set CLPT_TEST_DEVICE to a `--device` selection to test another), an isolated
 kernel build cache, and probe programs that expose kernel library functions."""
 
 import os
@@ -29,7 +29,17 @@ sys.path.insert(0, str(TESTS))
 
 @pytest.fixture(scope="session")
 def device_spec():
-    return os.environ.get("CLPT_TEST_DEVICE") or None
+    """CLPT_TEST_DEVICE, else the default device for path tracing, pinned by
+    its index. Left unnamed, renders with photons could move to another
+    runtime once its background check passed (clpt/device.py default_device),
+    and tests that compare two renders would compare two devices."""
+    spec = os.environ.get("CLPT_TEST_DEVICE")
+    if spec:
+        return spec
+    from clpt.device import _all_devices, default_device
+    found = _all_devices()
+    chosen = default_device(photons=False, found=found).device
+    return str(next(i for i, (_, _, _, d) in enumerate(found) if d == chosen))
 
 
 @pytest.fixture(scope="session")

@@ -1,5 +1,5 @@
 """Property-based fuzzing of every file clpt reads (TOML and Mitsuba XML
-scenes, OBJ and PLY meshes, checkpoints: READERS at the end) and of `clpt
+scenes, OBJ, PLY and Mitsuba serialized meshes, checkpoints: READERS at the end) and of `clpt
 render` options: hypothesis strategies and the checks of one input, shared by
 tests/test_fuzz*.py (a few hundred inputs each, in the suite) and
 tests/fuzz_long.py (as many as asked, counted by reader and outcome).
@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import json
 import math
 import random
@@ -328,7 +329,7 @@ def check_command(argv, output, tmp: Path, run_main, device=None) -> str:
 
 # === Every file clpt reads ==================================================================
 #
-# Each reader (XML scenes, OBJ and PLY meshes, checkpoints) has a strategy of
+# Each reader (XML scenes, OBJ, PLY and serialized meshes, checkpoints) has a strategy of
 # inputs (mutations of real files, and for XML scenes also scenes generated
 # from a grammar of the supported elements) and a check of one input, in
 # READERS below. The contract every check enforces: an input loads, and then
@@ -338,8 +339,8 @@ def check_command(argv, output, tmp: Path, run_main, device=None) -> str:
 # reason. Anything else, a traceback, another exception, a non-finite value,
 # is a Failure; fuzz_long.py adds a time limit per input, so a hang is one too.
 #
-# A new reader (textures, Mitsuba's `serialized` meshes) slots in as one more
-# Reader: seed files to mutate (or a generator) and a check.
+# A new reader (textures) slots in as one more Reader: seed files to mutate (or
+# a generator) and a check.
 
 TESTS = Path(__file__).resolve().parent
 DATA = TESTS / "data"
@@ -473,9 +474,9 @@ def mutations_of(draw, seeds: list[bytes], ops, most=4):
 
 # A place in the message: a line (file:12: or line 12), a byte offset, an XML
 # element (<shape ...>), a scene key path (shapes[1].file), a checkpoint member,
-# a mesh's vertex, normal, face or triangle by number.
+# a mesh's vertex, normal, face or triangle by number, a serialized file's shape.
 PLACE = re.compile(r"(:\d+:|\bline \d+|\bbyte \d+|<\w+|\w+\[\d+\]|\bmember '|\bheader\b|\belement\b|"
-                   r"\b(vertex|normal|face|triangle) \d+)")
+                   r"\b(vertex|normal|face|triangle|shape|shape_index) \d+)")
 
 
 def refusal(e: Exception, path: Path, need_place=True) -> str:
@@ -604,7 +605,7 @@ def _transform(v: _Values, name="to_world"):
 
 
 def _shape(v: _Values, bsdf_ids, light=False):
-    t = v.pick(["rectangle", "rectangle", "cube", "sphere", "disk", "cylinder", "obj", "ply"],
+    t = v.pick(["rectangle", "rectangle", "cube", "sphere", "disk", "cylinder", "obj", "ply", "serialized"],
                ["bogus", "bsplinecurve", "instance"])
     body = [_transform(v)]
     if t == "sphere":
@@ -616,6 +617,11 @@ def _shape(v: _Values, bsdf_ids, light=False):
         body.append(f'<string name="filename" value="cbox/{v.pick(["small_box", "light"], ["nope"])}.obj"/>')
     elif t == "ply":
         body.append('<string name="filename" value="cbox/bunny.ply"/>')
+    elif t == "serialized":
+        body.append(f'<string name="filename" value="cbox/shapes.serialized"/>'
+                    f'<integer name="shape_index" value="{v.pick(["0", "1", "2"], ["3", "-1", "x"])}"/>')
+    if t in ("obj", "ply", "serialized") and v.pick([True, False]):
+        body.append(f'<boolean name="face_normals" value="{v.pick(["true", "false"])}"/>')
     if v.pick([True, False]):
         body.append(f'<boolean name="flip_normals" value="{v.pick(["true", "false"], ["2", "yes"])}"/>')
     if bsdf_ids and v.pick([True, False]):
@@ -669,11 +675,13 @@ def xml_inputs():
 
 
 def xml_workspace() -> Path:
-    """A folder holding what the XML scenes refer to (tests/data/cbox, and a
-    shipped PLY as cbox/bunny.ply); inputs are written beside it."""
+    """A folder holding what the XML scenes refer to (tests/data/cbox, a
+    shipped PLY as cbox/bunny.ply and a serialized seed as
+    cbox/shapes.serialized); inputs are written beside it."""
     d = Path(tempfile.mkdtemp(prefix="clpt-fuzz-xml-"))
     shutil.copytree(DATA / "cbox", d / "cbox")
     shutil.copy(MESHES / "ring.ply", d / "cbox" / "bunny.ply")
+    shutil.copy(DATA / "serialized" / "shapes_v4.serialized", d / "cbox" / "shapes.serialized")
     return d
 
 
@@ -729,7 +737,7 @@ def mesh_inputs(fmt):
     return mutations_of(mesh_seeds()[fmt], TEXT_MUTATIONS)
 
 
-def check_mesh_file(path: Path, render: bool, device=None) -> str:
+def check_mesh_file(path: Path, render: bool, device=None, shape_index=0) -> str:
     """Read a mesh file; what loads must hold finite positions and unit normals
     and index its own vertices, and (render) render finite, 4x4 at 1 spp, as
     an emitter seen by a camera framing it."""
@@ -738,7 +746,7 @@ def check_mesh_file(path: Path, render: bool, device=None) -> str:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            v, t, n = read_mesh(path)
+            v, t, n = read_mesh(path, shape_index=shape_index)
     except MeshError as e:
         return refusal(e, path)
     except Exception as e:  # noqa: BLE001
@@ -774,6 +782,102 @@ def rendered(what: str, render, path: Path) -> str:
         raise Failure(f"{what} raised {type(e).__name__}: {e}") from e
     finite_image(res.image, path.name)
     return "rendered" if what == "render" else f"{what}d"
+
+
+# --- Mitsuba serialized meshes ---------------------------------------------------------------------
+
+@functools.lru_cache(maxsize=1)
+def serialized_shapes() -> tuple:
+    """Seed files as (their shapes' bytes: header and zlib stream each,
+    version): the stored seeds (tests/data/serialized, every flag the reader
+    takes), the blob of cbox/blob.obj in float32 without normals, and a
+    float64 sphere with normals, alone."""
+    from meshgen import serialized_seeds, serialized_shape, uv_sphere
+    from clpt.meshio import read_mesh
+
+    out = [([serialized_shape(version=version, **shape) for shape in shapes], version)
+           for shapes, version in serialized_seeds().values()]
+    v, t, _ = read_mesh(DATA / "cbox" / "blob.obj")
+    sv, st_, sn = uv_sphere(n_theta=4, n_phi=6)
+    out.append(([serialized_shape(v, t, name="blob"), serialized_shape(sv, st_, sn, double=True)], 4))
+    out.append(([serialized_shape(sv, st_, sn, version=3)], 3))
+    return tuple((tuple(shapes), version) for shapes, version in out)
+
+
+def assemble_serialized(shapes: list[bytes], version: int, offsets=None, count=None) -> bytes:
+    """A .serialized file of the shapes' bytes, with their dictionary of
+    offsets (or the given, wrong, offsets and count)."""
+    at, real = 0, []
+    for b in shapes:
+        real.append(at)
+        at += len(b)
+    offsets = real if offsets is None else offsets
+    width = "<u8" if version == 4 else "<u4"
+    table = np.array([o % (1 << (64 if version == 4 else 32)) for o in offsets], dtype=width).tobytes()
+    return b"".join(shapes) + table + np.array([len(shapes) if count is None else count % (1 << 32)], "<u4").tobytes()
+
+
+def serialized_seeds_bytes() -> list[bytes]:
+    return [assemble_serialized(shapes, version) for shapes, version in serialized_shapes()]
+
+
+@st.composite
+def serialized_edits(draw):
+    """A seed rewritten with one shape's decompressed stream damaged and
+    compressed again (so the checks past zlib are reached: bytes changed,
+    cut, repeated; the flags, the name or the counts replaced, often by
+    extreme values), or its header or the dictionary of offsets changed."""
+    import struct
+    import zlib
+
+    shapes, version = draw(st.sampled_from(serialized_shapes()))
+    shapes = list(shapes)
+    what = draw(st.sampled_from(["stream", "stream", "counts", "counts", "flags", "name", "header", "offsets"]))
+    i = draw(st.integers(0, len(shapes) - 1))
+    head, body = shapes[i][:4], bytearray(zlib.decompress(shapes[i][4:]))
+    counts_at = body.index(b"\0", 4) + 1 if version == 4 else 4
+    if what == "stream":
+        for _ in range(draw(st.integers(1, 3))):
+            body = draw(st.sampled_from([m_flip, m_byte, m_delete, m_duplicate, m_truncate]))(draw, body)
+    elif what == "counts":
+        k = draw(st.integers(0, 1))
+        value = draw(st.one_of(st.sampled_from(EXTREME_INTS + [2 ** 64 - 1, 2 ** 40, 2 ** 32 + 1]),
+                               st.integers(0, 64)))
+        body[counts_at + 8 * k:counts_at + 8 * k + 8] = struct.pack("<Q", value % (1 << 64))
+    elif what == "flags":
+        flags = draw(st.one_of(st.integers(0, 2 ** 32 - 1), st.sampled_from([0, 0x1, 0x2, 0x8, 0x10, 0x2000, 0x3001,
+                                                                               0x1003, 0x200b])))
+        body[0:4] = struct.pack("<I", flags)
+    elif what == "name" and version == 4:
+        body[4:counts_at] = draw(st.sampled_from([b"", b"\0", b"x" * 300 + b"\0", "é".encode() + b"\0",
+                                                  b"\xff\xfe\0", b"no end"]))
+    elif what == "header":
+        head = struct.pack("<HH", draw(st.sampled_from([0x041C, 0x041C, 0x1C04, 0])),
+                           draw(st.sampled_from([3, 4, 4, 0, 5, 0xFFFF])))
+    if what == "offsets":
+        offsets = [draw(st.one_of(st.integers(0, 600), st.sampled_from(EXTREME_INTS + [2 ** 64 - 1])))
+                   for _ in range(len(shapes))]
+        count = draw(st.one_of(st.none(), st.sampled_from([0, 1, 2, 3, 99, 2 ** 31, 2 ** 32 - 1])))
+        return assemble_serialized(shapes, version, offsets, count)
+    shapes[i] = head + zlib.compress(bytes(body), draw(st.sampled_from([0, 1, 6, 9])))
+    return assemble_serialized(shapes, version)
+
+
+def serialized_inputs():
+    """Byte-level damage of the seed files (mostly caught by zlib), edits
+    that keep the streams valid zlib (serialized_edits), twice as often,
+    and now and then random bytes."""
+    seeds = serialized_seeds_bytes()
+    return st.one_of(mutations_of(seeds, BYTE_MUTATIONS), serialized_edits(), serialized_edits(),
+                     st.binary(max_size=200))
+
+
+def check_serialized_file(path: Path, render: bool, device=None) -> str:
+    """check_mesh_file for each of shape_index 0, 1 and 2 (the seeds hold
+    one to three shapes, so the last are often out of range); the outcome of
+    the first, with the others' refusals checked too."""
+    outcomes = [check_mesh_file(path, render and k == 0, device, shape_index=k) for k in range(3)]
+    return outcomes[0]
 
 
 # --- checkpoints ----------------------------------------------------------------------------------
@@ -937,10 +1041,9 @@ class Reader:
     refers to other files), and its check: check(path, render, device) returns
     the outcome's name or raises Failure.
 
-    Textures and Mitsuba's `serialized` meshes are not read yet; each will be
-    one more entry: seed files to mutate (e.g. small EXR and PNG files, and
-    serialized meshes written by a test helper) and a check that loads the
-    file through its reader and renders what loads."""
+    Textures are not read yet; they will be one more entry: seed files to
+    mutate (e.g. small EXR and PNG files) and a check that loads the file
+    through its reader and renders what loads."""
 
     name: str
     inputs: Callable[[], object]
@@ -956,5 +1059,6 @@ READERS = {
                   workspace=xml_workspace),
     "obj": Reader("obj", lambda: mesh_inputs("obj"), "fuzz.obj", check_mesh_file),
     "ply": Reader("ply", lambda: mesh_inputs("ply"), "fuzz.ply", check_mesh_file),
+    "serialized": Reader("serialized", serialized_inputs, "fuzz.serialized", check_serialized_file),
     "checkpoint": Reader("checkpoint", checkpoint_inputs, "fuzz.ckpt", check_checkpoint_file),
 }

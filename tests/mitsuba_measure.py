@@ -8,6 +8,9 @@ in the tests (and clpt/data/mitsuba_ior.json) were produced:
     python tests/mitsuba_measure.py --ior-json clpt/data/mitsuba_ior.json
     python tests/mitsuba_measure.py --compare tests/data/cbox_mesh.xml res=64   # images side by side
     MI_VARIANT=llvm_ad_rgb python tests/mitsuba_measure.py --albedo            # BSDF albedos
+    python tests/mitsuba_measure.py --normals tests/data/mitsuba_normals.json  # computed vertex normals
+    MI_VARIANT=llvm_ad_rgb python tests/mitsuba_measure.py --reference tests/data/cbox_blob.xml \
+        tests/data/cbox_blob_mitsuba.json spp=16384                         # a render's block means
 """
 
 import json
@@ -18,7 +21,7 @@ import mitsuba as mi
 
 # MI_VARIANT=llvm_ad_rgb for --compare: Mitsuba's LLVM backend needs LLVM 16 or newer
 # (DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1 after apt-get install libllvm19).
-mi.set_variant(os.environ.get("MI_VARIANT", "scalar_rgb") if {"--compare", "--albedo"} & set(sys.argv)
+mi.set_variant(os.environ.get("MI_VARIANT", "scalar_rgb") if {"--compare", "--albedo", "--reference"} & set(sys.argv)
                else "scalar_rgb")
 
 # Spectra as the tests give them: (value attribute, inside an emitter?).
@@ -157,11 +160,91 @@ def compare(xml, params, res=64, spp=256):
           f"8x8-pixel blocks by {np.median(rel):.2%} (median), {np.percentile(rel, 90):.2%} (90th percentile)")
 
 
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+
+
+def reference(xml, out, spp=16384, block=16, per_pass=512, params=None):
+    """A Mitsuba render of an XML scene, stored small for a test: two
+    independent halves of spp samples per pixel each (passes of per_pass
+    samples with seeds of their own), kept as the whole image's mean colour
+    and the block x block-pixel block means of luminance, with each block's
+    variance estimated from the halves' pixel differences ((a - b)^2 / 4 per
+    pixel of the average, summed over the block's pixels: a few hundred
+    degrees of freedom, where the two block means alone would give one)."""
+    import time
+
+    import numpy as np
+
+    t0 = time.perf_counter()
+    scene = mi.load_file(xml, **(params or {}))
+    halves = []
+    for h in range(2):
+        acc = 0.0
+        for k in range(spp // per_pass):
+            acc = acc + np.array(mi.render(scene, spp=per_pass, seed=1 + h * 100000 + k), dtype=np.float64)[..., :3]
+        halves.append(acc / (spp // per_pass))
+    a, b = halves
+    img = 0.5 * (a + b)
+    lum = lambda im: im @ np.array(LUMINANCE)  # noqa: E731
+    h, w = img.shape[:2]
+    blocks = lambda x: x.reshape(h // block, block, w // block, block).sum(axis=(1, 3)) / block ** 2  # noqa: E731
+    var = blocks((lum(a) - lum(b)) ** 2 / 4) / block ** 2
+    doc = {"_source": f"Mitsuba {mi.__version__} {mi.variant()}: python tests/mitsuba_measure.py --reference {xml} "
+                      f"{out} spp={spp} (two halves of {spp} spp, {time.perf_counter() - t0:.0f} s)",
+           "scene": os.path.basename(xml), "params": params or {}, "width": w, "height": h, "spp_per_half": spp,
+           "block": block, "mean_rgb": [round(float(c), 7) for c in img.reshape(-1, 3).mean(axis=0)],
+           "mean_rgb_halves": [[round(float(c), 7) for c in x.reshape(-1, 3).mean(axis=0)] for x in halves],
+           "block_luminance": np.round(blocks(lum(img)), 7).tolist(),
+           "block_luminance_var": [[float(f"{x:.4g}") for x in row] for row in var]}
+    with open(out, "w") as f:
+        f.write(json.dumps(doc, indent=1) + "\n")
+    print(json.dumps({k: v for k, v in doc.items() if not k.startswith("block")}, indent=1))
+
+
+def mesh_normals(out):
+    """The vertex normals Mitsuba computes for meshes without them (and reads
+    from those with them), for tests/test_mitsuba_meshes.py: each mesh's
+    positions, triangles and normals after a to_world with a non-uniform scale
+    (angles, and so the weights, change under it), the blob OBJ also mirrored,
+    and every shape of the serialized seed files."""
+    import numpy as np
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    data = os.path.join(here, "data")
+    to_world = [[0.4, 0.1, 0.0, 0.3], [0.0, 0.34, 0.05, -0.6], [-0.1, 0.0, 0.36, 0.2], [0, 0, 0, 1]]
+    mirror = [[-1.0, 0, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0], [0, 0, 0, 1]]
+    cases = {"blob_obj": ("obj", "cbox/blob.obj", {}, to_world),
+             "blob_obj_mirrored": ("obj", "cbox/blob.obj", {}, mirror),
+             "blob_obj_face_normals": ("obj", "cbox/blob.obj", {"face_normals": True}, to_world)}
+    for name in ("shapes_v4", "shapes_v3"):
+        for i in range(3 if name == "shapes_v4" else 2):
+            cases[f"{name}_{i}"] = ("serialized", f"serialized/{name}.serialized", {"shape_index": i}, to_world)
+    result = {"_source": f"Mitsuba {mi.__version__} scalar_rgb: python tests/mitsuba_measure.py --normals {out}"}
+    for key, (kind, file, extra, m) in cases.items():
+        shape = mi.load_dict({"type": kind, "filename": os.path.join(data, file),
+                              "to_world": mi.ScalarTransform4f(m), **extra})
+        result[key] = {"type": kind, "filename": file, **extra, "to_world": m,
+                       "vertices": np.round(np.array(shape.vertex_positions_buffer()).reshape(-1, 3), 6).tolist(),
+                       "triangles": np.array(shape.faces_buffer()).reshape(-1, 3).tolist(),
+                       "normals": (np.round(np.array(shape.vertex_normals_buffer()).reshape(-1, 3), 6).tolist()
+                                   if shape.has_vertex_normals() else None)}
+    with open(out, "w") as f:
+        f.write(json.dumps(result) + "\n")
+    print(f"{out}: {', '.join(k for k in result if not k.startswith('_'))}")
+
+
 if __name__ == "__main__":
     if len(sys.argv) >= 3 and sys.argv[1] == "--compare":
         # python tests/mitsuba_measure.py --compare tests/data/cbox_mesh.xml res=64
         compare(sys.argv[2], dict(a.split("=", 1) for a in sys.argv[3:]),
                 res=int(dict(a.split("=", 1) for a in sys.argv[3:]).get("res", 64)))
+    elif len(sys.argv) >= 4 and sys.argv[1] == "--reference":
+        # MI_VARIANT=llvm_ad_rgb python tests/mitsuba_measure.py --reference tests/data/cbox_blob.xml \
+        #     tests/data/cbox_blob_mitsuba.json spp=16384
+        kw = dict(a.split("=", 1) for a in sys.argv[4:])
+        reference(sys.argv[2], sys.argv[3], spp=int(kw.pop("spp", 16384)), params=kw)
+    elif len(sys.argv) == 3 and sys.argv[1] == "--normals":
+        mesh_normals(sys.argv[2])  # python tests/mitsuba_measure.py --normals tests/data/mitsuba_normals.json
     elif sys.argv[1:] == ["--albedo"]:
         print(json.dumps(albedos(), indent=1))
     elif len(sys.argv) == 3 and sys.argv[1] == "--ior-json":

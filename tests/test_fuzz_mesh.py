@@ -1,11 +1,13 @@
-"""Fuzzing of the OBJ and PLY readers (tests/fuzzing.py has the inputs and
-the checks): mutations of real files (the test scenes' OBJ files, a shipped
-PLY, and small files of every kind the readers take: ASCII, little- and
-big-endian binary PLY, OBJ with normals, texture coordinates, quads and
-negative indices) load with finite data, or fail with one line naming the
-file, the place (line, byte offset, vertex or face) and the reason. A sample
-of those that load render a finite image. Below them, the defects the
-fuzzing (and the issue) found, each as a plain test."""
+"""Fuzzing of the OBJ, PLY and Mitsuba serialized readers (tests/fuzzing.py
+has the inputs and the checks): mutations of real files (the test scenes' OBJ
+files, a shipped PLY, and small files of every kind the readers take: ASCII,
+little- and big-endian binary PLY, OBJ with normals, texture coordinates,
+quads and negative indices; serialized files of versions 3 and 4 with every
+flag, damaged as bytes or inside their zlib streams) load with finite data,
+or fail with one line naming the file, the place (line, byte offset, shape,
+vertex or face) and the reason. A sample of those that load render a finite
+image. Below them, the defects the fuzzing (and the issue) found, each as a
+plain test."""
 
 import os
 
@@ -31,16 +33,16 @@ def test_the_seed_meshes_load(tmp_path, fmt):
         assert fuzzing.check_mesh_file(tmp_path / f"seed.{fmt}", render=False) == "accepted"
 
 
-@pytest.mark.parametrize("fmt", ["obj", "ply"])
+@pytest.mark.parametrize("fmt", ["obj", "ply", "serialized"])
 def test_fuzzed_meshes_load_or_fail_in_one_line(tmp_path_factory, fmt):
-    d = tmp_path_factory.mktemp("mesh")
+    reader, d = fuzzing.READERS[fmt], tmp_path_factory.mktemp("mesh")
 
     @bounded(300)
-    @given(data=fuzzing.mesh_inputs(fmt))
+    @given(data=reader.inputs())
     def run(data):
-        p = d / f"fuzz.{fmt}"
+        p = d / reader.filename
         p.write_bytes(data)
-        fuzzing.check_mesh_file(p, render=False)
+        reader.check(p, render=False)
 
     run()
 
@@ -60,12 +62,30 @@ def test_a_regular_obj_file_reads_the_same_at_once_as_line_by_line(data):
             assert (a is None and b is None) or np.array_equal(a, b)
 
 
-@bounded(12)
-@given(data=fuzzing.mesh_inputs("obj") | fuzzing.mesh_inputs("ply"))
-def test_fuzzed_meshes_render_finite(tmp_path_factory, device_spec, data):
-    p = tmp_path_factory.mktemp("mesh") / ("fuzz.ply" if data.startswith(b"ply") else "fuzz.obj")
-    p.write_bytes(data)
-    fuzzing.check_mesh_file(p, render=True, device=device_spec)
+@pytest.mark.parametrize("fmt", ["obj", "ply", "serialized"])
+def test_fuzzed_meshes_render_finite(tmp_path_factory, device_spec, fmt):
+    """Serialized inputs edited inside their streams: byte damage rarely gets past zlib."""
+    reader, d = fuzzing.READERS[fmt], tmp_path_factory.mktemp("mesh")
+
+    @bounded(8 if fmt == "serialized" else 6)
+    @given(data=fuzzing.serialized_edits() if fmt == "serialized" else reader.inputs())
+    def run(data):
+        p = d / reader.filename
+        p.write_bytes(data)
+        reader.check(p, render=True, device=device_spec)
+
+    run()
+
+
+def test_the_serialized_seeds_load(tmp_path):
+    """Every shape of every seed loads (so what the mutations refuse is the
+    damage), and a shape_index past the last is refused in one line."""
+    for shapes, version in fuzzing.serialized_shapes():
+        p = tmp_path / "seed.serialized"
+        p.write_bytes(fuzzing.assemble_serialized(list(shapes), version))
+        for k in range(len(shapes)):
+            assert fuzzing.check_mesh_file(p, render=False, shape_index=k) == "accepted"
+        assert fuzzing.check_mesh_file(p, render=False, shape_index=len(shapes)) == "refused"
 
 
 # --- the defects found, one by one ----------------------------------------------------------
@@ -156,3 +176,15 @@ def test_a_big_endian_ply_reads_as_its_little_endian_twin(tmp_path):
     (tmp_path / "l.ply").write_bytes(little)
     for a, b in zip(read_mesh(tmp_path / "b.ply"), read_mesh(tmp_path / "l.ply")):
         assert np.array_equal(a, b)
+
+
+def test_a_serialized_offset_past_2_63_is_refused_not_wrapped(tmp_path):
+    """Found by tests/fuzz_long.py: offsets of 2^63 and more were read as
+    negative int64s and passed the range check (struct.error, ValueError)."""
+    shapes, version = fuzzing.serialized_shapes()[0]
+    p = tmp_path / "m.serialized"
+    for offset in (2 ** 63, 2 ** 64 - 1):
+        p.write_bytes(fuzzing.assemble_serialized(list(shapes), version, offsets=[0, offset, 0]))
+        with pytest.raises(MeshError, match=rf"m.serialized: byte \d+: shape 1 starts at byte {offset}, beyond the "
+                                            r"shapes' data"):
+            read_mesh(p, shape_index=1)
