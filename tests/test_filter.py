@@ -11,7 +11,7 @@ import pytest
 import clpt
 from clpt.denoise import (LUMA, ConeFilter, FilterSettings, OidnSettings, apply_denoiser, reference_cone_filter,
                           reference_firefly)
-from clpt.metrics import relmse
+from clpt.tools.metrics import relmse
 
 
 @pytest.fixture(scope="module")

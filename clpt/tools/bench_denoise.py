@@ -20,10 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .denoise import LUMA, FilterSettings, OidnSettings, apply_denoiser
-from .image import load_image, save_image
+from ..denoise import LUMA, FilterSettings, OidnSettings, apply_denoiser
+from ..image import save_image
 from .metrics import relmse
-from .render import Renderer
+from ..render import Renderer
+from .reference import cached_path, reference_image
 
 
 def methods(with_oidn: bool) -> dict:
@@ -41,18 +42,6 @@ def _oidn_available() -> bool:
     except ImportError:
         return False
     return True
-
-
-def reference(scene, width, height, max_depth, spp, path, device=None):
-    """A path-traced reference (photon mapping off: unbiased), read from path or rendered and saved there."""
-    if path is not None and Path(path).exists():
-        return load_image(path)[..., :3].astype(np.float64)
-    res = Renderer(scene, device=device, photons=False).render(spp, width=width, height=height,
-                                                               max_depth=max_depth, seed=0x5EED)
-    if path is not None:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        save_image(path, res.image, metadata={"clpt:reference_spp": spp})
-    return res.image.astype(np.float64)
 
 
 def _ring(emitter):
@@ -94,7 +83,7 @@ def measure_quality(scene, *, spp_list=(16, 64), seeds=(1, 2), width=128, height
                     a["core_vs_ref"].append(float((out[core] @ LUMA).mean() / (ref[core] @ LUMA).mean()))
             if image_path is not None and seed == seeds[0] and spp == spp_list[0]:
                 side_by_side(image_path, [outs[k] for k in ms if k in ("raw", "cone", "oidn albedo+normal (cleaned)")]
-                             + [ref.astype(np.float32)])
+                             + [np.asarray(ref, np.float32)])
         for name, a in acc.items():
             rows.append({"scene": scene, "spp": spp, "method": name,
                          **{k: (float(np.mean(v)) if v else None) for k, v in a.items()}})
@@ -136,12 +125,11 @@ def measure_time(scene, *, size=512, rounds=2, device=None) -> dict:
 
 def run_bench_denoise(a) -> int:
     out = {"quality": [], "time": {}}
-    ref_dir = Path(a.ref_dir)
     spp_list = [int(s) for s in a.spp.split(",")]
     for scene in a.scene:
-        ref = reference(scene, a.width, a.height, a.max_depth, a.ref_spp,
-                        ref_dir / f"{Path(scene).stem}_{a.width}x{a.height}_d{a.max_depth}_{a.ref_spp}spp.exr",
-                        a.device)
+        ref = reference_image(scene, a.width, a.height, a.ref_spp,
+                              cached_path(a.ref_dir, scene, a.width, a.height, a.ref_spp, a.max_depth), a.device,
+                              max_depth=a.max_depth)
         img = None
         if a.image and "caustic" in Path(scene).stem:
             img = a.image
