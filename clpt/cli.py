@@ -190,7 +190,7 @@ def _scene_params(a) -> dict:
 
 
 def _load(a):
-    from .scene import load_scene
+    from .loading import load_scene
 
     return load_scene(a.scene, _scene_params(a), strict=a.strict)
 
@@ -489,7 +489,7 @@ def cmd_compare(a) -> int:
     import json
 
     from .studies import compare, format_table, reference_image, standard_comparison
-    from .scene import load_scene
+    from .loading import load_scene
 
     out = {}
     for name in a.scene:
@@ -510,7 +510,7 @@ def cmd_compare(a) -> int:
 def cmd_tradeoff(a) -> int:
     from .resources import shipped_scenes
     from .studies import compare, reference_image, standard_comparison, tradeoff, write_summary
-    from .scene import load_scene
+    from .loading import load_scene
 
     names = shipped_scenes() if a.scene == ["all"] else a.scene
     summaries, comparisons = [], {}

@@ -32,7 +32,7 @@ from .denoise import FilterSettings, OidnSettings
 from .image import load_image, save_image
 from .photons import PhotonSettings
 from .render import Renderer
-from .scene import load_scene
+from .loading import load_scene
 
 
 @dataclass

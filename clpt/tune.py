@@ -63,9 +63,12 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
-from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
+import pyopencl as cl
+
 from . import program
+from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
 from .program import cache_dir
+from .runtimes import platform_short_name
 
 LANE_WIDTHS = (1, 2, 4, 8, 16)
 PASS_SECONDS = 0.25
@@ -99,10 +102,6 @@ def predict(device, photons: bool = False, cpu: bool | None = None) -> Tuning:
     """What a pyopencl Device's queries and the kernel's kind predict (see
     the module's docstring); photons: the kernel gathers caustic photons;
     cpu: whether to treat it as a CPU (default: its device type)."""
-    import pyopencl as cl
-
-    from .device import platform_short_name
-
     if not (bool(device.type & cl.device_type.CPU) if cpu is None else cpu):
         local = min(LOCAL_SIZE_GPU, device.max_work_group_size)
         return Tuning(1, local, PASS_SECONDS, "query", "a GPU runs work-items in lockstep: 1 lane")
