@@ -39,8 +39,6 @@ from .errors import DeviceError, DeviceWarning
 from .runtimes import platform_short_name
 
 
-
-
 @dataclass(frozen=True)
 class DeviceInfo:
     index: int
@@ -87,7 +85,6 @@ def _all_devices():
         for di, d in enumerate(devs):
             out.append((pi, di, p, d))
     return out
-
 
 
 def device_has_fp64(dev) -> bool:
@@ -148,8 +145,6 @@ def _match(spec: str, found) -> list:
         raise DeviceError(f"no OpenCL device matches {spec!r}; available: {listing(found)}")
     raise DeviceError(f"{spec!r} matches {len(hits)} devices: {listing(hits)}; "
                       f"name one exactly, by platform:device, or by a platform's short name")
-
-
 
 
 # Simulators and debuggers: never chosen by default or by "all", whatever

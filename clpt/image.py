@@ -20,8 +20,6 @@ from .errors import ImageError
 FLOAT_FORMATS = {".exr", ".hdr", ".tif", ".tiff", ".pfm"}
 
 
-
-
 def linear_to_srgb(x: np.ndarray) -> np.ndarray:
     x = np.clip(x, 0.0, 1.0)
     return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)

@@ -51,8 +51,6 @@ MAX_PLY_HEADER_BYTES = 1 << 16
 MAX_INDEX = 2 ** 62  # larger indices and counts cannot be in range of any file that fits in memory
 
 
-
-
 def fan_triangulate(faces):
     """(M, k) polygons, k >= 3, as (M (k - 2), 3) triangles fanned from each
     polygon's first vertex, in order: (f0, f1, f2), (f0, f2, f3), ..."""

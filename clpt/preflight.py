@@ -198,7 +198,6 @@ def check_scene_memory(scene, available: int | None = None):
                      f"{most / 2**30:.1f} GiB) and {max(avail, 0) / 2**30:.1f} GiB are available")
 
 
-
 def check_memory(width: int, height: int, aux: bool, adaptive: bool, photons: int, cpu_device: bool = True,
                  available: int | None = None, resources: int = 0):
     """Refuse a render that will not fit in memory, saying what size would;

@@ -167,7 +167,6 @@ def check(device, identity: str, label: str, lanes: int, where: tuple[int, int])
     return r
 
 
-
 def check_in_background(identity: str, label: str, lanes: int, where: tuple[int, int]) -> bool:
     """Start the check in a detached process that caches its result (the
     render goes on meanwhile); False if it is cached, running already

@@ -65,9 +65,6 @@ LIBRARY_FILES = ("features.h", "simd.h", "rng.h", "sampler.h", "sampling.h", "sc
                  "photon_aim.h", "camera.h", "film.h", "bsdf.h", "photon_grid.h")
 
 
-
-
-
 def clear_cache() -> int:
     """Remove every cached kernel binary, the tuned settings and the device
     checks; returns how many kernel binaries there were."""

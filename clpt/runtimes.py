@@ -159,6 +159,7 @@ def registration() -> Registration | None:
     """What register() did in this process (None before it ran)."""
     return _done
 
+
 def platform_short_name(platform_name: str) -> str:
     """A platform's short name for --device: pocl, intel, nvidia, amd, or the
     first word of its name, lowercased, without (R)/(TM)."""

@@ -3,7 +3,8 @@
 A scene is a camera, named materials and a list of shapes; any shape with
 emission is an area light. The same classes are the Python API
 (``clpt.Scene(camera=..., shapes=[clpt.Sphere(...)])``) and what
-``load_scene`` builds from a TOML file (format: scenes/README.md).
+``parse_scene`` builds from a TOML file's text (format: scenes/README.md;
+``clpt.load_scene``, clpt/loading.py, reads a file of either format).
 
 Every mistake in a user's scene is reported as a ``SceneError`` whose message
 names the file, the key path and the reason, e.g.::
@@ -32,12 +33,6 @@ from .presets import PRESETS
 Vec3 = tuple[float, float, float]
 
 FOV_AXES = ("x", "y", "smaller", "larger")
-
-
-
-
-
-
 
 
 # --- data model --------------------------------------------------------------------
@@ -953,7 +948,6 @@ def parse_scene(text: str, source: str = "<string>", base_dir=None) -> Scene:
 
 
 MAX_SCENE_BYTES = 16 << 20
-
 
 
 def read_file_bytes(p: Path, name, what: str = "scene file", limit: int = MAX_SCENE_BYTES) -> bytes:

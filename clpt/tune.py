@@ -176,7 +176,7 @@ def cached_choices(dctx) -> list[dict]:
 
 
 def measure_candidates(states, trial) -> dict:
-    """Samples/s of each state (a _DeviceState of one lane width) rendering
+    """Samples/s of each state (a DeviceWorker of one lane width) rendering
     the scene's default way (photons included) on a small image, in
     interleaved rounds: {"msamples_per_s": {lanes: best round}, "launch_seconds":
     the fixed cost of an empty launch}. trial(st, spp, seed) renders and
@@ -217,8 +217,8 @@ def measure_local_sizes(st, trial, candidates) -> dict:
 
 
 def choose(dctx, source: str, options, make_state, trial, *, lanes=None, local_size=None, use_cache=True):
-    """(Tuning, the built _DeviceState of the chosen width if choosing built
-    one, else None). make_state(lanes) builds a _DeviceState of that width;
+    """(Tuning, the built DeviceWorker of the chosen width if choosing built
+    one, else None). make_state(lanes) builds a DeviceWorker of that width;
     trial as for measure_candidates."""
     policy = os.environ.get("CLPT_TUNE", "auto").lower()
     if policy not in ("auto", "query", "measure"):

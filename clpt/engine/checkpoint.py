@@ -44,8 +44,6 @@ from .job import FORMAT, DeviceOptions, RenderJob
 JOB_ENCODING = "json-1"  # meta["job_encoding"]: how "job" is written (no pickle)
 
 
-
-
 def write_checkpoint(path, job: RenderJob, sums: Accumulator, schedule_state: dict, *, elapsed: float,
                      devices=(), extra: dict | None = None) -> int:
     """Write atomically; returns the file's size in bytes."""

@@ -49,8 +49,6 @@ def run_item(executor, job: RenderJob, item: WorkItem) -> RunResult:
     return res
 
 
-
-
 def lane_group_max(n: np.ndarray, lanes: int) -> np.ndarray:
     """Each entry raised to the largest of its group of `lanes` consecutive entries."""
     pad = -len(n) % lanes
