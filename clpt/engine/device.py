@@ -6,10 +6,11 @@ item's samples; sums() reads them back. The sums stay on the device between
 items, so one device adds every pixel's samples in sample order whatever the
 items were, and its image is bit-identical however the render was split.
 
-The worker holds the scene's records and the pixel sums; the kernels, the
-buffers only they use and their launches' timings belong to its passes
-(passes.py): the trace pass, the photon pass (scenes with caustic casters)
-and the filter pass (builds with feature buffers).
+The worker composes: the scene's records (every pass reads them), a job's
+sums (film.py) and the passes (passes.py) that own the kernels, the buffers
+only they use and their launches' timings: the trace pass, the photon pass
+(scenes with caustic casters) and the filter pass (builds with feature
+buffers).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from ..features import Experimental, Features, scene_features
 from ..pack import MAX_FLOAT_RECORDS, PackedScene, camera_frame
 from ..photons import PM_PREPASS, PhotonSettings
 from .accum import Accumulator
+from .film import Film
 from .job import DeviceOptions, RenderJob, WorkItem, kernel_photons, photon_plan
 from .passes import FilterPass, PhotonPass, TraceArgs, TracePass
 from .runresult import RunResult
@@ -68,42 +70,39 @@ def kernel_source(packed: PackedScene | None, features: Features) -> str:
     return "\n".join(kernel_sources(packed, features))
 
 
-class _Sums:
-    """Per-pixel sums on a device (kernels/film.h's layout)."""
+def build_programs(dctx: DeviceContext, packed: PackedScene, features: Features, scene_buf, eps_abs: float,
+                   use_cache: bool = True) -> tuple[cl.Program, PhotonPass | None, program.BuildInfo]:
+    """Build a scene's programs on dctx: (the path pass's program, the photon
+    pass or None, what the build took). The photon program builds beside the
+    path pass's where the runtime takes two builds at once, and its kernels
+    then run a one-photon map: PoCL generates their machine code at the first
+    launch, here while the path pass is still compiling."""
+    real = np.float64 if features.double else np.float32
+    sources = kernel_sources(packed, features)
+    t0 = time.perf_counter()
 
-    def __init__(self, dctx, n_pix: int, accum_double: bool):
-        self.dctx, self.n_pix, self.accum_double = dctx, n_pix, accum_double
-        ctx = dctx.context
-        self.pix_sum = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 32)
-        self.pix_sq = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 8)
-        self.zero()
+    def build(source):
+        return program.build(dctx, source, features.options(), use_cache=use_cache)
 
-    def zero(self):
-        q = self.dctx.queue
-        cl.enqueue_fill_buffer(q, self.pix_sum, np.float32(0), 0, self.n_pix * 32)
-        cl.enqueue_fill_buffer(q, self.pix_sq, np.float32(0), 0, self.n_pix * 8)
+    def build_photon_pass(source):
+        prg, info = build(source)
+        photon = PhotonPass(dctx, prg, real)
+        photon.build(scene_buf, packed.counts, eps_abs, features.lanes, 0, PhotonSettings(count=1),
+                     0.01 * max(packed.size, 1e-30))
+        photon.counters.clear()
+        return photon, info
 
-    def read(self):
-        """(pix_sum, pix_sq) as the device holds them (float64, or Kahan pairs of float32)."""
-        raw, _ = self.read_async()
-        self.dctx.queue.finish()
-        return raw
-
-    def read_async(self):
-        """Queue copies of the sums into fresh host arrays: ((pix_sum, pix_sq), events)."""
-        q = self.dctx.queue
-        if self.accum_double:
-            s, sq = np.empty((self.n_pix, 4), np.float64), np.empty(self.n_pix, np.float64)
-        else:
-            s, sq = np.empty((self.n_pix, 8), np.float32), np.empty((self.n_pix, 2), np.float32)
-        return (s, sq), [cl.enqueue_copy(q, s, self.pix_sum, is_blocking=False),
-                         cl.enqueue_copy(q, sq, self.pix_sq, is_blocking=False)]
-
-    def write(self, s, sq):
-        q = self.dctx.queue
-        cl.enqueue_copy(q, self.pix_sum, s)
-        cl.enqueue_copy(q, self.pix_sq, sq)
-        q.finish()
+    if len(sources) == 1:
+        built = [build(sources[0])]
+    elif not program.builds_at_once(dctx):  # a runtime not known to take two builds at once
+        built = [build(sources[0]), build_photon_pass(sources[1])]
+    else:  # the OpenCL compilers release the GIL: the programs build at once
+        with ThreadPoolExecutor(2) as pool:
+            photon_side = pool.submit(build_photon_pass, sources[1])
+            built = [build(sources[0]), photon_side.result()]
+    info = program.BuildInfo(time.perf_counter() - t0, all(b.cache_hit for _, b in built),
+                             "+".join(b.key for _, b in built), built[0][1].options)
+    return built[0][0], (built[1][0] if len(built) > 1 else None), info
 
 
 class DeviceWorker:
@@ -115,58 +114,34 @@ class DeviceWorker:
         self.features = features
         self.packed = packed
         real = np.float64 if features.double else np.float32
-        mf = cl.mem_flags
         if not features.double and len(packed.records) > MAX_FLOAT_RECORDS:
             raise SceneError(f"{len(packed.records)} scene records exceed what float kernels index exactly "
                              f"({MAX_FLOAT_RECORDS}); render with double=True or a smaller scene")
         recs = np.ascontiguousarray(packed.records, dtype=real)
         if recs.size == 0:
             recs = np.zeros((1, 4), dtype=real)
+        mf = cl.mem_flags
         self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
         self.eps_abs = OFFSET_FLOOR['double' if features.double else 'float']  # kernels/scene.h
-        self.real = real
-        sources = kernel_sources(packed, features)
-        t0 = time.perf_counter()
-
-        def build(source):
-            return program.build(dctx, source, features.options(), use_cache=use_cache)
-
-        def build_photon_pass(source):
-            # Then a one-photon map: PoCL generates the photon kernels' machine code
-            # at their first launch, here while the path pass is still compiling.
-            prg, info = build(source)
-            photon = PhotonPass(dctx, prg, real)
-            photon.build(self.scene_buf, packed.counts, self.eps_abs, features.lanes, 0, PhotonSettings(count=1),
-                         0.01 * max(packed.size, 1e-30))
-            photon.counters.clear()
-            return photon, info
-
-        if len(sources) == 1:
-            built = [build(sources[0])]
-            self.photon = None
-        elif not program.builds_at_once(dctx):  # a runtime not known to take two builds at once
-            built = [build(sources[0]), build_photon_pass(sources[1])]
-            self.photon = built[1][0]
-        else:  # the OpenCL compilers release the GIL: the programs build at once
-            with ThreadPoolExecutor(2) as pool:
-                photon_side = pool.submit(build_photon_pass, sources[1])
-                built = [build(sources[0]), photon_side.result()]
-            self.photon = built[1][0]
-        self.program = built[0][0]
-        self.build = program.BuildInfo(time.perf_counter() - t0, all(b.cache_hit for _, b in built),
-                                       "+".join(b.key for _, b in built), built[0][1].options)
+        self.program, self.photon, self.build = build_programs(dctx, packed, features, self.scene_buf,
+                                                               self.eps_abs, use_cache)
         self.trace = TracePass(dctx, self.program, features)
         self.filter = FilterPass(dctx, self.program) if features.aux else None
         self.passes = [p for p in (self.photon, self.trace, self.filter) if p is not None]
-        self.main = self.caustic = self.aux = None
+        self.film = None
         self.launches = {}      # kernel name -> launches since start()
         self.kernel_times = {}  # kernel name -> device seconds of each launch since start()
         self.job = None
 
-    # The photon map (tests and benchmarks read its buffers), and the trace pass's work-group size.
+    # The photon map (tests and benchmarks read its buffers), the feature
+    # sums, and the trace pass's work-group size.
     @property
     def pmap(self) -> PhotonPass | None:
         return self.photon
+
+    @property
+    def aux(self):
+        return self.film.aux if self.film is not None else None
 
     @property
     def local(self) -> int:
@@ -176,37 +151,13 @@ class DeviceWorker:
     def local(self, value: int):
         self.trace.local = value
 
-    # --- a job's buffers ------------------------------------------------------------
-    def _allocate(self, n_pix: int, caustic_buffer: bool):
-        self.main = self.caustic = self.aux = None  # the last job's buffers go first
-        need = (n_pix * 40 * (2 if caustic_buffer else 1) + self.trace.buffer_bytes_for(n_pix)
-                + n_pix * 64 * self.features.aux)
-        dev = self.dctx.device
-        if n_pix * 32 > dev.max_mem_alloc_size or need > dev.global_mem_size:
-            raise DeviceError(f"{n_pix} pixels need {need / 2**20:.0f} MiB of accumulation buffers, more than "
-                              f"{self.label} offers ({dev.global_mem_size / 2**20:.0f} MiB, at most "
-                              f"{dev.max_mem_alloc_size / 2**20:.0f} MiB per buffer); render a smaller image")
-        try:
-            self.main = _Sums(self.dctx, n_pix, self.features.accum_double)
-            self.caustic = _Sums(self.dctx, n_pix, self.features.accum_double) if caustic_buffer else None
-            self.trace.allocate(n_pix)
-            # The feature sums: four planes of n_pix float4 (kernels/film.h VisibleSurface).
-            self.aux = (cl.Buffer(self.dctx.context, cl.mem_flags.READ_WRITE, 4 * n_pix * 16)
-                        if self.features.aux else None)
-            self._zero_aux()
-            self.dctx.queue.finish()
-        except cl.Error as e:
-            raise DeviceError(f"cannot allocate {need / 2**20:.0f} MiB on {self.label} for "
-                              f"{n_pix} pixels ({e}); render a smaller image") from None
-        self.n_pix = n_pix
-
-    def _zero_aux(self):
-        if self.aux is not None:
-            cl.enqueue_fill_buffer(self.dctx.queue, self.aux, np.float32(0), 0, self.aux.size)
-
+    # --- a job ----------------------------------------------------------------------
     def start(self, job: RenderJob, initial: Accumulator | None = None):
         """Get ready for a job: buffers for its image, zero sums (or `initial`)."""
-        self._allocate(job.n_pix, caustic_buffer=job.offline)
+        self.film = None  # the last job's buffers go first
+        self.film = Film(self.dctx, job.n_pix, accum_double=self.features.accum_double, caustic=job.offline,
+                         aux=self.features.aux, extra_bytes=self.trace.buffer_bytes_for(job.n_pix), label=self.label)
+        self.trace.allocate(job.n_pix)
         frame = camera_frame(job.scene.camera, job.width, job.height, self.packed.length_scale)
         self.trace.set_image(job, self.packed, frame, self.eps_abs)
         self.job = job
@@ -217,7 +168,7 @@ class DeviceWorker:
         self.launches = {}
         self.kernel_times = {}
         if initial is not None:
-            self.load(initial)
+            self.film.load(initial)
 
     # --- photon maps --------------------------------------------------------------------
     def build_photons(self, seed: int, settings: PhotonSettings, radius: float, mode: int = 0) -> dict:
@@ -265,21 +216,19 @@ class DeviceWorker:
                 raise ValueError(f"{self.label}: the job has no photon map to build")
             pm["power"] = self.photon.stored_power()
             launches, seconds = self._take_counters()
-            return RunResult(seconds=pm["host_seconds"], wall=pm["host_seconds"], first=False,
-                             stats=np.zeros(4, np.uint64), photon_maps=[pm], launches=launches,
-                             kernel_seconds=seconds)
+            return RunResult(seconds=pm["host_seconds"], wall=pm["host_seconds"], photon_maps=[pm],
+                             launches=launches, kernel_seconds=seconds)
         prepass = item.kind == "prepass"
         job = self.job
         lookup = None
         if self.features.photons:
             pset = kernel_photons(job.photons, self.packed.length_scale) or PhotonSettings()
-            mode = PM_PREPASS if prepass else job.pm_mode
-            lookup = partial(self.photon.lookup, settings=pset, mode=mode)
+            lookup = partial(self.photon.lookup, settings=pset, mode=PM_PREPASS if prepass else job.pm_mode)
         rec, global_size = self.trace.item_record((job.seed ^ PREPASS_SEED_SALT) if prepass else job.seed, item,
                                                   lookup)
-        sums = self.caustic if prepass else self.main
+        sums = self.film.caustic if prepass else self.film.main
         args = TraceArgs(scene=self.scene_buf, launch=None, pix_sum=sums.pix_sum, pix_sq=sums.pix_sq, stats=None,
-                         pix_jobs=None, aux=self.aux)
+                         pix_jobs=None, aux=self.film.aux)
         if self.features.photons:
             self.photon.fill(args)
         secs, wall, first, stats = self.trace.run(rec, global_size, args)
@@ -294,63 +243,25 @@ class DeviceWorker:
     def buffer_bytes(self) -> dict[str, int]:
         """Device memory per buffer this worker holds (after a render)."""
         out = {"scene records": self.scene_buf.size}
-        for name, sums in (("pixel sums", self.main), ("caustic sums", self.caustic)):
-            if sums is not None:
-                out[name] = sums.pix_sum.size + sums.pix_sq.size
-        out.update(self.trace.buffer_bytes())
-        if self.aux is not None:
-            out["feature buffers"] = self.aux.size
-        if self.photon is not None:
-            out.update(self.photon.buffer_bytes())
+        for part in (self.film, self.trace, self.photon):
+            if part is not None:
+                out.update(part.buffer_bytes())
         return out
 
     # --- sums -----------------------------------------------------------------------------
     def sums(self) -> Accumulator:
-        raw, _ = self.snapshot()
-        self.dctx.queue.finish()
-        return Accumulator.from_device(*raw)
+        return self.film.read()
 
     def snapshot(self):
-        """Queue copies of the sums without waiting for them: ((main, caustic,
-        aux) raw arrays for Accumulator.from_device, events). The queue is in
-        order, so queued from any thread they see the sums between two items."""
-        main, events = self.main.read_async()
-        caustic = None
-        if self.caustic is not None:
-            caustic, ev = self.caustic.read_async()
-            events += ev
-        aux = None
-        if self.aux is not None:
-            aux = [np.empty((self.n_pix, 4), np.float32) for _ in range(4)]
-            events += [cl.enqueue_copy(self.dctx.queue, h, self.aux, src_offset=k * h.nbytes, is_blocking=False)
-                       for k, h in enumerate(aux)]
-        self.dctx.queue.flush()
-        return (main, caustic, aux), events
+        """Film.snapshot: copies of the sums queued now, and their events."""
+        return self.film.snapshot()
 
     def load(self, acc: Accumulator):
         """Replace the sums by acc's (in this device's layout)."""
-        kahan = not self.features.accum_double
-        self.main.write(*acc.to_device("", kahan))
-        if self.caustic is not None:
-            if "c_sum" in acc.planes:
-                self.caustic.write(*acc.to_device("c_", kahan))
-            else:
-                self.caustic.zero()
-        if self.aux is not None:
-            if "aux" in acc.planes:
-                for k, h in enumerate(acc.aux_to_device()):
-                    h = np.ascontiguousarray(h, dtype=np.float32)
-                    cl.enqueue_copy(self.dctx.queue, self.aux, h, dst_offset=k * h.nbytes)
-            else:
-                self._zero_aux()
-        self.dctx.queue.finish()
+        self.film.load(acc)
 
     def zero(self):
-        self.main.zero()
-        if self.caustic is not None:
-            self.caustic.zero()
-        self._zero_aux()
-        self.dctx.queue.finish()
+        self.film.zero()
 
     def empty_sums(self, job: RenderJob) -> Accumulator:
         return Accumulator(job.n_pix, kahan=not self.features.accum_double, aux=self.features.aux,

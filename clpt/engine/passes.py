@@ -145,11 +145,15 @@ class TracePass:
         return _groups(n_pix, self.features.lanes, self.local) * 16
 
     def allocate(self, n_pix: int):
-        """Buffers for launches over n_pix pixels (cl.Error if they do not fit)."""
+        """Buffers for launches over n_pix pixels (DeviceError if they do not fit)."""
         self.global_size = _groups(n_pix, self.features.lanes, self.local)
         ctx, rw = self.dctx.context, cl.mem_flags.READ_WRITE
-        self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
-        self.jobs_buf = cl.Buffer(ctx, rw, 16)  # pixel lists replace it
+        try:
+            self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
+            self.jobs_buf = cl.Buffer(ctx, rw, 16)  # pixel lists replace it
+        except cl.Error as e:
+            raise DeviceError(f"cannot allocate the work-item statistics of {n_pix} pixels on {self.dctx.label} "
+                              f"({e}); render a smaller image") from None
         self.stats_host = np.empty((self.global_size, 4), dtype=np.uint32)
 
     def set_image(self, job, packed, frame, eps_abs: float):
