@@ -134,7 +134,7 @@ class Renderer:
         ex = LocalExecutor([st])
         try:
             job = self._job(st.features, spp, width=n, height=n, seed=seed)
-            job, pilot_info, pilot_seconds = self._pilot(job, ex)
+            job = self._pilot(job, ex)[0]
             res = self._run(job, None, None, 0.0, pass_seconds=1e9, executor=ex, workers=[st])
         finally:
             ex.close()
