@@ -24,8 +24,8 @@ import copy
 import numpy as np
 
 from ..adaptive import allocate_error, allocate_paper
-from ..preview import RenderUpdate
 from ..errors import WorkerFailure
+from ..preview import RenderUpdate
 from .accum import LUMA, Accumulator
 from .checkpoint import write_checkpoint
 from .job import RenderJob, WorkItem
