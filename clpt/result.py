@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .adaptive import AdaptiveSettings
+from . import image as image_files
 from .features import Features
-from .image import png_bytes, save_image
 from .photons import PhotonSettings
 from .version import __version__
 
@@ -103,8 +103,8 @@ class RenderResult:
         return meta
 
     def save(self, path, exposure: float = 0.0):
-        save_image(path, self.image, metadata=self.metadata(exposure), exposure=exposure)
+        image_files.save_image(path, self.image, metadata=self.metadata(exposure), exposure=exposure)
 
     def _repr_png_(self) -> bytes:
         """Notebooks show a result as its image, tone-mapped as save() writes a PNG."""
-        return png_bytes(self.image)
+        return image_files.png_bytes(self.image)
