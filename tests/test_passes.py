@@ -6,6 +6,7 @@ job) and the tuning trial as a job of its own."""
 
 import math
 import re
+from functools import partial
 
 import numpy as np
 import pyopencl as cl
@@ -81,6 +82,45 @@ def test_the_host_sets_every_field_of_the_trace_launch_record():
     names = set(layout.TRACE_LAUNCH.zeros(False).dtype.names)
     assert not set(IMAGE_FIELDS) & set(ITEM_FIELDS)
     assert set(IMAGE_FIELDS) | set(ITEM_FIELDS) == names
+
+
+def _unset(rec, prefix=""):
+    """Fields of rec whose bytes are all 0xA5 still."""
+    out = []
+    for name in rec.dtype.names:
+        v = rec[name]
+        if v.dtype.names:
+            out += _unset(v, f"{prefix}{name}.")
+        elif (np.ascontiguousarray(v).reshape(-1).view(np.uint8) == 0xA5).all():
+            out.append(prefix + name)
+    return out
+
+
+def test_every_launch_record_field_is_set_before_a_launch(device_spec, monkeypatch):
+    """A record made of 0xA5 bytes instead of zeros: start() and an item's
+    record leave no field as it was made, for sample ranges and pixel lists,
+    photon part included."""
+    import clpt.engine.passes as passes
+
+    made = passes.trace_record
+
+    def poisoned(double):
+        rec = made(double)
+        rec.reshape(-1).view(np.uint8)[:] = 0xA5
+        return rec
+
+    monkeypatch.setattr(passes, "trace_record", poisoned)
+    r = clpt.Renderer("cornell_box_caustics", device=device_spec)
+    w = r.states[0]
+    job = r.job(2, width=8, height=6, seed=3)
+    w.start(job)
+    w.prepare_photons(0)
+    lookup = partial(w.photon.lookup, settings=job.photons, mode=job.pm_mode)
+    rec, _ = w.trace.item_record(job.seed, WorkItem("samples", 0, 2), lookup)
+    assert _unset(rec) == [] and rec["group_offset"] == 0
+    jobs = np.ones((3, 4), np.uint32)
+    rec, _ = w.trace.item_record(job.seed, WorkItem("pixels", pixels=np.arange(3), jobs=jobs), lookup)
+    assert _unset(rec) == []
 
 
 def _job(scene, spp=4, w=20, h=12, **kw):

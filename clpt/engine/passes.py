@@ -105,10 +105,11 @@ class PhotonPassArgs:
         return _ordered(self, PHOTON_PASS_ARGS)
 
 
-# Checked once: the records' fields are the kernels' parameter lists (which
-# tests/test_engine.py checks against the kernel source).
-assert tuple(f.name for f in fields(TraceArgs)) == TRACE_ARGS + AUX_ARGS + PHOTON_ARGS
-assert tuple(f.name for f in fields(PhotonPassArgs)) == PHOTON_PASS_ARGS
+# Checked once, here: the records' fields are the kernels' parameter lists
+# (which tests/test_engine.py checks against the kernel source).
+for _record, _names in ((TraceArgs, TRACE_ARGS + AUX_ARGS + PHOTON_ARGS), (PhotonPassArgs, PHOTON_PASS_ARGS)):
+    if tuple(f.name for f in fields(_record)) != _names:
+        raise TypeError(f"{_record.__name__}'s fields are not the kernel's parameters {', '.join(_names)}")
 
 # The TraceLaunch fields a launch sets for its item; start() sets the others.
 ITEM_FIELDS = ("seed", "sample_begin", "n_samples", "n_list", "photons")
