@@ -29,7 +29,6 @@ from .errors import SceneError, SettingsError
 
 ALBEDO_FLOOR = 1e-3
 MAX_WIDTH = 16
-LOCAL_SIZE = 64
 OIDN_AUX = ("clean", "noisy", "none")
 
 

@@ -21,10 +21,10 @@ import numpy as np
 import pyopencl as cl
 
 from ..constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
-from ..denoise import LOCAL_SIZE as FILTER_LOCAL_SIZE
 from ..denoise import FilterSettings, Planar, demodulate
 from ..errors import DeviceError
-from ..photons import GRID_CELL_RADII, MAX_TABLE_BITS, PM_MERGE, PM_OFFLINE, PM_OWNED, PM_PREPASS, RADIX_BITS, PhotonSettings
+from ..photons import (GRID_CELL_RADII, MAX_TABLE_BITS, PM_MERGE, PM_OFFLINE, PM_OWNED, PM_PREPASS, RADIX_BITS,
+                       PhotonSettings)
 from ..program import event_seconds
 from .launch import (AUX_ARGS, PHOTON_ARGS, PHOTON_PASS_ARGS, TRACE_ARGS, RecordBuffer, fill_scene_info,
                      photon_record, trace_record)
@@ -115,6 +115,9 @@ for _record, _names in ((TraceArgs, TRACE_ARGS + AUX_ARGS + PHOTON_ARGS), (Photo
 ITEM_FIELDS = ("seed", "sample_begin", "n_samples", "n_list", "photons")
 IMAGE_FIELDS = ("scene", "camera", "lum_scale", "width", "height", "group_offset", "max_depth", "rr_depth",
                 "aux_specular")
+
+
+FILTER_LOCAL_SIZE = 64  # the cone filter's work-groups (kernels/filter.cl)
 
 
 def local_size(dctx) -> int:
