@@ -23,14 +23,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pyopencl as cl
 
 from .constants import LUMA, LUMA_WEIGHTS
-from .program import note_time
+from .errors import SceneError, SettingsError
 
 ALBEDO_FLOOR = 1e-3
 MAX_WIDTH = 16
-LOCAL_SIZE = 64
 OIDN_AUX = ("clean", "noisy", "none")
 
 
@@ -48,7 +46,6 @@ class FilterSettings:
     interval: int = 0            # filter the preview every N passes (0: only the final image)
 
     def check(self):
-        from .scene import SettingsError
         if isinstance(self.width, bool) or not isinstance(self.width, (int, np.integer)) \
                 or not 0 <= self.width <= MAX_WIDTH:
             raise SettingsError(f"filter: width must be an integer from 0 to {MAX_WIDTH} (got {self.width!r})")
@@ -82,7 +79,6 @@ class OidnSettings:
     interval: int = 0
 
     def check(self):
-        from .scene import SettingsError
         if self.aux not in OIDN_AUX:
             raise SettingsError(f"oidn: aux must be one of {', '.join(OIDN_AUX)} (got {self.aux!r})")
         if self.quality not in ("high", "balanced", "fast"):
@@ -94,9 +90,8 @@ class OidnSettings:
 def oidn_module():
     """pyoidn, or a one-line error saying how to get it."""
     try:
-        import pyoidn
+        import pyoidn  # optional (clpt[oidn]): imported when asked for
     except ImportError:
-        from .scene import SceneError
         raise SceneError("the OIDN denoiser needs pyoidn: pip install 'clpt[oidn]'") from None
     return pyoidn
 
@@ -108,7 +103,7 @@ def demodulate(color, var, albedo):
     return color / alb, var / lum_alb ** 2, alb
 
 
-class _Planar:
+class Planar:
     """Planar images as filter.cl lays them out: rows of `pitch` (the width
     rounded up to 8) floats, each plane with `margin` zeros before and after."""
 
@@ -129,59 +124,6 @@ class _Planar:
     def unpack(self, flat: np.ndarray, planes: int) -> np.ndarray:
         body = flat.reshape(planes, self.plane)[:, self.margin:self.margin + self.pitch * self.height]
         return np.moveaxis(body.reshape(planes, self.height, self.pitch)[:, :, :self.width], 0, -1)
-
-
-class ConeFilter:
-    """The filter's kernels on one device."""
-
-    def __init__(self, dctx, program):
-        self.dctx = dctx
-        self.firefly = cl.Kernel(program, "filter_firefly")
-        self.kernel = cl.Kernel(program, "filter_cone")
-        self.kernel_times = {}  # kernel name -> device seconds per launch
-
-    def __call__(self, color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
-        """Filtered colour (H x W x 3 float32) from the guides (H x W arrays);
-        var is each pixel mean's luminance variance, emitter the fraction of
-        its samples that see a light."""
-        h, w = color.shape[:2]
-        if settings.width == 0:
-            return color.astype(np.float32).copy()
-        irr, v, alb = demodulate(color.astype(np.float64), var.astype(np.float64), albedo.astype(np.float64))
-        ctx, q = self.dctx.context, self.dctx.queue
-        mf = cl.mem_flags
-        passes = settings.passes(w, h)
-        radius = min(int(settings.width), max(w, h))
-        lay = _Planar(w, h, radius, 1 << (passes - 1))
-        flag = np.zeros((h, w)) if emitter is None else (emitter > 0.5)
-        c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v])
-        g0 = lay.pack([normal[..., 0], normal[..., 1], normal[..., 2], flag,
-                       albedo[..., 0], albedo[..., 1], albedo[..., 2], depth])
-        c = [cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0),
-             cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0)]
-        gb = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g0)
-        dims = (np.uint32(w), np.uint32(h), np.uint32(lay.pitch), np.uint32(lay.plane), np.uint32(lay.margin))
-        src = 0
-        events = []
-        if settings.firefly_k > 0:
-            gsize = -(-(w * h) // LOCAL_SIZE) * LOCAL_SIZE
-            events.append(("filter_firefly", self.firefly(q, (gsize,), (LOCAL_SIZE,), c[0], *dims,
-                                                          np.float32(settings.firefly_k), c[1])))
-            src = 1
-        items = h * lay.pitch // 8
-        gsize = -(-items // LOCAL_SIZE) * LOCAL_SIZE
-        for it in range(passes):
-            events.append(("filter_cone", self.kernel(
-                q, (gsize,), (LOCAL_SIZE,), c[src], gb, *dims, np.int32(radius), np.int32(1 << it),
-                np.int32(settings.sigma_normal), np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
-                np.float32(settings.sigma_luminance), np.float32(settings.guide_floor), c[1 - src])))
-            src = 1 - src
-        out = np.empty_like(c0)
-        cl.enqueue_copy(q, out, c[src])
-        q.finish()
-        for name, ev in events:
-            note_time(self.kernel_times, name, ev)
-        return (lay.unpack(out, 4)[..., :3] * alb).astype(np.float32)
 
 
 def _lum(a):
@@ -213,7 +155,7 @@ def reference_firefly(c, v, k):
 
 
 def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
-    """numpy twin of ConeFilter (slow; for tests on small images)."""
+    """numpy twin of the cone filter (clpt/engine/passes.py FilterPass; slow, for tests on small images)."""
     h, w = color.shape[:2]
     if settings.width == 0:
         return color.astype(np.float32).copy()
@@ -270,7 +212,7 @@ def apply_denoiser(cone, image, lum_var, count, aux, settings):
     """The denoised image (H x W x 3) of a render: image, its per-sample
     luminance variance and sample counts (H x W), the feature images (aux,
     with "caustic" and "caustic_var"), settings a FilterSettings (cone, on
-    `cone`, a ConeFilter) or an OidnSettings."""
+    `cone`, a FilterPass) or an OidnSettings."""
     # Emission seen directly is not noise to smooth: both denoisers leave it
     # out (next to a lamp, OIDN would otherwise spread it into a halo).
     keep = aux["emission"]

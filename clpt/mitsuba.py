@@ -25,8 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .scene import (Camera, Material, Quad, RenderSettings, Scene, SceneError, SceneWarning, Sphere, _suggest,
+from .scene import (Camera, Material, Mesh, Quad, RenderSettings, Scene, SceneError, SceneWarning, Sphere, _suggest,
                     read_file_bytes)
+from .errors import ImageError
+from .image import load_image
+from .meshio import read_mesh, transform_mesh, vertex_normals
 from .spectrum import constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb_checked
 
 
@@ -692,8 +695,6 @@ class _Loader:
         return (0.5, 0.5, 0.5)
 
     def _bitmap_mean(self, tex: _Node, tp: _Props):
-        from .image import ImageError, load_image
-
         path = self.resolve(tex, tp.string("filename") or tex.fail("missing property 'filename'"))
         raw = tp.boolean("raw", False)
         try:
@@ -915,8 +916,6 @@ class _Loader:
             tris = np.vstack([np.stack([i, j, k + j], axis=1), np.stack([i, k + j, k + i], axis=1)])
             out.append(self._mesh(node, verts, tris, np.vstack([radial, radial]), m, flip, kw))
         elif t in ("obj", "ply", "serialized"):
-            from .meshio import read_mesh
-
             path = self.resolve(node, p.string("filename") or node.fail("missing property 'filename'"))
             index = p.integer("shape_index", 0) if t == "serialized" else 0
             if index < 0:
@@ -958,8 +957,6 @@ class _Loader:
         so that a coarse mesh is shaded as Mitsuba shades it, not faceted."""
         if normals is not None:
             return self._mesh(node, verts, tris, normals, m, flip, kw)
-        from .meshio import transform_mesh, vertex_normals
-        from .scene import Mesh
 
         try:
             verts, _ = transform_mesh(np.asarray(verts, dtype=np.float64), None, m)
@@ -973,9 +970,6 @@ class _Loader:
         return Mesh(vertices=verts, triangles=tris, normals=normals, **kw)
 
     def _mesh(self, node, verts, tris, normals, m, flip, kw):
-        from .meshio import transform_mesh
-        from .scene import Mesh
-
         try:
             verts, normals = transform_mesh(np.asarray(verts, dtype=np.float64),
                                             None if normals is None else np.asarray(normals, dtype=np.float64), m)

@@ -3,7 +3,8 @@
 A scene is a camera, named materials and a list of shapes; any shape with
 emission is an area light. The same classes are the Python API
 (``clpt.Scene(camera=..., shapes=[clpt.Sphere(...)])``) and what
-``load_scene`` builds from a TOML file (format: scenes/README.md).
+``parse_scene`` builds from a TOML file's text (format: scenes/README.md;
+``clpt.load_scene``, clpt/loading.py, reads a file of either format).
 
 Every mistake in a user's scene is reported as a ``SceneError`` whose message
 names the file, the key path and the reason, e.g.::
@@ -24,26 +25,14 @@ from typing import Union
 
 import numpy as np
 
+from .errors import MeshError, SceneError, SceneWarning, SettingsError  # noqa: F401 - importable from here
+from .hostio import open_regular_file
+from .meshio import check_mesh, compose, cross_rows, norm_rows, read_mesh, transform_mesh
 from .presets import PRESETS
 
 Vec3 = tuple[float, float, float]
 
 FOV_AXES = ("x", "y", "smaller", "larger")
-
-
-class SceneError(ValueError):
-    """A scene is invalid. The message names the source, key path and reason."""
-
-
-class SettingsError(SceneError):
-    """A render setting (PhotonSettings, AdaptiveSettings, FilterSettings,
-    OidnSettings, or a keyword of Renderer.render) is out of range or of the
-    wrong type. A SceneError too, so one except clause catches bad input of
-    either kind."""
-
-
-class SceneWarning(UserWarning):
-    """Part of a scene is approximated or left out; the message says which and where."""
 
 
 # --- data model --------------------------------------------------------------------
@@ -360,7 +349,6 @@ class Mesh(_ShapeBase):
     normals: np.ndarray | None = None
 
     def __post_init__(self):
-        from .meshio import check_mesh
         v, t, n = check_mesh(self.vertices, self.triangles, self.normals,
                              source=f"mesh {self.name!r}" if self.name else "mesh")
         for a in (v, t, n):
@@ -374,7 +362,6 @@ class Mesh(_ShapeBase):
         pass  # checked (and degenerate triangles dropped) on construction
 
     def triangle_areas(self) -> np.ndarray:
-        from .meshio import cross_rows, norm_rows
         v, t = self.vertices, self.triangles
         a = v[t[:, 0]]
         return 0.5 * norm_rows(cross_rows(v[t[:, 1]] - a, v[t[:, 2]] - a))
@@ -394,7 +381,6 @@ class Mesh(_ShapeBase):
     @classmethod
     def from_file(cls, path, transform=None, **kw) -> "Mesh":
         """Read an OBJ or PLY file; transform: a 4x4 matrix applied to it."""
-        from .meshio import read_mesh, transform_mesh
         v, t, n = read_mesh(path)
         if transform is not None:
             v, n = transform_mesh(v, n, transform)
@@ -825,7 +811,6 @@ def _read_material(r: _Reader, d, path) -> Material:
 def _read_transform(r: _Reader, d, path):
     """A transform table: a 4x4 `matrix` (rows), or translate/rotate/scale
     (scale first, then rotate in degrees about x, y, z, then translate)."""
-    from .meshio import compose
     r.table(d, path, _TRANSFORM_KEYS)
     if "matrix" in d:
         if {"translate", "rotate", "scale"} & set(d):
@@ -842,7 +827,6 @@ def _read_transform(r: _Reader, d, path):
 
 
 def _read_mesh(r: _Reader, d, path, base_dir, kw):
-    from .meshio import MeshError
     name = r.string(r.require(d, path, "file"), f"{path}.file")
     file = Path(name) if Path(name).is_absolute() or base_dir is None else Path(base_dir) / name
     matrix = _read_transform(r, d["transform"], f"{path}.transform") if "transform" in d else None
@@ -966,34 +950,6 @@ def parse_scene(text: str, source: str = "<string>", base_dir=None) -> Scene:
 MAX_SCENE_BYTES = 16 << 20
 
 
-def open_regular_file(p: Path, name, what: str, limit: int | None = None):
-    """The file open for reading in binary, checked first: it exists, is a
-    regular file (a FIFO or a device would block or never end) and has at
-    most `limit` bytes. Every failure is a one-line SceneError naming the
-    file as `name`."""
-    import os
-    import stat
-
-    try:
-        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except FileNotFoundError:
-        raise SceneError(f"{name}: no such {what}") from None
-    except OSError as e:
-        raise SceneError(f"{name}: cannot read the {what}: {e.strerror or e}") from None
-    try:
-        st = os.fstat(fd)
-        if stat.S_ISDIR(st.st_mode):
-            raise SceneError(f"{name}: is a folder, not a {what}")
-        if not stat.S_ISREG(st.st_mode):
-            raise SceneError(f"{name}: not a regular file (a pipe or device); save the {what} to a file")
-        if limit is not None and st.st_size > limit:
-            raise SceneError(f"{name}: {st.st_size} bytes is too large for a {what} (at most {limit >> 20} MiB)")
-        return os.fdopen(fd, "rb")
-    except BaseException:
-        os.close(fd)
-        raise
-
-
 def read_file_bytes(p: Path, name, what: str = "scene file", limit: int = MAX_SCENE_BYTES) -> bytes:
     """The bytes of a file clpt reads whole (a scene, an included scene, a
     spectrum), of at most `limit` bytes (open_regular_file)."""
@@ -1014,23 +970,3 @@ def _read_scene_text(p: Path, name) -> str:
         return data.decode("utf-8")
     except UnicodeDecodeError as e:
         raise SceneError(f"{name}: not UTF-8 text ({e.reason} at byte {e.start})") from None
-
-
-def load_scene(path, params: dict | None = None, *, strict: bool = False) -> Scene:
-    """Read a TOML scene file (or a shipped scene's name, e.g. "cornell_box"),
-    or a Mitsuba 3 XML file (.xml, clpt.mitsuba): params then override its
-    <default> values, and strict makes every SceneWarning an error."""
-    p = Path(path)
-    if p.suffix.lower() == ".xml":
-        from .mitsuba import load_mitsuba
-        return load_mitsuba(p, params, strict=strict)
-    if params:
-        raise SceneError(f"{path}: parameters (-D NAME=VALUE) apply to Mitsuba XML scenes only")
-    if not p.exists() and p.suffix == "" and len(p.parts) == 1:
-        from .resources import scene_path
-        shipped = scene_path(str(path))
-        if shipped is not None:
-            p = shipped
-    text = _read_scene_text(p, path)
-    return parse_scene(text, source=str(path), base_dir=p.parent)
-

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 
 import clpt
-from clpt.denoise import (LUMA, ConeFilter, FilterSettings, OidnSettings, apply_denoiser, reference_cone_filter,
-                          reference_firefly)
+from clpt.denoise import LUMA, FilterSettings, OidnSettings, apply_denoiser, reference_cone_filter, reference_firefly
+from clpt.engine.passes import FilterPass
 from clpt.tools.metrics import relmse
 
 
 @pytest.fixture(scope="module")
 def cone(probes):
     probe = probes(1)
-    return ConeFilter(probe.dctx, probe.program)
+    return FilterPass(probe.dctx, probe.program)
 
 
 def guides(h, w, normal=(0, 0, 1), albedo=0.5, depth=2.0):

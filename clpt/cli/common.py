@@ -59,7 +59,7 @@ def scene_params_dict(a) -> dict:
 
 def load(a):
     """The scene named by a.scene, with -D's parameters and --strict."""
-    from ..scene import load_scene
+    from ..loading import load_scene
 
     return load_scene(a.scene, scene_params_dict(a), strict=a.strict)
 

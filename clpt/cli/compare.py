@@ -23,7 +23,7 @@ def add_parser(sub):
 def run(a) -> int:
     import json
 
-    from ..scene import load_scene
+    from ..loading import load_scene
     from ..tools.reference import cached_path, reference_image
     from ..tools.studies import compare, format_table, standard_comparison
 

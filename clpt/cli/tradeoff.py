@@ -26,7 +26,7 @@ def add_parser(sub):
 
 def run(a) -> int:
     from ..resources import shipped_scenes
-    from ..scene import load_scene
+    from ..loading import load_scene
     from ..tools.reference import reference_image
     from ..tools.studies import compare, standard_comparison, tradeoff, write_summary
 

@@ -548,7 +548,8 @@ def sphere_mesh(n_triangles: int, center=(0.0, -0.45, 0.0), radius=0.5, bumps=0.
 
 def mesh_box_scene(n_triangles: int, material="white"):
     """The Cornell box with a bumpy sphere mesh of about n_triangles."""
-    from ..scene import Mesh, load_scene
+    from ..loading import load_scene
+    from ..scene import Mesh
 
     s = load_scene("cornell_box")
     v, t, n = sphere_mesh(n_triangles)
@@ -609,7 +610,8 @@ def measure_threshold(sizes=(0, 8, 24, 48, 96, 200), *, device=None, width=128, 
     triangles, with the plain loops and with the BVH (interleaved rounds):
     where the BVH starts to pay."""
     from ..render import Renderer
-    from ..scene import Mesh, load_scene
+    from ..loading import load_scene
+    from ..scene import Mesh
 
     rows, runners = [], []
     for k in sizes:
@@ -635,7 +637,7 @@ def measure_threshold(sizes=(0, 8, 24, 48, 96, 200), *, device=None, width=128, 
 
 def _setup_child(path: str, device) -> dict:
     from ..render import Renderer
-    from ..scene import load_scene
+    from ..loading import load_scene
 
     t0 = time.perf_counter()
     scene = load_scene(path)
@@ -737,7 +739,8 @@ def bunny_box(path, *, mitsuba=False):
     the mesh at path (flat-shaded), scaled to 1.1 high and stood on the floor:
     a clpt Scene, or with mitsuba=True the same scene as a Mitsuba 3 dict."""
     from ..meshio import read_mesh
-    from ..scene import Mesh, load_scene
+    from ..loading import load_scene
+    from ..scene import Mesh
 
     v, _, _ = read_mesh(path)
     lo, hi = v.min(0), v.max(0)

@@ -32,7 +32,7 @@ from ..adaptive import AdaptiveSettings
 from ..denoise import FilterSettings, OidnSettings
 from ..photons import PhotonSettings
 from ..render import Renderer
-from ..scene import load_scene
+from ..loading import load_scene
 from .reference import reference_image
 
 
