@@ -751,7 +751,7 @@ class _Loader:
             # The microfacet lobe itself (kernels/microfacet.h), Fresnel from eta + i k per channel.
             spec = p.color("specular_reflectance", 1.0)
             eta, k = self._conductor_ior(p)
-            dist = p.string("distribution", "ggx")
+            dist = p.string("distribution", "beckmann")  # Mitsuba 3's default
             if dist not in DISTRIBUTIONS:
                 p.props["distribution"].fail(f"unknown distribution {dist!r}{_suggest(dist, DISTRIBUTIONS)}; "
                                              f"known: {', '.join(DISTRIBUTIONS)}")
@@ -891,6 +891,8 @@ class _Loader:
                 continue
             emission = ep.color("radiance", emitter=True)
             ep.finish()
+        if emission is not None and not bsdfs:
+            mat = Material(one_sided=True)  # Mitsuba 3 gives an emitter without a BSDF a black diffuse one
         flip = p.boolean("flip_normals", False)
         name = node.attrs.get("id") or f"{t} at {node.where()}"
         kw = dict(material=mat, emission=emission, two_sided=False, name=name)

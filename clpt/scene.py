@@ -59,7 +59,7 @@ class Material:
     is what remains, 1 - (kd + ks + km + kr + kt), which must not be negative.
     km, alpha, distribution, eta and k: a rough conductor's microfacet lobe
     as Mitsuba 3's `roughconductor` defines it (f = km F D G / (4 cos_o
-    cos_i)): roughness alpha in (0, 1], distribution "ggx" or "beckmann",
+    cos_i)): roughness alpha, distribution "beckmann" (Mitsuba's default) or "ggx",
     conductor Fresnel of the complex index eta + i k per channel (eta 0, k 1:
     F = 1); `Material.rough_conductor` fills them from a named conductor.
     emission is radiance leaving the surface (on the side its normal points
@@ -79,7 +79,7 @@ class Material:
     one_sided: bool = False
     km: Vec3 = (0.0, 0.0, 0.0)
     alpha: float = 0.1
-    distribution: str = "ggx"
+    distribution: str = "beckmann"
     eta: Vec3 = (0.0, 0.0, 0.0)
     k: Vec3 = (1.0, 1.0, 1.0)
 
@@ -107,7 +107,7 @@ class Material:
         return cls(**{**PRESETS[name], **overrides})
 
     @classmethod
-    def rough_conductor(cls, material: str = "none", alpha: float = 0.1, distribution: str = "ggx",
+    def rough_conductor(cls, material: str = "none", alpha: float = 0.1, distribution: str = "beckmann",
                         specular_reflectance: Vec3 = (1.0, 1.0, 1.0), **overrides) -> "Material":
         """A rough conductor (Mitsuba 3's `roughconductor`, one-sided): a named
         conductor's eta and k as Mitsuba's RGB variants use them (`clpt

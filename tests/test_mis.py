@@ -100,6 +100,33 @@ def test_merging_with_mis_converges_to_the_path_tracer(device_spec):
     assert np.abs(z).max() < 6, z.round(1)
 
 
+@pytest.mark.parametrize("mode", ["merge", "online"])
+def test_rough_vertices_are_left_to_path_tracing(device_spec, mode):
+    """White walls with a rough conductor lobe beside their diffuse one
+    (kernels/scene.h material_mergeable: no merge, no gather, no photon
+    stored there): merging and the online gather still add up to the path
+    tracer's image, block by block, as in the test above."""
+    import dataclasses
+    s = _caustic_scene(24)
+    rough = clpt.Material(kd=(0.35, 0.35, 0.35), km=(0.5, 0.5, 0.5), alpha=0.2, eta=(0.2, 0.9, 1.1),
+                          k=(3.9, 2.4, 1.9))
+    shapes = [dataclasses.replace(x, material=rough) if x.material == "white" else x for x in s.shapes]
+    assert sum(x.material is rough for x in shapes) >= 3
+    scene = clpt.Scene(camera=s.camera, shapes=shapes, materials=s.materials, render=s.render)
+    pt = clpt.Renderer(scene, device=device_spec, photons=False).render(2048, seed=1, max_depth=8)
+    pm = clpt.Renderer(scene, device=device_spec).render(
+        512, seed=2, max_depth=8, photons=PhotonSettings(mode=mode, radius=0.002, count=20000, spp_per_map=4,
+                                                         pilot=False))
+    assert pm.stats.nonfinite == 0 and np.isfinite(pm.image).all()
+
+    def blocks(a):
+        return a.reshape(4, 6, 4, 6, *a.shape[2:]).mean(axis=(1, 3))
+    d = blocks(pm.image @ LUMA) - blocks(pt.image @ LUMA)
+    var = blocks(pm.lum_var / pm.sample_count) / 36 + blocks(pt.lum_var / pt.sample_count) / 36
+    z = d / np.sqrt(var)
+    assert np.abs(z).max() < 6, z.round(1)
+
+
 @pytest.mark.parametrize("name", clpt.shipped_scenes())
 def test_no_nonfinite_sample_on_shipped_scenes(device_spec, name):
     scene = clpt.load_scene(name)
