@@ -245,7 +245,7 @@ def test_bsdf_mappings(tmp_path):
     au = material(s, "gold").kr  # normal-incidence reflectance of gold: high red, low blue
     assert 0.85 < au[0] < 1 and au[2] < 0.45 and au[0] > au[1] > au[2]
     e = material(s, "etak")
-    assert (e.km, e.alpha, e.distribution, e.eta, e.k) == ((1, 1, 1), 0.2, "ggx", (0.2, 0.9, 1.1), (3.9, 2.4, 1.9))
+    assert (e.km, e.alpha, e.distribution, e.eta, e.k) == ((1, 1, 1), 0.2, "beckmann", (0.2, 0.9, 1.1), (3.9, 2.4, 1.9))
     assert e.ks == e.kr == (0, 0, 0)
     g = material(s, "glass")
     assert g.kt == (1, 1, 1) and g.ior == pytest.approx(1.5046 / 1.000277, rel=1e-5) and not g.one_sided
