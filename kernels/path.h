@@ -164,7 +164,9 @@ inline V3 path_emission(const Scene *sc, const PhotonLookup *pl, const PathState
 inline void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState *ps, Vertex *v,
                               const Sampler *sp, vreal max_depth, vmask *go, VisibleSurface *vis, real lum_scale)
 {
-    v->at_x = v->hit && ps->own == (real)OWN_BEFORE_X && material_mergeable(&v->m);
+    // x is the first vertex with a non-delta part, if the map can estimate it there.
+    vmask first_nd = v->hit && ps->own == (real)OWN_BEFORE_X && v->m.nondelta != R(0);
+    v->at_x = first_nd && material_mergeable(&v->m);
     if (pl->gather && VANY(v->at_x)) {
         V3 Lc = photon_gather(pm, &v->m, v->pr, v->x, v->n, ps->d, sample_merge(sp, ps->depth), v->at_x, 0,
                               max_depth - ps->depth - R(1));
@@ -173,8 +175,8 @@ inline void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState 
         visible_add_caustic(vis, v3_mul(ps->beta, Lc), v->at_x, lum_scale);
 #endif
     }
-    if (pl->stop_at_x)
-        *go = *go && !v->at_x;
+    if (pl->stop_at_x)  // (a path whose first non-delta vertex is not x has nothing to gather either)
+        *go = *go && !first_nd;
     v->merge_here = *go && v->nondelta && material_mergeable(&v->m) && ps->nd_count < (real)pl->merge_vertices;
     if (pl->merge && VANY(v->merge_here)) {
         vreal u = sample_merge(sp, ps->depth);
