@@ -122,7 +122,9 @@ def test_rough_vertices_are_left_to_path_tracing(device_spec, mode):
                                                         progressive=mode != "offline", pilot=False))
     assert pm.stats.photon_maps and all(m["stored"] == 0 for m in pm.stats.photon_maps)
     assert pm.stats.nonfinite == 0 and (pt.image > 0).mean() > 0.9
-    assert np.array_equal(pm.image, pt.image)
+    # The same paths and numbers; the photon build's float contractions may differ (Intel's compiler).
+    rel = np.abs(pm.image.astype(np.float64) - pt.image) / np.maximum(pt.image, 1e-3)
+    assert rel.max() < 1e-4, f"differs by {rel.max():.2g} (relative) at pixel {np.unravel_index(rel.argmax(), rel.shape)}"
 
 
 @pytest.mark.parametrize("name", clpt.shipped_scenes())
