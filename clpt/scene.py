@@ -634,8 +634,6 @@ def check_material(source, path, m: Material):
                                                    f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
         _finite_vec(source, f"{path}.eta", m.eta, nonneg=True)
         _finite_vec(source, f"{path}.k", m.k, nonneg=True)
-        if (np.asarray(m.eta) == 0).any() and (np.asarray(m.k) == 0).any():
-            _fail(source, f"{path}.eta", "eta and k are both 0 in a channel (no interface)")
     _emission(source, f"{path}.emission", m.emission)
     _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False, hi=MAX_SHININESS, hi_open=False)
     _finite(source, f"{path}.ior", m.ior, lo=IOR_RANGE[0], lo_open=False, hi=IOR_RANGE[1], hi_open=False)
