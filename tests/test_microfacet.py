@@ -43,8 +43,9 @@ def mitsuba_cases():
     return json.loads(DATA.read_text())["cases"]
 
 
+@pytest.mark.parametrize("double", [False, True])
 @pytest.mark.parametrize("case", range(5))
-def test_eval_and_pdf_match_mitsuba(probes, case):
+def test_eval_and_pdf_match_mitsuba(probes, case, double):
     c = mitsuba_cases()[case]
     b = c["bsdf"]
     eta, k = (b["eta"], b["k"]) if "eta" in b else conductor_ior(b["material"])
@@ -54,7 +55,8 @@ def test_eval_and_pdf_match_mitsuba(probes, case):
     ev = np.array([r["eval"] for r in c["rows"]])  # f cos_o
     pdf = np.array([r["pdf"] for r in c["rows"]])
     n = len(wi)
-    out = lobe(probes(1), b["alpha"], b["distribution"], -wi, np.full(n, 0.5), np.full(n, 0.5), wo, eta, k, km)
+    out = lobe(probes(1, double=double), b["alpha"], b["distribution"], -wi, np.full(n, 0.5), np.full(n, 0.5), wo,
+               eta, k, km)
     f_cos = out["f"] * wo[:, 2:3]
     assert (ev > 0).sum() >= 32
     # Float rounding of the half vector near a narrow peak: relative 1e-3, and
