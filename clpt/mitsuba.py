@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .scene import (Camera, Material, Mesh, Quad, RenderSettings, Scene, SceneError, SceneWarning, Sphere, _suggest,
-                    read_file_bytes)
+from .scene import (ALPHA_RANGE, DISTRIBUTIONS, Camera, Material, Mesh, Quad, RenderSettings, Scene, SceneError,
+                    SceneWarning, Sphere, _suggest, read_file_bytes)
 from .errors import ImageError
 from .image import load_image
 from .meshio import read_mesh, transform_mesh, vertex_normals
@@ -323,6 +323,17 @@ def conductor_albedo(eta, k) -> tuple:
     mu = (np.arange(2048) + 0.5) / 2048
     return tuple(float(2.0 * np.mean(fresnel_conductor(mu, e, kk) * mu))
                  for e, kk in zip(np.broadcast_to(eta, 3), np.broadcast_to(k, 3)))
+
+
+def conductor_ior(name: str) -> tuple:
+    """(eta, k), RGB tuples, of a conductor Mitsuba 3 names ("none": eta 0,
+    k 1, a perfect mirror)."""
+    if name == "none":
+        return (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)
+    table = _ior_data()["conductor"]
+    if name not in table:
+        raise SceneError(f"unknown conductor {name!r}{_suggest(name, table)}; known: none, {', '.join(table)}")
+    return tuple(float(x) for x in table[name]["eta"]), tuple(float(x) for x in table[name]["k"])
 
 
 def phong_exponent(alpha: float) -> float:
@@ -734,13 +745,20 @@ class _Loader:
             m = replace(self.bsdf(inner[0]), one_sided=False)
         elif t == "diffuse":
             m = Material(kd=p.color("reflectance", 0.5), one_sided=True)
-        elif t in ("conductor", "roughconductor"):
+        elif t == "conductor":
             spec = np.array(p.color("specular_reflectance", 1.0)) * self._conductor_albedo(p)
-            if t == "conductor":
-                m = Material(kr=tuple(spec), one_sided=True)
-            else:
-                m = Material(ks=tuple(spec), shininess=phong_exponent(self._alpha(p)), one_sided=True)
-                p.string("distribution")
+            m = Material(kr=tuple(spec), one_sided=True)
+        elif t == "roughconductor":
+            # The microfacet lobe itself (kernels/microfacet.h), Fresnel from eta + i k per channel.
+            spec = p.color("specular_reflectance", 1.0)
+            eta, k = self._conductor_ior(p)
+            dist = p.string("distribution", "beckmann")  # Mitsuba 3's default
+            if dist not in DISTRIBUTIONS:
+                p.props["distribution"].fail(f"unknown distribution {dist!r}{_suggest(dist, DISTRIBUTIONS)}; "
+                                             f"known: {', '.join(DISTRIBUTIONS)}")
+            p.boolean("sample_visible", True)  # either way the same expectation; clpt samples visible normals
+            m = Material(km=tuple(spec), alpha=min(self._alpha(p), ALPHA_RANGE[1]), distribution=dist,
+                         eta=eta, k=k, one_sided=True)
         elif t in ("dielectric", "roughdielectric", "thindielectric"):
             eta = p.ior("int_ior", "bk7") / p.ior("ext_ior", "air")
             refl = np.array(p.color("specular_reflectance", 1.0))
@@ -824,6 +842,21 @@ class _Loader:
             a = p.float("alpha", 0.1, lo=0.0)
         return max(a, 1e-4)
 
+    def _conductor_ior(self, p: _Props) -> tuple:
+        """(eta, k) RGB of a conductor: `eta`/`k` given, else the named `material`."""
+        if p.has("eta") or p.has("k"):
+            eta = tuple(p.color("eta", 0.0, bounded=False))
+            k = tuple(p.color("k", 1.0, bounded=False))
+            p.string("material")
+            if min(eta) < 0 or min(k) < 0:
+                p.node.fail(f"eta and k must not be negative (got eta {eta}, k {k})")
+            return eta, k
+        name = p.string("material", "none")
+        try:
+            return conductor_ior(name)
+        except SceneError as e:
+            p.props["material"].fail(str(e))
+
     def _conductor_albedo(self, p: _Props) -> np.ndarray:
         if p.has("eta") or p.has("k"):
             eta = np.array(p.color("eta", 0.0, bounded=False))
@@ -859,6 +892,8 @@ class _Loader:
                 continue
             emission = ep.color("radiance", emitter=True)
             ep.finish()
+        if emission is not None and not bsdfs:
+            mat = Material(one_sided=True)  # Mitsuba 3 gives an emitter without a BSDF a black diffuse one
         flip = p.boolean("flip_normals", False)
         name = node.attrs.get("id") or f"{t} at {node.where()}"
         kw = dict(material=mat, emission=emission, two_sided=False, name=name)

@@ -45,7 +45,12 @@ class Material:
     kd: diffuse albedo; ks and shininess: modified-Phong specular lobe
     (f = ks (n+2)/(2 pi) cos^n alpha); kr: perfect mirror; kt and ior:
     refraction through a dielectric interface with exact Fresnel. Absorption
-    is what remains, 1 - (kd + ks + kr + kt), which must not be negative.
+    is what remains, 1 - (kd + ks + km + kr + kt), which must not be negative.
+    km, alpha, distribution, eta and k: a rough conductor's microfacet lobe
+    as Mitsuba 3's `roughconductor` defines it (f = km F D G / (4 cos_o
+    cos_i)): roughness alpha, distribution "beckmann" (Mitsuba's default) or "ggx",
+    conductor Fresnel of the complex index eta + i k per channel (eta 0, k 1:
+    F = 1); `Material.rough_conductor` fills them from a named conductor.
     emission is radiance leaving the surface (on the side its normal points
     to, or both sides if two_sided). one_sided makes the surface black from
     behind (the side its normal points away from): no reflection, no
@@ -61,15 +66,23 @@ class Material:
     emission: Vec3 = (0.0, 0.0, 0.0)
     two_sided: bool = False
     one_sided: bool = False
+    km: Vec3 = (0.0, 0.0, 0.0)
+    alpha: float = 0.1
+    distribution: str = "beckmann"
+    eta: Vec3 = (0.0, 0.0, 0.0)
+    k: Vec3 = (1.0, 1.0, 1.0)
 
     def __post_init__(self):
         # Types now (a clear TypeError at the mistake); ranges in check_material.
-        for key in ("kd", "ks", "kr", "kt", "emission"):
+        for key in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k"):
             v = getattr(self, key)
             if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 3 or \
                     not all(_is_number(c) for c in v):
                 raise TypeError(f"Material.{key} must be 3 numbers, e.g. (0.5, 0.5, 0.5) (got {v!r})")
-        for key in ("shininess", "ior"):
+        if not isinstance(self.distribution, str):
+            raise TypeError(f"Material.distribution must be a string, one of {', '.join(DISTRIBUTIONS)} "
+                            f"(got {self.distribution!r})")
+        for key in ("shininess", "ior", "alpha"):
             if not _is_number(getattr(self, key)):
                 raise TypeError(f"Material.{key} must be a number (got {getattr(self, key)!r})")
         if not isinstance(self.two_sided, (bool, np.bool_)):
@@ -81,6 +94,18 @@ class Material:
         if name not in PRESETS:
             raise SceneError(f"unknown material preset {name!r}{_suggest(name, PRESETS)}")
         return cls(**{**PRESETS[name], **overrides})
+
+    @classmethod
+    def rough_conductor(cls, material: str = "none", alpha: float = 0.1, distribution: str = "beckmann",
+                        specular_reflectance: Vec3 = (1.0, 1.0, 1.0), **overrides) -> "Material":
+        """A rough conductor (Mitsuba 3's `roughconductor`, one-sided): a named
+        conductor's eta and k as Mitsuba's RGB variants use them (`clpt
+        check` on an XML scene lists the names; "none": F = 1)."""
+        from .mitsuba import conductor_ior
+        eta, k = conductor_ior(material)
+        base = dict(km=tuple(float(c) for c in specular_reflectance), alpha=alpha, distribution=distribution,
+                    eta=eta, k=k, one_sided=True)
+        return cls(**{**base, **overrides})
 
     @property
     def is_emissive(self) -> bool:
@@ -511,6 +536,8 @@ def _emission(source, path, v):
 FLOAT_MAX = float(np.finfo(np.float32).max)
 LENGTH_RANGE = 2.0 ** 60
 MAX_SHININESS = 1e30
+DISTRIBUTIONS = ("ggx", "beckmann")
+ALPHA_RANGE = (1e-4, 10.0)  # float resolves the half vector to ~1e-7 rad: alpha below 1e-4 is a mirror
 IOR_RANGE = (1e-6, 1e6)
 
 
@@ -583,8 +610,16 @@ def _length_in_range(source, path, size, extent):
 
 def check_material(source, path, m: Material):
     total = np.zeros(3)
-    for key in ("kd", "ks", "kr", "kt"):
+    for key in ("kd", "ks", "km", "kr", "kt"):
         total += _finite_vec(source, f"{path}.{key}", getattr(m, key), nonneg=True)
+    if max(m.km) > 0:
+        _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
+                hi_open=False)
+        if m.distribution not in DISTRIBUTIONS:
+            _fail(source, f"{path}.distribution", f"must be one of {', '.join(DISTRIBUTIONS)} "
+                                                   f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
+        _finite_vec(source, f"{path}.eta", m.eta, nonneg=True)
+        _finite_vec(source, f"{path}.k", m.k, nonneg=True)
     _emission(source, f"{path}.emission", m.emission)
     _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False, hi=MAX_SHININESS, hi_open=False)
     _finite(source, f"{path}.ior", m.ior, lo=IOR_RANGE[0], lo_open=False, hi=IOR_RANGE[1], hi_open=False)
@@ -592,7 +627,7 @@ def check_material(source, path, m: Material):
         _fail(source, f"{path}.two_sided", f"must be True or False (got {m.two_sided!r})")
     if (total > 1.0 + 1e-6).any():
         c = "rgb"[int(np.argmax(total))]
-        _fail(source, path, f"not energy conserving: kd + ks + kr + kt = {total.max():.6g} > 1 "
+        _fail(source, path, f"not energy conserving: kd + ks + km + kr + kt = {total.max():.6g} > 1 "
                             f"in the {c} channel (absorption would be negative)")
 
 
@@ -772,7 +807,8 @@ def _tname(v):
             dict: "table"}.get(type(v), type(v).__name__)
 
 
-_MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided", "one_sided"}
+_MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided", "one_sided",
+                  "km", "alpha", "distribution", "eta", "k"}
 _COMMON_SHAPE_KEYS = {"type", "material", "emission", "two_sided", "name"}
 _SHAPE_KEYS = {
     "sphere": {"center", "radius"},
@@ -794,12 +830,14 @@ def _read_material(r: _Reader, d, path) -> Material:
             r.fail(f"{path}.preset", f"unknown preset {name!r}{_suggest(name, PRESETS)}; "
                                      f"presets: {', '.join(PRESETS)}")
         base = dict(PRESETS[name])
-    for k in ("kd", "ks", "kr", "kt", "emission"):
+    for k in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k"):
         if k in d:
             base[k] = r.vec3(d[k], f"{path}.{k}")
-    for k in ("shininess", "ior"):
+    for k in ("shininess", "ior", "alpha"):
         if k in d:
             base[k] = r.number(d[k], f"{path}.{k}")
+    if "distribution" in d:
+        base["distribution"] = r.string(d["distribution"], f"{path}.distribution")
     for k in ("two_sided", "one_sided"):
         if k in d:
             base[k] = r.boolean(d[k], f"{path}.{k}")
