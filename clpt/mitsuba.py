@@ -15,7 +15,6 @@ include cycles, undefined ids or parameters), e.g.::
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import warnings
@@ -30,7 +29,7 @@ from .scene import (ALPHA_RANGE, DISTRIBUTIONS, Camera, Material, Mesh, Quad, Re
 from .errors import ImageError
 from .image import load_image
 from .meshio import read_mesh, transform_mesh, vertex_normals
-from .spectrum import constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb_checked
+from .spectrum import conductor_ior, ior_data as _ior_data, constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb_checked
 
 
 # Mitsuba counts path segments (1: emitters only); clpt counts scattering events.
@@ -268,20 +267,6 @@ def _apply(m: np.ndarray, p) -> np.ndarray:
 # --- the loader ----------------------------------------------------------------------------
 
 
-def _load_json(name):
-    return json.loads((Path(__file__).resolve().parent / "data" / name).read_text())
-
-
-_IOR_DATA = None
-
-
-def _ior_data():
-    global _IOR_DATA
-    if _IOR_DATA is None:
-        _IOR_DATA = _load_json("mitsuba_ior.json")
-    return _IOR_DATA
-
-
 def fresnel_dielectric(cos_i: float, eta: float) -> float:
     """Unpolarized Fresnel reflectance for light arriving at cos_i from the side
     where the relative index (transmitted over incident) is eta."""
@@ -323,17 +308,6 @@ def conductor_albedo(eta, k) -> tuple:
     mu = (np.arange(2048) + 0.5) / 2048
     return tuple(float(2.0 * np.mean(fresnel_conductor(mu, e, kk) * mu))
                  for e, kk in zip(np.broadcast_to(eta, 3), np.broadcast_to(k, 3)))
-
-
-def conductor_ior(name: str) -> tuple:
-    """(eta, k), RGB tuples, of a conductor Mitsuba 3 names ("none": eta 0,
-    k 1, a perfect mirror)."""
-    if name == "none":
-        return (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)
-    table = _ior_data()["conductor"]
-    if name not in table:
-        raise SceneError(f"unknown conductor {name!r}{_suggest(name, table)}; known: none, {', '.join(table)}")
-    return tuple(float(x) for x in table[name]["eta"]), tuple(float(x) for x in table[name]["k"])
 
 
 def phong_exponent(alpha: float) -> float:

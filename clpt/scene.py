@@ -29,6 +29,7 @@ from .errors import MeshError, SceneError, SceneWarning, SettingsError  # noqa: 
 from .hostio import open_regular_file
 from .meshio import check_mesh, compose, cross_rows, norm_rows, read_mesh, transform_mesh
 from .presets import PRESETS
+from .spectrum import conductor_ior
 
 Vec3 = tuple[float, float, float]
 
@@ -101,7 +102,6 @@ class Material:
         """A rough conductor (Mitsuba 3's `roughconductor`, one-sided): a named
         conductor's eta and k as Mitsuba's RGB variants use them (`clpt
         check` on an XML scene lists the names; "none": F = 1)."""
-        from .mitsuba import conductor_ior
         eta, k = conductor_ior(material)
         base = dict(km=tuple(float(c) for c in specular_reflectance), alpha=alpha, distribution=distribution,
                     eta=eta, k=k, one_sided=True)
