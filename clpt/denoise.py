@@ -44,6 +44,8 @@ class FilterSettings:
     sigma_luminance: float = 5.0  # value differences, in standard errors of the pixel's noise
     guide_floor: float = 0.3     # least guide weight of a tap (edge pixels, whose guides are mixtures)
     firefly_k: float = 3.0       # clamp pixels above all 8 neighbours by this many standard errors; 0: off
+    confirm_k: float = 2.0       # a bright value the pixel's own samples confirm to this many standard errors
+                                 # is kept (lamps seen directly or in mirrors and glass; the clamp's exemption)
     keep_caustics: bool = True   # add the photon map's caustics back unfiltered
     interval: int = 0            # filter the preview every N passes (0: only the final image)
 
@@ -63,6 +65,8 @@ class FilterSettings:
                 raise SettingsError(f"filter: {k} must be > 0")
         if not self.firefly_k >= 0:
             raise SettingsError("filter: firefly_k must be >= 0")
+        if not self.confirm_k >= 0:
+            raise SettingsError("filter: confirm_k must be >= 0")
         return self
 
     def passes(self, width: int, height: int) -> int:
@@ -166,7 +170,8 @@ class ConeFilter:
         if settings.firefly_k > 0:
             gsize = -(-(w * h) // LOCAL_SIZE) * LOCAL_SIZE
             events.append(("filter_firefly", self.firefly(q, (gsize,), (LOCAL_SIZE,), c[0], *dims,
-                                                          np.float32(settings.firefly_k), c[1])))
+                                                          np.float32(settings.firefly_k),
+                                                          np.float32(settings.confirm_k), c[1])))
             src = 1
         items = h * lay.pitch // 8
         gsize = -(-items // LOCAL_SIZE) * LOCAL_SIZE
@@ -189,8 +194,10 @@ def _lum(a):
     return wr * a[..., 0] + wg * a[..., 1] + wb * a[..., 2]
 
 
-def reference_firefly(c, v, k):
-    """numpy twin of filter_firefly: (colour, variance) after the clamp."""
+def reference_firefly(c, v, k, k_confirm=None):
+    """numpy twin of filter_firefly: (colour, variance) after the clamp
+    (k_confirm: the pixel's own standard errors that exempt it; k if None)."""
+    k_confirm = k if k_confirm is None else k_confirm
     h, w = v.shape
     lp = _lum(c)
     pad_l = np.pad(lp, 1, constant_values=-np.inf)
@@ -207,7 +214,7 @@ def reference_firefly(c, v, k):
     count = np.isfinite(vs).sum(0)
     vmed = np.take_along_axis(vs, (count // 2)[None], 0)[0]
     bound = lmax + k * np.sqrt(vmed)
-    clip = (count > 1) & (lp > bound)
+    clip = (count > 1) & (lp > bound) & (lp - k_confirm * np.sqrt(v) <= bound)
     s = np.where(clip, np.maximum(bound, 0) / np.where(clip, lp, 1), 1.0)
     return (c * s[..., None]).astype(np.float32), np.where(clip, vmed, v).astype(np.float32)
 
@@ -221,7 +228,7 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
     c = irr.astype(np.float32)
     v = v.astype(np.float32)
     if settings.firefly_k > 0:
-        c, v = reference_firefly(c, v, settings.firefly_k)
+        c, v = reference_firefly(c, v, settings.firefly_k, settings.confirm_k)
     has = (normal * normal).sum(-1) > 0
     flag = np.zeros((h, w), bool) if emitter is None else emitter > 0.5
     ys, xs = np.mgrid[0:h, 0:w]
@@ -266,14 +273,33 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
     return (c * alb).astype(np.float32)
 
 
+def kept_emission(aux, count, k: float):
+    """The emission the denoisers leave out and add back (H x W x 3): a
+    pixel's emission seen directly or through mirrors and glass, where the
+    share f of its n samples that see an emitter so is confirmed: its
+    relative standard error, sqrt((1 - f) / (f n)), at most 1 / k (f n >=
+    k^2 (1 - f)). Elsewhere (a lamp reached by one sample in sixteen, through
+    the edge of a glass ball) the emission is noise and is filtered with the
+    rest. k = 0 keeps all of it out."""
+    emission = aux["emission"]
+    if not k > 0:
+        return emission
+    f = np.clip(aux["emitter"], 0.0, 1.0)
+    confirmed = f * np.maximum(count, 1.0) >= k * k * (1.0 - f)
+    return np.where(confirmed[..., None], emission, 0.0).astype(np.float32)
+
+
 def apply_denoiser(cone, image, lum_var, count, aux, settings):
     """The denoised image (H x W x 3) of a render: image, its per-sample
     luminance variance and sample counts (H x W), the feature images (aux,
     with "caustic" and "caustic_var"), settings a FilterSettings (cone, on
     `cone`, a ConeFilter) or an OidnSettings."""
-    # Emission seen directly is not noise to smooth: both denoisers leave it
-    # out (next to a lamp, OIDN would otherwise spread it into a halo).
-    keep = aux["emission"]
+    # Emission seen directly, or through mirrors and glass, is not noise to
+    # smooth where the pixel's samples confirm it: both denoisers leave it out
+    # (next to a lamp, OIDN would otherwise spread it into a halo; the cone
+    # filter would average a lamp's reflection with the dark mirror around it).
+    k = settings.confirm_k if isinstance(settings, FilterSettings) else FilterSettings.confirm_k
+    keep = kept_emission(aux, count, k)
     if isinstance(settings, OidnSettings):
         return keep + oidn_denoise(image - keep, aux["albedo"], aux["normal"], settings)
     # Nor are the photon map's caustics, for the cone filter: a density
