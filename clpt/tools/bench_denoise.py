@@ -117,7 +117,7 @@ def regions(scene, width, height, ref, *, device=None, spp=64) -> dict:
             caustic = cl >= 0.25 * cl.max()
     lum = np.asarray(ref) @ LUMA
     refl = spec_all & (through["emission"] @ LUMA >= 0.5 * lum) & (lum > 0)
-    res = {"diffuse": diffuse & ~(caustic if caustic is not None else False), **out}
+    res = {"diffuse": diffuse if caustic is None else diffuse & ~caustic, **out}
     if caustic is not None:
         res["caustic"] = caustic
     if refl.any():
