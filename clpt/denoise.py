@@ -5,14 +5,19 @@ Both are fed from the renderer's feature buffers (render.py, CLPT_AUX):
 per pixel the normal, albedo and depth of the first surface seen (mirrors
 and glass as surfaces of albedo kr + kt; or, with aux_specular="through",
 the first non-delta vertex seen through them, their throughput folded into
-its albedo), a flag for pixels that see an emitter (whose albedo is then the
-emitter's own colour), the emission seen directly, and the photon map's
-caustic part. Both leave the directly seen emission out and add it back.
+its albedo), the share of samples that see an emitter directly or through
+mirrors and glass (where it is most, the pixel is flagged; an emitter that is
+the feature vertex gives its own colour as albedo), the emission seen so, and
+the photon map's caustic part. Both leave that emission out and add it back
+where the pixel's samples confirm it (`kept_emission`: a lamp, its
+reflections and refractions; not a lamp that one sample in sixteen met
+through the edge of a glass ball, which is noise and is filtered).
 
 The cone filter also leaves out the caustics (already a density estimate;
 filtering them again spreads them). The rest is divided by the albedo
 (demodulated), its fireflies are clamped (filter.cl: a pixel brighter than
-all 8 neighbours by more than `firefly_k` standard errors), and `iterations`
+all 8 neighbours by more than `firefly_k` standard errors, unless its own
+samples confirm it to `confirm_k` of its own standard errors), and `iterations`
 a-trous passes of a cone kernel of `width` pixels (steps 1, 2, 4, ...)
 smooth it where normals, depths, albedos, emitter flags and values (beyond
 the pixel's noise) agree. A numpy twin (`reference_cone_filter`) is there for the tests.
@@ -278,15 +283,23 @@ def kept_emission(aux, count, k: float):
     pixel's emission seen directly or through mirrors and glass, where the
     share f of its n samples that see an emitter so is confirmed: its
     relative standard error, sqrt((1 - f) / (f n)), at most 1 / k (f n >=
-    k^2 (1 - f)). Elsewhere (a lamp reached by one sample in sixteen, through
-    the edge of a glass ball) the emission is noise and is filtered with the
-    rest. k = 0 keeps all of it out."""
+    k^2 (1 - f)), or in one of its 8 neighbours (the edge of a lamp's image,
+    or of its reflection's). Elsewhere (a lamp reached by one sample in
+    sixteen, through the edge of a glass ball) the emission is noise and is
+    filtered with the rest. k = 0 keeps all of it out."""
     emission = aux["emission"]
     if not k > 0:
         return emission
     f = np.clip(aux["emitter"], 0.0, 1.0)
-    confirmed = f * np.maximum(count, 1.0) >= k * k * (1.0 - f)
-    return np.where(confirmed[..., None], emission, 0.0).astype(np.float32)
+    confirmed = (f > 0) & (f * np.maximum(count, 1.0) >= k * k * (1.0 - f))
+    # The edge of a confirmed image (a lamp's, or its reflection's) is kept too.
+    pad = np.pad(confirmed, 1)
+    h, w = confirmed.shape
+    near = np.zeros_like(confirmed)
+    for dy in range(3):
+        for dx in range(3):
+            near |= pad[dy:dy + h, dx:dx + w]
+    return np.where(near[..., None], emission, 0.0).astype(np.float32)
 
 
 def apply_denoiser(cone, image, lum_var, count, aux, settings):

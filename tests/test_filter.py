@@ -283,15 +283,18 @@ def test_a_lamp_seen_in_a_mirror_is_kept_out_in_both_modes(device_spec, mode):
 def test_kept_emission_needs_the_pixels_samples_to_confirm_it():
     """Emission is kept out of the filtering where the share f of a pixel's n
     samples that see it has a relative standard error under 1 / k (f n >=
-    k^2 (1 - f)): at n = 16 and k = 2, four hits and more, not three."""
+    k^2 (1 - f)): at n = 16 and k = 2, four hits and more, not three; and
+    at the edge of such a pixel (a lamp's image, or its reflection's)."""
     from clpt.denoise import kept_emission
-    f = np.array([[0.0, 1 / 16, 3 / 16, 4 / 16, 1.0]], np.float32)
+    f = np.zeros((16, 16), np.float32)
+    f[2, 2], f[2, 8], f[8, 2], f[8, 8], f[8, 9] = 1 / 16, 3 / 16, 4 / 16, 1.0, 1 / 16
     aux = {"emission": np.repeat(f[..., None], 3, -1) * 10, "emitter": f}
     n = np.full(f.shape, 16.0)
-    kept = kept_emission(aux, n, 2.0)[..., 0]
-    assert np.array_equal(kept > 0, [[False, False, False, True, True]])
+    kept = kept_emission(aux, n, 2.0)[..., 0] > 0
+    assert np.argwhere(kept).tolist() == [[8, 2], [8, 8], [8, 9]]  # isolated hits are noise; (8, 9) is an edge
     assert np.array_equal(kept_emission(aux, n, 0.0), aux["emission"])   # k = 0: all of it
-    assert (kept_emission(aux, np.full(f.shape, 64.0), 2.0)[..., 0] > 0).tolist() == [[False, True, True, True, True]]  # 4 hits of 64
+    kept64 = kept_emission(aux, np.full(f.shape, 64.0), 2.0)[..., 0] > 0
+    assert kept64[2, 2] and kept64[2, 8]  # 4 and 12 hits of 64
 
 
 def test_firefly_clamp_spares_what_the_pixels_own_samples_confirm():
