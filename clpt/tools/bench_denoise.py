@@ -84,7 +84,7 @@ def regions(scene, width, height, ref, *, device=None, spp=64) -> dict:
     """Boolean masks (H x W) of the image's parts that denoisers treat
     differently, for per-region errors: "diffuse" (pixels at least half of
     whose camera rays first hit a non-specular, non-emitting shape, minus the
-    caustic), one per mirror or glass shape ("glass ball", "mirror ball" or
+    caustic; a pixel belongs to the shape most of its rays hit), one per mirror or glass shape ("glass ball", "mirror ball" or
     the shape's name: pixels mostly on it), "caustic" (where the photon
     map's part over 256 samples, averaged over 3x3 pixels, is at least a
     quarter of its peak), "lamp reflections" (pixels on mirrors and glass
@@ -96,11 +96,13 @@ def regions(scene, width, height, ref, *, device=None, spp=64) -> dict:
     out = {}
     diffuse = np.zeros((height, width), bool)
     spec_all = np.zeros((height, width), bool)
-    for i, shp in enumerate(sc.shapes):
+    shapes = [i for i, shp in enumerate(sc.shapes) if not sc.surface(shp).is_emissive]
+    covs = np.stack([shape_coverage(sc, i, width, height, spp=spp, device=device) for i in shapes])
+    best = np.argmax(covs, axis=0)
+    for j, i in enumerate(shapes):
+        shp = sc.shapes[i]
         m = sc.surface(shp)
-        if m.is_emissive:
-            continue
-        cov = shape_coverage(sc, i, width, height, spp=spp, device=device) >= 0.5
+        cov = (best == j) & (covs[j] >= 0.5)  # each pixel in one shape's region at most
         if m.is_specular:
             kind = "glass" if max(m.kt) > 0 else "mirror"
             name = f"{kind} ball" if type(shp).__name__ == "Sphere" else (shp.name or f"{kind} {i}")
