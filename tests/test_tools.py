@@ -132,3 +132,25 @@ def test_reference_renders_saves_and_reads_back(tmp_path, device_spec):
     assert np.array_equal(again, ref) and again.noise == pytest.approx(noise, rel=1e-6)
     with pytest.raises(SettingsError, match=r"is 12x8, not 8x8$"):
         reference_image("cornell_box", 8, 8, 16, path, device_spec)
+
+
+@pytest.mark.slow  # a dozen kernel builds (one per marked shape): about 40 s on 2 busy cores
+def test_denoise_bench_regions_find_the_balls_the_caustic_and_the_lamps_reflections(device_spec):
+    """bench-denoise's regions of cornell_box_caustics: each ball where it is
+    (the mirror ball left of the glass ball, both in the lower half), no
+    pixel in two of diffuse / glass / mirror, the caustic on the floor and
+    the lamp's reflections on the balls; a reference measured against itself
+    has no error and all its energy."""
+    from clpt.tools.bench_denoise import region_errors, regions
+    ref = clpt.render("cornell_box_caustics", spp=32, width=32, height=32, max_depth=16, seed=3,
+                      device=device_spec, photons=False)
+    m = regions("cornell_box_caustics", 32, 32, ref, device=device_spec, spp=8)
+    assert {"diffuse", "glass ball", "mirror ball", "caustic", "brightest 1%"} <= set(m)
+    glass, mirror = (np.argwhere(m[k]) for k in ("glass ball", "mirror ball"))
+    assert mirror[:, 1].mean() < glass[:, 1].mean() and min(glass[:, 0].min(), mirror[:, 0].min()) >= 16
+    assert not (m["diffuse"] & (m["glass ball"] | m["mirror ball"])).any() and not (m["glass ball"] & m["mirror ball"]).any()
+    assert not (m["caustic"] & m["diffuse"]).any() and np.argwhere(m["caustic"])[:, 0].min() >= 16
+    if "lamp reflections" in m:
+        assert not (m["lamp reflections"] & ~(m["glass ball"] | m["mirror ball"])).any()
+    for k, e in region_errors(ref, ref, m).items():
+        assert e["relmse"] == 0 and e["energy"] == pytest.approx(1.0), k

@@ -19,6 +19,8 @@ def add_parser(sub):
     common.ref_dir(p)
     p.add_argument("--time-size", type=int, default=512, help="image size of the timing (0: no timing)")
     p.add_argument("--image", default=None, help="write raw | cone | OIDN | reference of the caustics box here")
+    p.add_argument("--crops", default=None, help="write crops (raw | cone | OIDN | reference) around the mirror and "
+                                                 "glass objects here: a path with {scene} and {spp}")
     common.device(p)
     common.json(p)
     p.set_defaults(func=run)

@@ -450,7 +450,8 @@ class FilterPass:
         if settings.firefly_k > 0:
             gsize = -(-(w * h) // local) * local
             self.counters.launched("filter_firefly", self.firefly(q, (gsize,), (local,), c[0], *dims,
-                                                                  np.float32(settings.firefly_k), c[1]))
+                                                                  np.float32(settings.firefly_k),
+                                                                  np.float32(settings.confirm_k), c[1]))
             src = 1
         items = h * lay.pitch // 8
         gsize = -(-items // local) * local
