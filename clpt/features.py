@@ -58,6 +58,8 @@ class Features:
     triangle_lights: bool = True
     sphere_lights: bool = True
     mesh_lights: bool = True
+    point_lights: bool = True
+    spot_lights: bool = True
     bvh: bool = True           # the scene's primitives are in a BVH
     bvh_walk: str = "hybrid"   # BVH traversal (Experimental): "hybrid" (packets for coherent rays) or "lane"
     smooth: bool = True        # some triangles have vertex normals
@@ -83,6 +85,8 @@ class Features:
             "CLPT_HAS_TRIANGLE_LIGHTS": int(self.triangle_lights),
             "CLPT_HAS_SPHERE_LIGHTS": int(self.sphere_lights),
             "CLPT_HAS_MESH_LIGHTS": int(self.mesh_lights),
+            "CLPT_HAS_POINT_LIGHTS": int(self.point_lights),
+            "CLPT_HAS_SPOT_LIGHTS": int(self.spot_lights),
             "CLPT_HAS_BVH": int(self.bvh),
             "CLPT_BVH_PACKETS": int(self.bvh_walk == "hybrid"),
             "CLPT_HAS_SMOOTH": int(self.smooth),
@@ -134,6 +138,8 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         triangle_lights="triangle" in packed.light_kinds,
         sphere_lights="sphere" in packed.light_kinds,
         mesh_lights="mesh" in packed.light_kinds,
+        point_lights="point" in packed.light_kinds,
+        spot_lights="spot" in packed.light_kinds,
         bvh=packed.count("nodes") > 0,
         smooth=packed.smooth,
         bvh_walk=bvh_walk,

@@ -183,7 +183,8 @@ PLANE = Rows("plane", "PLANE", _r4("point_mat", "n"), "plane: point.xyz, materia
 LIGHT = Rows("light", "LIGHT", _r4("p_kind", "u", "v", "n", "info"),
              "light: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, alias | area, pick probability, alias "
              "probability, material; a mesh light: 0, 0, 0, kind | first triangle record, triangles, 0, 0 | ... | "
-             "0, 0, 0, alias | info. Slot j of the lights' alias table (by power) keeps light j with its alias "
+             "0, 0, 0, alias | info; a point or spot light: p.xyz, kind | axis.xyz, cos cutoff | cutoff, "
+             "1 / (cutoff - beam width), cos beam width, 0 | 0, 0, 0, alias | 1, ... (Le: the intensity). Slot j of the lights' alias table (by power) keeps light j with its alias "
              "probability, else gives light alias")
 CAUSTIC = Rows("caustic caster", "CAUSTIC", _r4("sphere"), "caustic caster: bounding sphere center.xyz, radius")
 # Wide BVH nodes (clpt/bvh.py WIDTH = 8 children): rows of 8 reals, read as
@@ -205,6 +206,11 @@ LIGHT_TRI = Rows("mesh-light triangle", "LTRI", _r4("p_alias", "u_prob", "v"),
 
 # Light kinds in LIGHT.p_kind.w.
 KIND_QUAD, KIND_TRIANGLE, KIND_SPHERE, KIND_MESH = 0, 1, 2, 3
+# Delta lights (no surface: sampled by next event estimation only, never hit):
+# p.xyz, kind | spot axis.xyz, cos cutoff | cutoff angle, 1 / (cutoff - beam width) (0: none), cos beam
+# width, 0 | 0, 0, 0, alias | 1, pick probability, alias probability, material (Le = the intensity).
+# A point light's u and v rows are 0, 0, 0, -2 | 0, 0, -2, 0: every direction inside the full beam.
+KIND_POINT, KIND_SPOT = 4, 5
 # Primitive kinds in PLANAR.wv_kind.w (a smooth triangle has its normals' record index there instead).
 ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE = -1, -2, -3
 ITEM_EMPTY = -4  # an empty slot of a BVH leaf block
@@ -253,6 +259,7 @@ def c_source() -> str:
     parts += [r.c_source() for r in scene_records() + launch_records()]
     parts += [f"#define KIND_QUAD {KIND_QUAD}", f"#define KIND_TRIANGLE {KIND_TRIANGLE}",
               f"#define KIND_SPHERE {KIND_SPHERE}", f"#define KIND_MESH {KIND_MESH}",
+              f"#define KIND_POINT {KIND_POINT}", f"#define KIND_SPOT {KIND_SPOT}",
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
               f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define ITEM_EMPTY {ITEM_EMPTY}",
               f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}"]

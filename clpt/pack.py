@@ -24,10 +24,10 @@ import numpy as np
 
 from . import bvh as bvh_mod
 from . import layout
-from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_QUAD, KIND_SPHERE,
-                     KIND_TRIANGLE, Rows)
+from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_POINT, KIND_QUAD,
+                     KIND_SPHERE, KIND_SPOT, KIND_TRIANGLE, Rows)
 from .meshio import cross_rows
-from .scene import Camera, Material, Scene, SceneError, Sphere, length_scale
+from .scene import Camera, Material, Scene, SceneError, Sphere, SpotLight, length_scale
 
 # Records are referred to as layout.NAME where they are filled (a test reorders their fields).
 MAT_STRIDE = layout.MATERIAL.stride
@@ -54,7 +54,7 @@ class PackedScene:
     records: np.ndarray          # (n, 4) float64; cast to the kernel's real type on upload
     counts: tuple                # materials, spheres, quads, triangles, planes, lights, caustic objects
     materials: tuple             # the distinct surfaces, in material-id order
-    light_kinds: frozenset       # {"quad", "triangle", "sphere"}
+    light_kinds: frozenset       # {"quad", "triangle", "sphere", "mesh", "point", "spot"}
     extent: float                # diagonal of the scene's bounds, camera included
     size: float                  # diagonal of the geometry's bounds: the unit of relative photon radii
     max_flux: float              # total emitted power (pi * area * max Le * sides), for photon sum scales
@@ -218,6 +218,7 @@ class _Builder:
         self.normals = []   # (PLANAR records of smooth triangles, their (M, 3, 3) vertex normals)
         self.planes = []    # (point, unit normal, material id, prim id)
         self.lights = []    # (sides, area, material, LIGHT fields {name: row}, material id, LIGHT_TRI records or None)
+        self.delta_power = {}  # light index -> power of a point or spot light (area lights: pi area Le sides)
         self.n_prims = 0    # every primitive, planes included, has an id
         self.n_bounded = 0
         self.bounds = []    # (lo, hi) blocks of the bounded primitives, in prim order
@@ -254,6 +255,22 @@ class _Builder:
         if light and m.is_emissive:
             self.lights.append((_sides(m), area, m, {"p_kind": (*c, kind), "u": (*u, 0.0), "v": (*v, 0.0),
                                                      "n": (*n[0], 0.0)}, mid, None))
+
+    def delta_light(self, p, mat):
+        """A point or spot light: no primitive, a LIGHT record of area 1 (its
+        pdf_area is its pick probability) whose material's Le is the intensity."""
+        mid, m = mat
+        pos = tuple(float(x) for x in p.position)
+        if isinstance(p, SpotLight):
+            d = np.asarray(p.direction, dtype=np.float64)
+            d = d / np.linalg.norm(d)
+            cut, beam = math.radians(p.cutoff_angle), math.radians(p.beam)
+            fields = {"p_kind": (*pos, KIND_SPOT), "u": (*d, math.cos(cut)),
+                      "v": (cut, 1.0 / (cut - beam) if cut > beam else 0.0, math.cos(beam), 0.0)}
+        else:
+            fields = {"p_kind": (*pos, KIND_POINT), "u": (0.0, 0.0, 0.0, -2.0), "v": (0.0, 0.0, -2.0, 0.0)}
+        self.delta_power[len(self.lights)] = p.power()
+        self.lights.append((1.0, 1.0, m, fields, mid, None))
 
     def plane(self, p, mat):
         mid, _ = mat
@@ -345,9 +362,11 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
         rec["point_mat"] = (*point, mid)
         rec["n"] = (*n, prim)
 
-    # Pick lights in proportion to their power: pi * area * mean(Le) per side.
+    # Pick lights in proportion to their power: pi * area * mean(Le) per side;
+    # a point or spot light's: its intensity's mean times its beam's solid angle.
     lights = b.lights
-    powers = np.array([sides * math.pi * area * float(np.mean(m.emission)) for sides, area, m, *_ in lights])
+    powers = np.array([b.delta_power[k] if k in b.delta_power else sides * math.pi * area * float(np.mean(m.emission))
+                       for k, (sides, area, m, *_) in enumerate(lights)])
     probs = powers / powers.sum()
     # Walker's alias table over them: light j's record keeps slot j's
     # probability (info.z) and its alias (n.w), for an O(1) pick.
@@ -443,9 +462,10 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     n_nodes = wide.n_nodes if use_bvh else 0
     counts = (n_mat, len(sphere_plain), len(quads), len(tris), len(planes), len(lights), len(caustics), n_nodes)
     kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere",
-             LIGHT_KIND_MESH: "mesh"}
+             LIGHT_KIND_MESH: "mesh", KIND_POINT: "point", KIND_SPOT: "spot"}
     lo, hi = scene.bounds(camera=False)
-    flux = sum(sides * math.pi * area * max(m.emission) for sides, area, m, *_ in lights)
+    flux = sum(b.delta_power[k] / max(float(np.mean(m.emission)), 1e-300) * max(m.emission) if k in b.delta_power
+               else sides * math.pi * area * max(m.emission) for k, (sides, area, m, *_) in enumerate(lights))
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
                        light_kinds=frozenset(kinds[int(f["p_kind"][3])] for _, _, _, f, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,

@@ -417,7 +417,98 @@ class Mesh(_ShapeBase):
                 f"{f', name={self.name!r}' if self.name else ''})")
 
 
-Shape = Union[Sphere, Triangle, Quad, Plane, Box, Mesh]
+@dataclass(frozen=True)
+class PointLight(_ShapeBase):
+    """A point light (Mitsuba 3's ``point``): radiant intensity ``intensity``
+    (W/sr per channel) from ``position`` into every direction. A delta light:
+    found by next event estimation only (irradiance I cos / d^2 at distance
+    d), never by a BSDF-sampled ray, and a source of caustic photons. It has
+    no surface: ``material``, ``emission`` and ``two_sided`` do not apply."""
+
+    position: Vec3 = (0.0, 0.0, 0.0)
+    intensity: Vec3 = (1.0, 1.0, 1.0)
+
+    bounded = True
+    delta = True
+
+    def check(self, src, path):
+        _finite_vec(src, f"{path}.position", self.position)
+        _emission(src, f"{path}.intensity", self.intensity)
+        if self.emission is not None or self.two_sided is not None:
+            _fail(src, path, "a point or spot light has an intensity, not emission or two_sided")
+
+    def area(self):
+        return 0.0
+
+    def points(self):
+        return np.array([self.position], dtype=np.float64)
+
+    def solid_angle(self) -> float:
+        """The integral of the intensity profile over the sphere of directions (4 pi)."""
+        return 4 * math.pi
+
+    def power(self) -> float:
+        """Emitted power per channel, averaged over the channels."""
+        return self.solid_angle() * float(np.mean(self.intensity))
+
+    def light_material(self) -> "Material":
+        return Material(emission=tuple(float(c) for c in self.intensity))
+
+    def pack(self, b, mat):
+        b.delta_light(self, mat)
+
+
+@dataclass(frozen=True)
+class SpotLight(PointLight):
+    """A spot light (Mitsuba 3's ``spot``): intensity ``intensity`` along
+    ``direction`` from ``position``, full up to ``beam_width`` degrees off the
+    axis, falling linearly in angle to zero at ``cutoff_angle`` degrees (by
+    default 20, and a beam width of 3/4 of the cutoff), as Mitsuba's
+    ``falloff_curve``: 1 for theta <= beam, (cutoff - theta) / (cutoff - beam)
+    between, 0 from the cutoff on."""
+
+    direction: Vec3 = (0.0, 0.0, 1.0)
+    cutoff_angle: float = 20.0
+    beam_width: float | None = None
+
+    @property
+    def beam(self) -> float:
+        return 0.75 * float(self.cutoff_angle) if self.beam_width is None else float(self.beam_width)
+
+    def check(self, src, path):
+        super().check(src, path)
+        d = _finite_vec(src, f"{path}.direction", self.direction)
+        if not np.linalg.norm(d) > 0:
+            _fail(src, f"{path}.direction", "must not be zero")
+        _finite(src, f"{path}.cutoff_angle", self.cutoff_angle, lo=0.0, hi=90.0, hi_open=False)
+        if self.beam_width is not None:
+            _finite(src, f"{path}.beam_width", self.beam_width, lo=0.0, lo_open=False, hi=self.cutoff_angle,
+                    hi_open=False)
+
+    def falloff(self, cos_theta):
+        """Mitsuba 3's spot falloff at the cosine of the angle from the axis."""
+        c = np.asarray(cos_theta, dtype=np.float64)
+        cut, beam = math.radians(self.cutoff_angle), math.radians(self.beam)
+        inv = 1.0 / (cut - beam) if cut > beam else 0.0
+        mid = (cut - np.arccos(np.clip(c, -1.0, 1.0))) * inv
+        return np.where(c > math.cos(cut), np.where(c >= math.cos(beam), 1.0, mid), 0.0)
+
+    def solid_angle(self) -> float:
+        """The falloff integrated over directions: 2 pi (1 - (sin g - sin b) / (g - b)) for cutoff g, beam b
+        (2 pi (1 - cos g) when they are equal)."""
+        g, b = math.radians(self.cutoff_angle), math.radians(self.beam)
+        if g - b < 1e-9:
+            return 2 * math.pi * (1 - math.cos(g))
+        return 2 * math.pi * (1 - (math.sin(g) - math.sin(b)) / (g - b))
+
+    def pack(self, b, mat):
+        b.delta_light(self, mat)
+
+
+LIGHT_TYPES = (PointLight, SpotLight)
+
+
+Shape = Union[Sphere, Triangle, Quad, Plane, Box, Mesh, PointLight, SpotLight]
 SHAPE_TYPES = {"sphere": Sphere, "triangle": Triangle, "quad": Quad, "plane": Plane, "box": Box, "mesh": Mesh}
 
 
@@ -442,7 +533,10 @@ class Scene:
         raise SceneError(f"unknown material {ref!r}{_suggest(ref, list(self.materials) + list(PRESETS))}")
 
     def surface(self, shape) -> Material:
-        """The shape's material with the shape's emission overrides applied."""
+        """The shape's material with the shape's emission overrides applied
+        (a point or spot light: a material whose emission is its intensity)."""
+        if isinstance(shape, LIGHT_TYPES):
+            return shape.light_material()
         m = self.resolve_material(shape.material)
         if shape.emission is not None:
             m = replace(m, emission=tuple(float(c) for c in shape.emission))
@@ -495,6 +589,8 @@ class Scene:
                 sh = replace(sh, center=pts(sh.center), size=pts(sh.size))
             elif isinstance(sh, Mesh):
                 sh = replace(sh, vertices=np.asarray(sh.vertices, dtype=np.float64) * k)
+            elif isinstance(sh, LIGHT_TYPES):  # irradiance I / d^2: the intensity scales with the area
+                sh = replace(sh, position=pts(sh.position), intensity=tuple(float(c) * k * k for c in sh.intensity))
             else:
                 raise SceneError(f"{self.source}: cannot rescale a {type(sh).__name__} shape")
             shapes.append(sh)
@@ -667,7 +763,7 @@ def check_scene(scene: Scene):
     sizes = []  # (key path, length) of every shape's smallest size
     for i, s in enumerate(scene.shapes):
         path = _shape_path(i, s)
-        if not isinstance(s, tuple(SHAPE_TYPES.values())):
+        if not isinstance(s, tuple(SHAPE_TYPES.values()) + LIGHT_TYPES):
             _fail(src, path, f"is not a shape (got {type(s).__name__})")
         try:
             m = scene.surface(s)
@@ -703,7 +799,9 @@ def check_scene(scene: Scene):
         if emissive and not s.can_emit:
             _fail(src, f"{path}.emission", f"an infinite {type(s).__name__.lower()} cannot be a light; use a quad")
         area = s.area()
-        if emissive:
+        if isinstance(s, LIGHT_TYPES):
+            power += s.power()
+        elif emissive:
             power += area * float(np.mean(m.emission))
     extent = scene.extent()
     lo, hi = scene.bounds()
@@ -719,7 +817,7 @@ def check_scene(scene: Scene):
         _fail(src, "shapes", "the lights' total power overflows; lower their emission or size")
     if power <= 0.0:
         _fail(src, "shapes", "the scene has no light: give at least one shape (quad, triangle, sphere, "
-                             "box or mesh) a positive emission")
+                             "box or mesh) a positive emission, or add a point or spot light")
 
 
 def _planar_area(src, path, u, v, what):

@@ -11,6 +11,13 @@
 // the cone it subtends instead (pdf_sa = 1 / (2 pi (1 - cos_max))), unless x
 // is on or inside it; every other pdf is turned from area to solid angle.
 // Emission leaves the side the normal points to, or both sides if two_sided.
+// Point and spot lights (CLPT_HAS_DELTA_LIGHTS) are delta lights: picked by
+// power like the others, then their one point, at pdf_area = the pick
+// probability (area 1); seen from x, pdf = d^2 times it, so that Le cos / pdf
+// = I cos / d^2 / pick with Le the intensity times the spot's falloff towards
+// x, and delta is set: no BSDF sample finds them, so their sample's MIS
+// weight is 1. For photon emission n is the spot's axis (0 for a point) and
+// the falloff of the direction chosen is delta_falloff's.
 // A new light kind is a case of light_point (and of light_pdf_hit, and of
 // the light records' packing in clpt/pack.py).
 
@@ -26,7 +33,23 @@ typedef struct {
     vreal dist;       // distance from x to p
     vreal pdf;        // solid-angle pdf of wi, times the pick probability
     vmask valid;      // a usable sample (its emitting side faces x, 0 < pdf < inf)
+#if CLPT_HAS_DELTA_LIGHTS
+    vmask delta;      // a point or spot light (a delta light)
+    vreal cos_cut, cut, inv_tr, cos_beam;  // the spot's falloff (a point light's: -2, 0, 0, -2, 1 everywhere)
+#endif
 } LightSample;
+
+#if CLPT_HAS_DELTA_LIGHTS
+// Mitsuba 3's spot falloff towards unit direction w (from the light), axis
+// the spot's (ignored by a point light, whose cosines are -2): 1 within the
+// beam width, (cutoff - theta) / (cutoff - beam) between, 0 from the cutoff on.
+inline vreal delta_falloff(V3 axis, vreal cos_cut, vreal cut, vreal inv_tr, vreal cos_beam, V3 w)
+{
+    vreal c = v3_dot(w, axis);
+    vreal mid = (cut - acos(fmin(fmax(c, (vreal)R(-1)), (vreal)R(1)))) * inv_tr;
+    return VSEL((vreal)R(0), VSEL(mid, (vreal)R(1), c >= cos_beam), c > cos_cut);
+}
+#endif
 
 // The light each lane picks, by power, in O(1): Walker's alias table (the
 // host's pack.alias_table), slot j kept with probability info.z of light j
@@ -159,6 +182,10 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, LightSa
     ls.p = ls.n = ls.Le = ls.wi = v3_zero();
     ls.dist = ls.pdf = ls.pdf_area = ls.err = (vreal)R(0);
     ls.two_sided = ls.valid = ls.pdf != ls.pdf;
+#if CLPT_HAS_DELTA_LIGHTS
+    ls.delta = ls.valid;
+    ls.cos_cut = ls.cut = ls.inv_tr = ls.cos_beam = (vreal)R(0);
+#endif
     vreal li = light_pick_index(sc, u.pick);
     uint i, r;
     vmask pick;
@@ -166,6 +193,38 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, LightSa
         real4 info = scene_rec(sc, r + LIGHT_INFO);  // area, pick probability, alias probability, material
         int kind = (int)scene_rec(sc, r + LIGHT_P_KIND).w;
         real4 m = scene_rec(sc, MAT_STRIDE * (uint)info.w + MAT_LE_SIDES);  // Le.rgb, two_sided
+#if CLPT_HAS_DELTA_LIGHTS
+        if (kind == LIGHT_KIND_POINT || kind == LIGHT_KIND_SPOT) {
+            real4 p = scene_rec(sc, r + LIGHT_P_KIND);
+            real4 a = scene_rec(sc, r + LIGHT_U), b = scene_rec(sc, r + LIGHT_V);  // axis, cos cutoff | cutoff, ...
+            V3 y = v3_splat(p), axis = v3((vreal)a.x, (vreal)a.y, (vreal)a.z);
+            ls.delta = ls.delta || pick;
+            ls.cos_cut = VSEL(ls.cos_cut, (vreal)a.w, pick);
+            ls.cut = VSEL(ls.cut, (vreal)b.x, pick);
+            ls.inv_tr = VSEL(ls.inv_tr, (vreal)b.y, pick);
+            ls.cos_beam = VSEL(ls.cos_beam, (vreal)b.z, pick);
+            ls.p = v3_sel(ls.p, y, pick);
+            ls.n = v3_sel(ls.n, axis, pick);
+            ls.err = VSEL(ls.err, (vreal)max_abs4(p), pick);
+            ls.pdf_area = VSEL(ls.pdf_area, (vreal)info.y, pick);
+            if (!at_x) {
+                ls.Le = v3_sel(ls.Le, v3_splat(m), pick);
+                continue;
+            }
+            V3 w = v3_sub(y, x);
+            vreal d2 = v3_dot(w, w);
+            vreal dist = sqrt(d2);
+            V3 wi = v3_scale(w, R(1) / dist);
+            vreal fall = delta_falloff(axis, (vreal)a.w, (vreal)b.x, (vreal)b.y, (vreal)b.z, v3_neg(wi));
+            vreal pdf = d2 * info.y;
+            ls.Le = v3_sel(ls.Le, v3_scale(v3_splat(m), fall), pick);
+            ls.wi = v3_sel(ls.wi, wi, pick);
+            ls.dist = VSEL(ls.dist, dist, pick);
+            ls.pdf = VSEL(ls.pdf, pdf, pick);
+            ls.valid = ls.valid || (pick && fall > R(0) && pdf > R(0) && pdf < R(INFINITY));
+            continue;
+        }
+#endif
         V3 y, n;
         vreal err;
         light_point(sc, r, kind, pick, u, &y, &n, &err);

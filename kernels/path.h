@@ -211,6 +211,9 @@ inline uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, v
         return 0;
     V3 f = bsdf_eval(&v->m, ps->d, v->n, ls.wi);
     vreal w = mis_power(ls.pdf, bsdf_pdf(&v->m, v->pr, ps->d, v->n, ls.wi));
+#if CLPT_HAS_DELTA_LIGHTS
+    w = VSEL(w, (vreal)R(1), ls.delta);  // no BSDF sample finds a point or spot light
+#endif
     V3 c = v3_mul(v3_mul(ps->beta, f), v3_scale(ls.Le, w * cos_x / ls.pdf));
     // The shadow ray runs from the offset origin to the light point itself:
     // aimed along wi from there instead, it would cut into a sphere light

@@ -38,6 +38,9 @@ inline vreal caster_cone(real4 obj, V3 y, V3 n, vmask two_sided, uint aim_mode, 
     vreal s = vsafe_sqrt(R(1) - c * c);
     vreal cos_max = R(1) - *omc, sin_max = vsafe_sqrt(*omc * (R(2) - *omc));
     vreal best = VSEL(c * cos_max + s * sin_max, (vreal)R(1), full || c >= cos_max);
+#if CLPT_HAS_DELTA_LIGHTS
+    best = VSEL(best, (vreal)R(1), v3_dot(n, n) == R(0));  // a point light: every direction alike
+#endif
     return R(2 * M_PI) * *omc * fmax(best, R(0));
 }
 

@@ -44,6 +44,13 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
     light_sample(sc, v3_zero(), ue.light, 0, &lp);
     AimSample aim = aim_at_casters(sc, lp.p, lp.n, lp.two_sided, L.aim, ue.caster, ue.u1, ue.u2);
     vreal cos_y = v3_dot(aim.w, lp.n);
+#if CLPT_HAS_DELTA_LIGHTS
+    // A point or spot light has no surface: no cosine, and the spot's falloff
+    // in the direction taken scales its intensity.
+    cos_y = VSEL(cos_y, (vreal)R(1), lp.delta);
+    lp.Le = v3_sel(lp.Le, v3_scale(lp.Le, delta_falloff(lp.n, lp.cos_cut, lp.cut, lp.inv_tr, lp.cos_beam, aim.w)),
+                   lp.delta);
+#endif
     vmask emits = cos_y > R(0) || (lp.two_sided && cos_y < R(0));
     live = live && aim.valid && emits && lp.pdf_area > R(0);
     // pf = p_area p_dir / |cos|, the light-side pdf factor of the photon's
@@ -52,6 +59,14 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
     vreal k = R(1) / (pf * (real)L.n_emit);
     V3 flux = v3_scale(lp.Le, VSEL((vreal)R(0), k, live));
     V3 o = offset_origin(sc, lp.p, v3_sel(v3_neg(lp.n), lp.n, cos_y > R(0)), lp.err);
+#if CLPT_HAS_DELTA_LIGHTS
+    // Path tracing cannot end a path on a delta light: a merge of its
+    // photons takes the whole weight (pf = inf: the merge's pdf over the
+    // BSDF's is infinite, path.h and photon_grid.h), and the photon leaves
+    // the point itself.
+    o = v3_sel(o, lp.p, lp.delta);
+    pf = VSEL(pf, (vreal)R(INFINITY), lp.delta);
+#endif
     V3 d = aim.w;
 
     // --- through specular surfaces to the first diffuse one ----------------------
