@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .scene import (ALPHA_RANGE, DISTRIBUTIONS, Camera, Material, Mesh, Quad, RenderSettings, Scene, SceneError,
-                    SceneWarning, Sphere, _suggest, read_file_bytes)
+from .scene import (ALPHA_RANGE, DISTRIBUTIONS, Camera, Material, Mesh, PointLight, Quad, RenderSettings, Scene,
+                    SceneError, SceneWarning, Sphere, SpotLight, _suggest, read_file_bytes)
 from .errors import ImageError
 from .image import load_image
 from .meshio import read_mesh, transform_mesh, vertex_normals
@@ -1155,9 +1155,7 @@ class _Loader:
                 if "id" in n.attrs:
                     materials[n.attrs["id"]] = m
             elif n.tag == "emitter":
-                t = n.attrs.get("type", "")
-                self.warn(n, f"emitter '{t}' is not supported (only area emitters on shapes); left out",
-                          key=("emitter", t))
+                self.emitter(n, shapes)
             elif n.tag in ("texture", "alias", "ref"):
                 pass  # used where referenced
             elif n.tag in ("medium", "phase", "volume"):
@@ -1182,6 +1180,38 @@ class _Loader:
         except SceneError as e:
             raise SceneError(f"{e} (after import from Mitsuba XML)") from None
         return scene
+
+    def emitter(self, node: _Node, shapes: list):
+        """A top-level emitter: point and spot lights; other kinds are left out with a warning."""
+        p = self.props(node)
+        t = p.type
+        if t not in ("point", "spot"):
+            self.warn(node, f"emitter '{t}' is not supported (only area emitters on shapes, point and spot); "
+                            "left out", key=("emitter", t))
+            return
+        intensity = p.color("intensity", 1.0, emitter=True)
+        if t == "point":
+            if p.has("position") and p.has("to_world"):
+                node.fail("give either position or to_world, not both")
+            pos = p.point("position", (0.0, 0.0, 0.0)) if p.has("position") else p.transform("to_world")[:3, 3]
+            shapes.append(PointLight(position=tuple(float(x) for x in pos), intensity=intensity))
+        else:
+            if p.has("texture") or any(nm == "texture" for nm, _ in p.objects):
+                node.fail("a spot light's texture is not supported")
+            m = p.transform("to_world")
+            d = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
+            if not np.linalg.norm(d) > 0:
+                node.fail("to_world is singular")
+            cutoff = p.float("cutoff_angle", 20.0)
+            beam = p.float("beam_width", 0.75 * cutoff)
+            if not 0 < cutoff <= 90:
+                node.fail(f"cutoff_angle must be in (0, 90] degrees (got {cutoff:g})")
+            if not 0 <= beam <= cutoff:
+                node.fail(f"beam_width must be in [0, cutoff_angle = {cutoff:g}] degrees (got {beam:g})")
+            shapes.append(SpotLight(position=tuple(float(x) for x in m[:3, 3]), intensity=intensity,
+                                    direction=tuple(float(x) for x in d / np.linalg.norm(d)),
+                                    cutoff_angle=float(cutoff), beam_width=float(beam)))
+        p.finish()
 
     def top_shape(self, n: _Node, shapes: list, to_world=None):
         t = n.attrs.get("type", "")
