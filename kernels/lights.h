@@ -170,6 +170,45 @@ CLPT_INLINE void light_point(const Scene *sc, uint r, int kind, vmask pick, Ligh
     *err = (vreal)(max_abs4(p) + max_abs4(eu) + max_abs4(ev));
 }
 
+#if CLPT_HAS_DELTA_LIGHTS
+// light_sample's point or spot light (records at r; info and m its LIGHT_INFO
+// and material's Le row) for the lanes in pick, into *ls: its one point, the
+// falloff's parameters, pdf_area = the pick probability; at x, the direction
+// to it, pdf = d^2 times the pick probability and Le = the intensity times
+// the falloff towards x.
+CLPT_INLINE void delta_light_sample(const Scene *sc, uint r, real4 info, real4 m, vmask pick, V3 x, int at_x,
+                                    LightSample *ls)
+{
+    real4 p = scene_rec(sc, r + LIGHT_P_KIND);
+    real4 a = scene_rec(sc, r + LIGHT_U), b = scene_rec(sc, r + LIGHT_V);  // axis, cos cutoff | cutoff, ...
+    V3 y = v3_splat(p), axis = v3((vreal)a.x, (vreal)a.y, (vreal)a.z);
+    ls->delta = ls->delta || pick;
+    ls->cos_cut = VSEL(ls->cos_cut, (vreal)a.w, pick);
+    ls->cut = VSEL(ls->cut, (vreal)b.x, pick);
+    ls->inv_tr = VSEL(ls->inv_tr, (vreal)b.y, pick);
+    ls->cos_beam = VSEL(ls->cos_beam, (vreal)b.z, pick);
+    ls->p = v3_sel(ls->p, y, pick);
+    ls->n = v3_sel(ls->n, axis, pick);
+    ls->err = VSEL(ls->err, (vreal)max_abs4(p), pick);
+    ls->pdf_area = VSEL(ls->pdf_area, (vreal)info.y, pick);
+    if (!at_x) {
+        ls->Le = v3_sel(ls->Le, v3_splat(m), pick);
+        return;
+    }
+    V3 w = v3_sub(y, x);
+    vreal d2 = v3_dot(w, w);
+    vreal dist = sqrt(d2);
+    V3 wi = v3_scale(w, R(1) / dist);
+    vreal fall = delta_falloff(axis, (vreal)a.w, (vreal)b.x, (vreal)b.y, (vreal)b.z, v3_neg(wi));
+    vreal pdf = d2 * info.y;
+    ls->Le = v3_sel(ls->Le, v3_scale(v3_splat(m), fall), pick);
+    ls->wi = v3_sel(ls->wi, wi, pick);
+    ls->dist = VSEL(ls->dist, dist, pick);
+    ls->pdf = VSEL(ls->pdf, pdf, pick);
+    ls->valid = ls->valid || (pick && fall > R(0) && pdf > R(0) && pdf < R(INFINITY));
+}
+#endif
+
 // A light picked by power and a point on it, into *out. With at_x (a
 // constant where this is inlined), as seen from the shading point x, for
 // next event estimation: wi, dist, the solid-angle pdf and validity are
@@ -195,33 +234,7 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, LightSa
         real4 m = scene_rec(sc, MAT_STRIDE * (uint)info.w + MAT_LE_SIDES);  // Le.rgb, two_sided
 #if CLPT_HAS_DELTA_LIGHTS
         if (kind == LIGHT_KIND_POINT || kind == LIGHT_KIND_SPOT) {
-            real4 p = scene_rec(sc, r + LIGHT_P_KIND);
-            real4 a = scene_rec(sc, r + LIGHT_U), b = scene_rec(sc, r + LIGHT_V);  // axis, cos cutoff | cutoff, ...
-            V3 y = v3_splat(p), axis = v3((vreal)a.x, (vreal)a.y, (vreal)a.z);
-            ls.delta = ls.delta || pick;
-            ls.cos_cut = VSEL(ls.cos_cut, (vreal)a.w, pick);
-            ls.cut = VSEL(ls.cut, (vreal)b.x, pick);
-            ls.inv_tr = VSEL(ls.inv_tr, (vreal)b.y, pick);
-            ls.cos_beam = VSEL(ls.cos_beam, (vreal)b.z, pick);
-            ls.p = v3_sel(ls.p, y, pick);
-            ls.n = v3_sel(ls.n, axis, pick);
-            ls.err = VSEL(ls.err, (vreal)max_abs4(p), pick);
-            ls.pdf_area = VSEL(ls.pdf_area, (vreal)info.y, pick);
-            if (!at_x) {
-                ls.Le = v3_sel(ls.Le, v3_splat(m), pick);
-                continue;
-            }
-            V3 w = v3_sub(y, x);
-            vreal d2 = v3_dot(w, w);
-            vreal dist = sqrt(d2);
-            V3 wi = v3_scale(w, R(1) / dist);
-            vreal fall = delta_falloff(axis, (vreal)a.w, (vreal)b.x, (vreal)b.y, (vreal)b.z, v3_neg(wi));
-            vreal pdf = d2 * info.y;
-            ls.Le = v3_sel(ls.Le, v3_scale(v3_splat(m), fall), pick);
-            ls.wi = v3_sel(ls.wi, wi, pick);
-            ls.dist = VSEL(ls.dist, dist, pick);
-            ls.pdf = VSEL(ls.pdf, pdf, pick);
-            ls.valid = ls.valid || (pick && fall > R(0) && pdf > R(0) && pdf < R(INFINITY));
+            delta_light_sample(sc, r, info, m, pick, x, at_x, &ls);
             continue;
         }
 #endif
