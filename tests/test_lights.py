@@ -302,3 +302,30 @@ def test_spot_box_renders_as_in_mitsuba(device_spec):
     z = (lum - np.array(ref["block_luminance"])) / np.sqrt(var + np.array(ref["block_luminance_var"]))
     assert mean_err < 0.005, f"image mean off by {mean_err:.2%}"
     assert np.abs(z).max() < 4, f"a block is {np.abs(z).max():.1f} sigma off"
+
+
+def test_spot_light_photons_carry_its_falloff(device_spec):
+    """A spot straight above the ball with the ball well inside its beam casts
+    the point light's caustic (falloff 1 for every photon that reaches it); tilted
+    so the ball lies beyond its cutoff (falloff 0) it casts none, while its beam
+    still lights the floor beside the ball."""
+    size, spp = 24, 64
+    ph = PhotonSettings(count=20000, spp_per_map=8, pilot=False)
+    region = _caustic_region(size)
+    inten = (POWER / (4 * math.pi),) * 3
+    half = math.degrees(math.asin(R_GLASS / (H_LIGHT - H_GLASS)))  # the ball's half-angle seen from the light
+
+    def caustic(light, seed):
+        res = clpt.Renderer(_caustic_scene(light, size), device=device_spec).render(spp, seed=seed, max_depth=6,
+                                                                                    photons=ph)
+        return res, float((res.image @ LUMINANCE)[region].mean())
+
+    _, e_point = caustic(PointLight(position=(0, 0, H_LIGHT), intensity=inten), 1)
+    _, e_in = caustic(SpotLight(position=(0, 0, H_LIGHT), intensity=inten, direction=(0, 0, -1),
+                                cutoff_angle=half + 10, beam_width=half + 5), 1)
+    tilt = math.radians(half + 25)
+    off, e_off = caustic(SpotLight(position=(0, 0, H_LIGHT), intensity=inten,
+                                   direction=(math.sin(tilt), 0, -math.cos(tilt)), cutoff_angle=15, beam_width=10),
+                         1)
+    assert abs(e_in / e_point - 1) < 0.1, (e_in, e_point)
+    assert e_off < 0.01 * e_point and (off.image @ LUMINANCE).max() > 0, (e_off, e_point)
