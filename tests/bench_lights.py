@@ -1,6 +1,6 @@
 """Point and spot lights, measured (the figures in README, "Point and spot lights").
 
-    python tests/bench_lights.py [--device intel] [--size 48] [--times 5,20] [--ref-spp 2048]
+    python tests/bench_lights.py [--device intel] [--size 48] [--times 5,20] [--ref-spp 262144]
         [--mitsuba-python /path/to/python-with-mitsuba]
 
 1. Equal time, a point light through a glass ball (tests/test_lights.py's
@@ -76,7 +76,7 @@ def equal_time(device, size, times, ref_spp):
         b = pt_r.render(1 << 20, seed=1, max_depth=8, time_limit=T)
         whole = np.ones(region.shape, bool)
         row = {"seconds": T, "photons_spp": float(a.sample_count.mean()), "pt_spp": float(b.sample_count.mean()),
-               "photons_choice": getattr(a.stats, "photon_choice", None),
+               "photons_choice": (a.stats.photon_pilot or {}).get("choice"),
                "caustic_relmse_photons": relmse(a.image, ref, region), "caustic_relmse_pt": relmse(b.image, ref, region),
                "image_relmse_photons": relmse(a.image, ref, whole), "image_relmse_pt": relmse(b.image, ref, whole)}
         row["caustic_ratio"] = row["caustic_relmse_pt"] / row["caustic_relmse_photons"]
@@ -114,7 +114,7 @@ def main():
     ap.add_argument("--device", default=None)
     ap.add_argument("--size", type=int, default=48)
     ap.add_argument("--times", default="5,20")
-    ap.add_argument("--ref-spp", type=int, default=2048)
+    ap.add_argument("--ref-spp", type=int, default=262144)
     ap.add_argument("--mitsuba-python", default=None)
     ap.add_argument("--skip-equal-time", action="store_true")
     a = ap.parse_args()
