@@ -55,6 +55,7 @@ class Features:
     mirror: bool = True
     glass: bool = True
     microfacet: bool = True    # the rough conductor's microfacet lobe
+    plastic: bool = True       # Mitsuba's plastic and roughplastic (a coated diffuse base)
     triangle_lights: bool = True
     sphere_lights: bool = True
     mesh_lights: bool = True
@@ -80,6 +81,7 @@ class Features:
             "CLPT_HAS_MIRROR": int(self.mirror),
             "CLPT_HAS_GLASS": int(self.glass),
             "CLPT_HAS_MICROFACET": int(self.microfacet),
+            "CLPT_HAS_PLASTIC": int(self.plastic),
             "CLPT_HAS_TRIANGLE_LIGHTS": int(self.triangle_lights),
             "CLPT_HAS_SPHERE_LIGHTS": int(self.sphere_lights),
             "CLPT_HAS_MESH_LIGHTS": int(self.mesh_lights),
@@ -131,6 +133,7 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         mirror=packed.has_mirror,
         glass=packed.has_glass,
         microfacet=packed.has_microfacet,
+        plastic=packed.has_plastic,
         triangle_lights="triangle" in packed.light_kinds,
         sphere_lights="sphere" in packed.light_kinds,
         mesh_lights="mesh" in packed.light_kinds,

@@ -168,10 +168,13 @@ def _r4(*names):
 
 
 MATERIAL = Rows("material", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_sides", "params", "km_pm",
-                                      "eta_alpha", "k_dist"),
+                                      "eta_alpha", "k_dist", "kp_pp", "kps_w", "coat", "coat_tab"),
                 "material: kd.rgb, p_diffuse | ks.rgb, p_phong | kr.rgb, p_mirror | kt.rgb, p_refract | "
                 "Le.rgb, two_sided | shininess, ior, nondelta, one_sided | km.rgb, p_microfacet | "
-                "eta.rgb, alpha | k.rgb, distribution (0 GGX, 1 Beckmann)")
+                "eta.rgb, alpha | k.rgb, distribution (0 GGX, 1 Beckmann) | plastic (a coated diffuse base): "
+                "diffuse_reflectance.rgb, p_plastic | specular_reflectance.rgb, specular sampling weight | "
+                "eta, internal reflectance, alpha (0: smooth), distribution | record index of its "
+                "transmittance table (COAT_TABLE_ROWS rows after the triangles' records), nonlinear, 0, 0")
 SPHERE = Rows("sphere", "SPHERE", _r4("center_radius", "mat"),
               "sphere: center.xyz, radius | material, light + 1 (0: not a light), prim id, 0")
 PLANAR = Rows("planar", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "wv_kind"),
@@ -202,6 +205,9 @@ BVH_LEAF = Rows("BVH leaf block", "BVHL", _r4("px", "py", "pz", "nx", "ny", "nz"
 NORMALS = Rows("vertex normals", "NORMALS", _r4("n0", "n1", "n2"), "vertex normals of a smooth triangle")
 LIGHT_TRI = Rows("mesh-light triangle", "LTRI", _r4("p_alias", "u_prob", "v"),
                  "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
+
+# A rough plastic's transmittance table: clpt/coating.py TABLE_RES reals, COAT_TABLE_ROWS rows of 4.
+COAT_TABLE_ROWS = 16
 
 # Light kinds in LIGHT.p_kind.w.
 KIND_QUAD, KIND_TRIANGLE, KIND_SPHERE, KIND_MESH = 0, 1, 2, 3
@@ -255,5 +261,5 @@ def c_source() -> str:
               f"#define KIND_SPHERE {KIND_SPHERE}", f"#define KIND_MESH {KIND_MESH}",
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
               f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define ITEM_EMPTY {ITEM_EMPTY}",
-              f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}"]
+              f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}", f"#define COAT_TABLE_ROWS {COAT_TABLE_ROWS}"]
     return "\n".join(parts) + "\n"

@@ -52,6 +52,12 @@ class Material:
     cos_i)): roughness alpha, distribution "beckmann" (Mitsuba's default) or "ggx",
     conductor Fresnel of the complex index eta + i k per channel (eta 0, k 1:
     F = 1); `Material.rough_conductor` fills them from a named conductor.
+    plastic, kp, kps, plastic_eta, nonlinear (with alpha and distribution):
+    Mitsuba 3's `roughplastic` (alpha > 0) or smooth `plastic` (alpha 0), a
+    dielectric coating of relative index plastic_eta (inside over outside)
+    with specular_reflectance kps over a diffuse base of diffuse_reflectance
+    kp, with its internal scattering (clpt/coating.py); the material's only
+    lobe (`Material.rough_plastic`, `Material.smooth_plastic`).
     emission is radiance leaving the surface (on the side its normal points
     to, or both sides if two_sided). one_sided makes the surface black from
     behind (the side its normal points away from): no reflection, no
@@ -72,10 +78,15 @@ class Material:
     distribution: str = "beckmann"
     eta: Vec3 = (0.0, 0.0, 0.0)
     k: Vec3 = (1.0, 1.0, 1.0)
+    plastic: bool = False
+    kp: Vec3 = (0.5, 0.5, 0.5)
+    kps: Vec3 = (1.0, 1.0, 1.0)
+    plastic_eta: float = 1.49 / 1.000277
+    nonlinear: bool = False
 
     def __post_init__(self):
         # Types now (a clear TypeError at the mistake); ranges in check_material.
-        for key in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k"):
+        for key in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k", "kp", "kps"):
             v = getattr(self, key)
             if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 3 or \
                     not all(_is_number(c) for c in v):
@@ -83,11 +94,12 @@ class Material:
         if not isinstance(self.distribution, str):
             raise TypeError(f"Material.distribution must be a string, one of {', '.join(DISTRIBUTIONS)} "
                             f"(got {self.distribution!r})")
-        for key in ("shininess", "ior", "alpha"):
+        for key in ("shininess", "ior", "alpha", "plastic_eta"):
             if not _is_number(getattr(self, key)):
                 raise TypeError(f"Material.{key} must be a number (got {getattr(self, key)!r})")
-        if not isinstance(self.two_sided, (bool, np.bool_)):
-            raise TypeError(f"Material.two_sided must be True or False (got {self.two_sided!r})")
+        for key in ("two_sided", "plastic", "nonlinear"):
+            if not isinstance(getattr(self, key), (bool, np.bool_)):
+                raise TypeError(f"Material.{key} must be True or False (got {getattr(self, key)!r})")
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "Material":
@@ -106,6 +118,27 @@ class Material:
         base = dict(km=tuple(float(c) for c in specular_reflectance), alpha=alpha, distribution=distribution,
                     eta=eta, k=k, one_sided=True)
         return cls(**{**base, **overrides})
+
+    @classmethod
+    def rough_plastic(cls, diffuse_reflectance: Vec3 = (0.5, 0.5, 0.5), alpha: float = 0.1,
+                      distribution: str = "beckmann", int_ior: float = 1.49, ext_ior: float = 1.000277,
+                      specular_reflectance: Vec3 = (1.0, 1.0, 1.0), nonlinear: bool = False,
+                      **overrides) -> "Material":
+        """Mitsuba 3's `roughplastic` (one-sided; its defaults: Beckmann,
+        alpha 0.1, polypropylene in air). alpha=0 is the smooth `plastic`."""
+        for name, v in (("int_ior", int_ior), ("ext_ior", ext_ior)):
+            if not _is_number(v) or not IOR_RANGE[0] <= v <= IOR_RANGE[1]:
+                raise SceneError(f"rough_plastic: {name} must be a number in [{IOR_RANGE[0]:g}, "
+                                 f"{IOR_RANGE[1]:g}] (got {v!r})")
+        base = dict(plastic=True, kp=tuple(float(c) for c in diffuse_reflectance),
+                    kps=tuple(float(c) for c in specular_reflectance), alpha=alpha, distribution=distribution,
+                    plastic_eta=int_ior / ext_ior, nonlinear=nonlinear, one_sided=True)
+        return cls(**{**base, **overrides})
+
+    @classmethod
+    def smooth_plastic(cls, diffuse_reflectance: Vec3 = (0.5, 0.5, 0.5), **kw) -> "Material":
+        """Mitsuba 3's smooth `plastic` (the keywords of rough_plastic but alpha)."""
+        return cls.rough_plastic(diffuse_reflectance, alpha=0.0, **kw)
 
     @property
     def is_emissive(self) -> bool:
@@ -620,6 +653,24 @@ def check_material(source, path, m: Material):
                                                    f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
         _finite_vec(source, f"{path}.eta", m.eta, nonneg=True)
         _finite_vec(source, f"{path}.k", m.k, nonneg=True)
+    if m.plastic:
+        if total.max() > 0:
+            _fail(source, path, "a plastic is the material's only lobe (kd, ks, km, kr and kt must be 0)")
+        _finite_vec(source, f"{path}.kp", m.kp, nonneg=True)
+        _finite_vec(source, f"{path}.kps", m.kps, nonneg=True)
+        if max(m.kp) > 1 or max(m.kps) > 1:
+            _fail(source, path, f"plastic reflectances must be at most 1 (kp {tuple(m.kp)}, kps {tuple(m.kps)})")
+        if max(m.kp) + max(m.kps) == 0:
+            _fail(source, path, "a plastic needs kp or kps above 0")
+        if m.alpha != 0:
+            _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
+                    hi_open=False)
+        if m.distribution not in DISTRIBUTIONS:
+            _fail(source, f"{path}.distribution", f"must be one of {', '.join(DISTRIBUTIONS)} "
+                                                   f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
+        _finite(source, f"{path}.plastic_eta", m.plastic_eta, lo=1.0 / 1e3, lo_open=False, hi=1e3, hi_open=False)
+        if abs(m.plastic_eta - 1.0) < 1e-6:
+            _fail(source, f"{path}.plastic_eta", "must differ from 1 (a coating of the index around it)")
     _emission(source, f"{path}.emission", m.emission)
     _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False, hi=MAX_SHININESS, hi_open=False)
     _finite(source, f"{path}.ior", m.ior, lo=IOR_RANGE[0], lo_open=False, hi=IOR_RANGE[1], hi_open=False)
