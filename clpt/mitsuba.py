@@ -310,6 +310,27 @@ def conductor_albedo(eta, k) -> tuple:
                  for e, kk in zip(np.broadcast_to(eta, 3), np.broadcast_to(k, 3)))
 
 
+def plastic_approximation(m: Material) -> Material:
+    """A plastic as diffuse + Phong (rough) or diffuse + mirror (smooth)
+    lobes of the energy Mitsuba's reflects, for mixing with the paper's
+    lobes (blendbsdf); other materials as they are."""
+    if not m.plastic:
+        return m
+    eta = m.plastic_eta
+    kd, spec = np.array(m.kp), np.array(m.kps)
+    fdr_ext = fresnel_diffuse_reflectance(eta)
+    fdr_int = fresnel_diffuse_reflectance(1.0 / eta)
+    if m.nonlinear:
+        kd_eff = kd / (1 - kd * fdr_int) * (1 - fdr_ext) ** 2 / (eta * eta)
+    else:
+        kd_eff = kd * (1 - fdr_ext) ** 2 / ((1 - fdr_int) * eta * eta)
+    ks = spec * fdr_ext
+    kd_eff = np.minimum(kd_eff, 1.0 - ks)
+    if m.alpha == 0:
+        return Material(kd=tuple(kd_eff), kr=tuple(ks), one_sided=m.one_sided)
+    return Material(kd=tuple(kd_eff), ks=tuple(ks), shininess=phong_exponent(m.alpha), one_sided=m.one_sided)
+
+
 def phong_exponent(alpha: float) -> float:
     """The modified-Phong exponent (lobe about the mirror direction) nearest a
     Beckmann/GGX lobe of roughness alpha: near its peak the microfacet lobe is
@@ -754,23 +775,26 @@ class _Loader:
                               key=("dielectric_colors",))
                 m = Material(kt=tuple(trans), ior=eta)
         elif t in ("plastic", "roughplastic"):
+            # The coated diffuse lobe itself (kernels/bsdf.h plastic_*, clpt/coating.py).
             eta = p.ior("int_ior", "polypropylene") / p.ior("ext_ior", "air")
-            kd = np.array(p.color("diffuse_reflectance", 0.5))
-            spec = np.array(p.color("specular_reflectance", 1.0))
-            fdr_ext = fresnel_diffuse_reflectance(eta)
-            fdr_int = fresnel_diffuse_reflectance(1.0 / eta)
-            if p.boolean("nonlinear", False):
-                kd_eff = kd / (1 - kd * fdr_int) * (1 - fdr_ext) ** 2 / (eta * eta)
+            kd = p.color("diffuse_reflectance", 0.5)
+            spec = p.color("specular_reflectance", 1.0)
+            nonlinear = p.boolean("nonlinear", False)
+            if abs(eta - 1.0) < 1e-6:
+                node.fail(f"int_ior and ext_ior must differ (got eta {eta:g})")
+            alpha, dist = 0.0, "beckmann"
+            if t == "roughplastic":
+                dist = p.string("distribution", "beckmann")  # Mitsuba 3's default
+                if dist not in DISTRIBUTIONS:
+                    p.props["distribution"].fail(f"unknown distribution {dist!r}{_suggest(dist, DISTRIBUTIONS)}; "
+                                                 f"known: {', '.join(DISTRIBUTIONS)}")
+                alpha = min(self._alpha(p), ALPHA_RANGE[1])
+                p.boolean("sample_visible", True)  # the same expectation either way; clpt samples visible normals
+            if max(kd) + max(spec) == 0:
+                m = Material(one_sided=True)  # black
             else:
-                kd_eff = kd * (1 - fdr_ext) ** 2 / ((1 - fdr_int) * eta * eta)
-            ks = spec * fdr_ext
-            kd_eff = np.minimum(kd_eff, 1.0 - ks)
-            if t == "plastic":
-                m = Material(kd=tuple(kd_eff), kr=tuple(ks), one_sided=True)
-            else:
-                p.string("distribution")
-                m = Material(kd=tuple(kd_eff), ks=tuple(ks), shininess=phong_exponent(self._alpha(p)),
-                             one_sided=True)
+                m = Material(plastic=True, kp=tuple(kd), kps=tuple(spec), alpha=alpha, distribution=dist,
+                             plastic_eta=eta, nonlinear=nonlinear, one_sided=True)
         elif t in ("bumpmap", "normalmap", "mask"):
             inner = p.nested("bsdf")
             if not inner:
@@ -787,6 +811,10 @@ class _Loader:
             if not 0 <= w <= 1:
                 node.fail(f"weight must be in [0, 1] (got {w})")
             a, b = self.bsdf(inner[0]), self.bsdf(inner[1])
+            if a.plastic or b.plastic:
+                self.warn(node, "blending a plastic: its diffuse + Phong approximation is blended",
+                          key=("blend_plastic",))
+                a, b = plastic_approximation(a), plastic_approximation(b)
             if (a.shininess and b.shininess and a.shininess != b.shininess) or (
                     max(a.kt) > 0 and max(b.kt) > 0 and a.ior != b.ior):
                 self.warn(node, "blending lobes of different shininess or ior: the weighted mean is used",

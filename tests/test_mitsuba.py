@@ -15,7 +15,7 @@ import clpt
 from clpt.cli import main
 from clpt.mitsuba import (DISK_SEGMENTS, UNLIMITED_DEPTH, conductor_albedo, fresnel_conductor, fresnel_dielectric,
                           fresnel_diffuse_reflectance, load_mitsuba, look_at_matrix, phong_exponent,
-                          rotation_matrix)
+                          plastic_approximation, rotation_matrix)
 from clpt.scene import Material, Quad, SceneError, SceneWarning, Sphere
 from clpt.spectrum import constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb
 
@@ -252,12 +252,18 @@ def test_bsdf_mappings(tmp_path):
     assert material(s, "water").ior == pytest.approx(1.333)
     t = material(s, "thin")
     assert t.ior == 1.0 and np.allclose(np.add(t.kr, t.kt), 1.0) and 0.08 < t.kr[0] < 0.2
-    p = material(s, "plastic")
-    fdr = fresnel_diffuse_reflectance(1.49 / 1.000277)
-    assert np.allclose(p.kr, fdr) and p.one_sided and p.ks == (0, 0, 0)
-    assert np.allclose(p.kd, np.array([0.8, 0.4, 0.2]) * (1 - fdr), rtol=2e-3)  # reciprocity: (1-Fdr_e)/eta^2 = 1-Fdr_i
+    p = material(s, "plastic")  # Mitsuba's plastic itself (kernels/bsdf.h plastic_*)
+    assert p.plastic and p.alpha == 0 and p.kp == (0.8, 0.4, 0.2) and p.kps == (1, 1, 1) and p.one_sided
+    assert p.plastic_eta == pytest.approx(1.49 / 1.000277) and not p.nonlinear and p.kd == p.kr == (0, 0, 0)
     r = material(s, "rough")
-    assert r.shininess == pytest.approx(49.5) and np.allclose(r.ks, fdr) and r.kr == (0, 0, 0)
+    assert r.plastic and (r.alpha, r.distribution, r.kp) == (0.1, "beckmann", (0.5, 0.5, 0.5))
+    # Its diffuse + Phong approximation (for blendbsdf).
+    fdr = fresnel_diffuse_reflectance(1.49 / 1.000277)
+    pa = plastic_approximation(p)
+    assert np.allclose(pa.kr, fdr) and pa.one_sided and pa.ks == (0, 0, 0)
+    assert np.allclose(pa.kd, np.array([0.8, 0.4, 0.2]) * (1 - fdr), rtol=2e-3)  # reciprocity: (1-Fdr_e)/eta^2 = 1-Fdr_i
+    ra = plastic_approximation(r)
+    assert ra.shininess == pytest.approx(49.5) and np.allclose(ra.ks, fdr) and ra.kr == (0, 0, 0)
     assert material(s, "two") == Material(kr=(1.0, 1.0, 1.0), one_sided=False)
 
 
@@ -538,6 +544,7 @@ def test_mapped_albedos_match_mitsuba(tmp_path, kind, rtol):
              "conductor": '<string name="material" value="Au"/>'}
     body = extra.get(kind.removeprefix("rough"), "")
     m = material(load(tmp_path, f'<shape type="rectangle" id="a"><bsdf type="{kind}">{body}</bsdf></shape>'), "a")
+    m = plastic_approximation(m)  # (plastics are Mitsuba's lobe itself, tests/test_plastic.py; this is for blends)
     diffuse, specular = MITSUBA_ALBEDOS[kind]
     assert np.allclose(m.kd, diffuse, rtol=rtol, atol=1e-9)
     assert np.allclose(np.add(m.ks, m.kr), specular, rtol=rtol)
