@@ -88,7 +88,8 @@ def _slopes(ci, u1, u2, beckmann):
     distribution seen from cos theta = ci (azimuth 0)."""
     if beckmann:
         tan_i = np.sqrt(np.maximum(1 - ci * ci, 0)) / ci
-        cot_i = 1 / tan_i
+        with np.errstate(divide="ignore"):
+            cot_i = 1 / tan_i
         maxval = _erf(cot_i)
         u1 = np.clip(u1, 1e-6, 1 - 1e-6)
         u2 = np.clip(u2, 1e-6, 1 - 1e-6)

@@ -210,3 +210,86 @@ def test_white_furnace(probes, dist, alpha):
     assert (mu_means <= 1.0 + 4 * se).all(), mu_means.max()
     if alpha == 0:
         assert mu_means[-1] > 0.97
+
+
+# --- scene API and loader -------------------------------------------------------------------------
+
+@pytest.mark.parametrize("kw,msg", [
+    ({"alpha": -1.0}, "alpha: must be >= 0.0001"),
+    ({"alpha": 11.0}, "alpha: must be <= 10"),
+    ({"distribution": "phong"}, "distribution: must be one of ggx, beckmann"),
+    ({"kp": (1.2, 0.5, 0.5)}, "plastic reflectances must be at most 1"),
+    ({"kp": (-0.1, 0.5, 0.5)}, "kp"),
+    ({"kp": (0, 0, 0), "kps": (0, 0, 0)}, "needs kp or kps above 0"),
+    ({"plastic_eta": 1.0}, "plastic_eta: must differ from 1"),
+    ({"plastic_eta": math.inf}, "plastic_eta: must be finite"),
+    ({"kd": (0.5, 0.5, 0.5)}, "a plastic is the material's only lobe"),
+])
+def test_bad_plastic_is_one_line_error(kw, msg):
+    m = clpt.Material(**{"plastic": True, **kw})
+    scene = clpt.Scene(shapes=[clpt.Sphere(material=m)])
+    with pytest.raises(clpt.SceneError) as e:
+        clpt.scene.check_scene(scene)
+    assert msg in str(e.value) and "\n" not in str(e.value)
+
+
+def test_plastic_constructors_and_types():
+    m = clpt.Material.rough_plastic((0.2, 0.3, 0.4), alpha=0.2, distribution="ggx", int_ior=1.6, ext_ior=1.1,
+                                    specular_reflectance=(0.5, 0.6, 0.7), nonlinear=True)
+    assert (m.plastic, m.kp, m.kps, m.alpha, m.distribution, m.nonlinear, m.one_sided) == (
+        True, (0.2, 0.3, 0.4), (0.5, 0.6, 0.7), 0.2, "ggx", True, True)
+    assert m.plastic_eta == pytest.approx(1.6 / 1.1)
+    assert clpt.Material.smooth_plastic().alpha == 0 and clpt.Material.smooth_plastic().kp == (0.5, 0.5, 0.5)
+    with pytest.raises(clpt.SceneError, match="int_ior must be a number"):
+        clpt.Material.rough_plastic(int_ior="pvc")
+    with pytest.raises(TypeError, match="Material.nonlinear must be True or False"):
+        clpt.Material(plastic=True, nonlinear="yes")
+    with pytest.raises(TypeError, match="Material.kp must be 3 numbers"):
+        clpt.Material(plastic=True, kp=0.5)
+
+
+def _xml(bsdf):
+    return f"""<scene version="3.0.0"><shape type="sphere">{bsdf}</shape>
+        <shape type="sphere"><point name="center" x="0" y="3" z="0"/><emitter type="area">
+        <rgb name="radiance" value="1"/></emitter></shape></scene>"""
+
+
+def test_loader_maps_plastics(tmp_path):
+    p = tmp_path / "s.xml"
+    p.write_text(_xml('<bsdf type="roughplastic"><string name="distribution" value="ggx"/>'
+                      '<float name="alpha" value="0.3"/><string name="int_ior" value="water"/>'
+                      '<float name="ext_ior" value="1.0"/><boolean name="nonlinear" value="true"/>'
+                      '<rgb name="specular_reflectance" value="0.9, 0.8, 0.7"/>'
+                      '<rgb name="diffuse_reflectance" value="0.1, 0.2, 0.3"/></bsdf>'))
+    m = clpt.load_scene(p).shapes[0].material
+    assert (m.plastic, m.distribution, m.alpha, m.kps, m.kp, m.nonlinear) == (
+        True, "ggx", 0.3, (0.9, 0.8, 0.7), (0.1, 0.2, 0.3), True)
+    assert m.plastic_eta == pytest.approx(1.333) and max(m.kd) == max(m.ks) == 0
+    p.write_text(_xml('<bsdf type="roughplastic"/>'))
+    m = clpt.load_scene(p).shapes[0].material  # Mitsuba 3's defaults
+    assert (m.distribution, m.alpha, m.kp, m.kps) == ("beckmann", 0.1, (0.5, 0.5, 0.5), (1, 1, 1))
+    assert m.plastic_eta == pytest.approx(1.49 / 1.000277)
+    p.write_text(_xml('<bsdf type="plastic"><float name="int_ior" value="1.7"/></bsdf>'))
+    m = clpt.load_scene(p).shapes[0].material
+    assert m.plastic and m.alpha == 0 and m.plastic_eta == pytest.approx(1.7 / 1.000277)
+    p.write_text(_xml('<bsdf type="roughplastic"><string name="distribution" value="phong"/></bsdf>'))
+    with pytest.raises(clpt.SceneError, match="unknown distribution 'phong'"):
+        clpt.load_scene(p)
+    p.write_text(_xml('<bsdf type="plastic"><float name="int_ior" value="1.0"/><float name="ext_ior" value="1.0"/>'
+                      '</bsdf>'))
+    with pytest.raises(clpt.SceneError, match="int_ior and ext_ior must differ"):
+        clpt.load_scene(p)
+
+
+def test_scene_without_plastic_compiles_without_it():
+    from clpt.features import scene_features
+    from clpt.pack import pack_scene
+    plain = pack_scene(clpt.load_scene("cornell_box"))
+    assert not plain.has_plastic and scene_features(plain).defines()["CLPT_HAS_PLASTIC"] == 0
+    packed = pack_scene(clpt.load_scene(Path(__file__).parent / "data" / "plastic_spheres.xml"))
+    assert packed.has_plastic and scene_features(packed).defines()["CLPT_HAS_PLASTIC"] == 1
+    # Five rough plastics (the floor and four spheres) with a table of their own, last of the records.
+    tab = [m for m in packed.materials if m.plastic and m.alpha > 0]
+    assert len(tab) == 5
+    t = np.asarray(coating.rough_tables(tab[-1].alpha, tab[-1].distribution, tab[-1].plastic_eta)[0])
+    assert np.array_equal(packed.records[-16:].ravel(), t)
