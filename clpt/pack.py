@@ -128,8 +128,18 @@ def lobe_probabilities(m: Material):
 
 def plastic_probability(m: Material) -> float:
     """Russian-roulette probability of a plastic's lobe (it is the material's
-    only one): its largest reflectance, diffuse or specular."""
-    return float(min(1.0, max(max(m.kp), max(m.kps)))) if m.plastic else 0.0
+    only one): its largest channel of the average albedo, specular
+    Fdr_e kps plus diffuse (1 - Fdr_e)^2 / eta^2 kp / (1 - Fdr_i [kp])
+    (Mitsuba's fitted diffuse Fresnel reflectances from outside and inside),
+    so a path's weight stays near 1 where the plastic reflects little."""
+    if not m.plastic:
+        return 0.0
+    eta = float(m.plastic_eta)
+    fe, fi = coating.fresnel_diffuse_reflectance(eta), coating.fresnel_diffuse_reflectance(1.0 / eta)
+    kp = np.asarray(m.kp, dtype=np.float64)
+    diffuse = kp * (1 - fe) ** 2 / (eta * eta) / (1 - fi * (kp if m.nonlinear else 1.0))
+    albedo = fe * np.asarray(m.kps, dtype=np.float64) + diffuse
+    return float(np.clip(albedo.max(), 0.05, 1.0))
 
 
 def _coat_tables(mat_recs, materials, base: int) -> np.ndarray:
