@@ -297,6 +297,12 @@ __kernel void probe_microfacet(real4 par, real4 eta, real4 k, real4 km,
     m.nondelta = (vreal)R(1);
     m.km = v3_splat(km); m.eta = v3_splat(eta); m.k = v3_splat(k);
     m.p_m = (vreal)R(1); m.alpha = (vreal)par.x; m.beckmann = (vreal)par.y;
+#if CLPT_HAS_PLASTIC
+    m.kp = m.kps = v3_zero();
+    m.p_p = m.spec_w = m.c_fdr = m.c_alpha = m.c_beckmann = m.c_tab = m.c_nonlinear = (vreal)R(0);
+    m.c_eta = (vreal)R(1.5);
+    m.rec = 0;
+#endif
     LobeProbs pr = lobe_probs(&m, (vmask)0);
     V3 n = v3((vreal)R(0), (vreal)R(0), (vreal)R(1));
     V3 d = LD3(dx, dy, dz, i);
