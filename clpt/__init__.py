@@ -19,14 +19,14 @@ from .photons import PhotonSettings  # noqa: E402
 from .program import KernelBuildError, clear_cache  # noqa: E402
 from .render import RenderResult, Renderer, RenderStats, RenderUpdate, render, resume as render_resume  # noqa: E402
 from .resources import shipped_scenes  # noqa: E402
-from .scene import (Box, Camera, Material, Mesh, Plane, Quad, RenderSettings, Scene, SceneError, SettingsError, Sphere, Triangle,
+from .scene import (Box, Camera, Material, Mesh, PixelFilter, Plane, Quad, RenderSettings, Scene, SceneError, SettingsError, Sphere, Triangle,
                     load_scene, parse_scene)
 
 __version__ = "0.1.0"
 
 __all__ = [
     "AdaptiveSettings", "FilterSettings", "OidnSettings", "PhotonSettings",
-    "Box", "Camera", "DeviceError", "Features", "KernelBuildError", "Material", "Mesh", "Plane", "Quad", "RenderResult",
+    "Box", "Camera", "DeviceError", "Features", "KernelBuildError", "Material", "Mesh", "PixelFilter", "Plane", "Quad", "RenderResult",
     "RenderSettings", "RenderStats", "RenderUpdate", "Renderer", "Scene", "SceneError", "SettingsError", "Sphere", "Triangle", "clear_cache",
     "list_devices", "load_image", "load_scene", "parse_scene", "render", "render_resume", "save_image", "scene_features",
     "shipped_scenes",

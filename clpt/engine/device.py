@@ -25,7 +25,7 @@ from ..photons import PM_OFF, PM_PREPASS, PhotonMap, PhotonSettings
 from ..scene import SceneError
 from .accum import Accumulator
 from .job import DeviceOptions, RenderJob, WorkItem, kernel_photons, photon_plan
-from .launch import RecordBuffer, fill_scene_info, trace_args, trace_record
+from .launch import RecordBuffer, fill_pixel_filter, fill_scene_info, trace_args, trace_record
 
 PREPASS_SEED_SALT = 0x2545F491
 
@@ -204,6 +204,7 @@ class DeviceWorker:
         rec["width"], rec["height"] = job.width, job.height
         rec["max_depth"], rec["rr_depth"] = min(job.max_depth, 2**31), min(job.rr_depth, 2**31)
         rec["aux_specular"] = int(job.aux_specular == "surface")
+        fill_pixel_filter(rec["pixel_filter"], job.scene.camera.pixel_filter)
         self.record = rec
         self.job = job
         self.pm_iteration = None
