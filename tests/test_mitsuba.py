@@ -4,6 +4,8 @@ includes and references, one-line errors, reported approximations, one-sided
 surfaces in the kernels, and the Cornell box written as Mitsuba XML rendering
 like the native scene within noise."""
 
+import dataclasses
+import json
 import math
 import warnings
 from pathlib import Path
@@ -19,7 +21,7 @@ from clpt.mitsuba import (DISK_SEGMENTS, UNLIMITED_DEPTH, conductor_albedo, fres
 from clpt.scene import Material, PixelFilter, Quad, SceneError, SceneWarning, Sphere
 from clpt.spectrum import constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb
 
-from stats import ALPHA, sidak
+from stats import ALPHA, compare_to_reference, ring_z, sidak
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -247,6 +249,39 @@ def test_pixel_filter_settings_are_checked():
         scene = clpt.Scene(camera=clpt.Camera(pixel_filter=pf), shapes=[Sphere(emission=(1, 1, 1))])
         with pytest.raises(SceneError, match=msg.replace(".", r"\.")):
             scene.check()
+
+
+LAMP_REF = json.loads((DATA / "cbox_lamp_gaussian_mitsuba.json").read_text())
+
+
+def render_lamp(device, spp, seed=1, **filter_kw):
+    """cbox_lamp_gaussian.xml path traced (photons=False: independent samples,
+    so the per-pixel variances are the estimate's own), its pixel filter
+    changed by filter_kw (dataclasses.replace's fields of PixelFilter)."""
+    scene = clpt.load_scene(DATA / "cbox_lamp_gaussian.xml", params={"res": LAMP_REF["width"]})
+    pf = dataclasses.replace(scene.camera.pixel_filter, **filter_kw)
+    scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, pixel_filter=pf))
+    return clpt.Renderer(scene, device=device, photons=False).render(spp=spp, seed=seed)
+
+
+def test_gaussian_filter_renders_as_in_mitsuba(device_spec):
+    """A small bright lamp seen through the gaussian filter: the image mean
+    within 0.5% of Mitsuba's, no 16x16-pixel block beyond 4 sigma of both
+    renders' noise, nor the outermost ring of pixels (where Mitsuba's filter
+    is cut at the film's edge)."""
+    res = render_lamp(device_spec, spp=1024)
+    mean_err, z = compare_to_reference(res, LAMP_REF)
+    assert mean_err < 0.005, f"image mean off by {mean_err:.2%}"
+    assert np.abs(z).max() < 4, f"a block is {np.abs(z).max():.1f} sigma off:\n{np.round(z, 1)}"
+    assert abs(ring_z(res, LAMP_REF)) < 4
+
+
+def test_box_filter_fails_the_gaussian_reference_near_the_lamp(device_spec):
+    """The comparison has the power to see the filter: the same scene through
+    the box keeps the lamp's light in its own block, far outside the noise
+    there and in the blocks across its edges."""
+    _, z = compare_to_reference(render_lamp(device_spec, spp=1024, kind="box", stddev=None), LAMP_REF)
+    assert z[1, 1] > 8 and z[1, 2] < -8 and z[2, 1] < -8, np.round(z, 1)
 
 
 # --- scene structure: parameters, includes, references, the integrator -----------------------
@@ -506,6 +541,10 @@ def _z_bound(trials):
 def test_cornell_box_xml_renders_like_native(xml, device_spec):
     xml_scene = clpt.load_scene(DATA / xml)
     native = clpt.load_scene("cornell_box")
+    # The files leave Mitsuba's default pixel filter, the gaussian: the native scene gets it too.
+    assert xml_scene.camera.pixel_filter == PixelFilter("gaussian")
+    native = dataclasses.replace(native, camera=dataclasses.replace(native.camera,
+                                                                    pixel_filter=xml_scene.camera.pixel_filter))
     assert xml_scene.render.max_depth == 7  # Mitsuba's max_depth 8
     size, block, spp = 24, 4, 64
     kw = dict(spp=spp, width=size, height=size, max_depth=7, device=device_spec)
