@@ -216,9 +216,9 @@ SCENE_INFO = Record("SceneInfo", tuple((n, "uint") for n in COUNT_NAMES) + (("ep
 CAMERA = Record("CameraRec", (("origin", "real4"), ("corner", "real4"), ("dx", "real4"), ("dy", "real4")),
                 "pinhole camera: origin; direction to the image's top-left corner (plane at distance 1); one "
                 "pixel right; one pixel down")
-FILTER = Record("FilterRec", (("radius", "real"), ("stddev", "real"), ("bias", "real"), ("sample_border", "uint")),
-                "the pixel filter (kernels/camera.h; its kind is CLPT_PIXEL_FILTER): radius in pixels; the "
-                "gaussian's standard deviation and its value at the radius; whether samples may leave the film")
+FILTER = Record("FilterRec", (("radius", "real"), ("sample_border", "uint")),
+                "the pixel filter (kernels/camera.h; its kind is CLPT_PIXEL_FILTER): radius in pixels (a gaussian's "
+                "is 4 stddev); whether samples may leave the film")
 PHOTON_LOOKUP = Record("PhotonLookup", (
     ("mask", "uint"), ("max_photons", "uint"), ("budget", "uint"), ("occ_mask", "uint"),
     ("merge_vertices", "uint"), ("aim", "uint"),

@@ -33,58 +33,50 @@ inline vreal filter_tent_inverse(vreal t, real r)
     return copysign(r * (R(1) - vsafe_sqrt(R(1) - R(2) * fabs(t) / r)), t);
 }
 
-// --- gaussian: max(0, exp(-x^2 / (2 stddev^2)) - bias), bias = its value at r = 4 stddev --------
-inline vreal filter_gaussian_eval(vreal x, real stddev, real bias)
+// --- gaussian: max(0, exp(-x^2 / (2 stddev^2)) - exp(-8)), radius r = 4 stddev -------------------
+// In units of r the filter is one shape, g(s) = exp(-8 s^2) - exp(-8), and
+// its half [0, 1] is sampled through a table of CLPT_GAUSSIAN_TABLE_BINS
+// bins (clpt/constants.py), bin k holding the half's CDF from q_k = 1 - (1 -
+// k / BINS)^2 to q_k+1: the bin by direct index from the CDF, then the point
+// within it with the density linear between g at its ends (within 2.6e-5 of
+// g's peak everywhere). Only the ends' loads are lane by lane.
+__constant real filter_gaussian_s[CLPT_GAUSSIAN_TABLE_BINS + 1] = CLPT_GAUSSIAN_TABLE_S;
+
+inline vreal filter_gaussian_eval(vreal s) { return exp(R(-8) * s * s) - R(0.00033546262790251185); }
+
+// The CDF of g over [-1, 1] at s (exact: erf), for offsets cut at the film's edge.
+inline vreal filter_gaussian_cdf(vreal s)
 {
-    return fmax(exp(x * x * (R(-0.5) / (stddev * stddev))) - bias, (vreal)R(0));
+    return R(0.5) + (R(0.31332853432887503) * erf(R(2.8284271247461903) * s) - R(0.00033546262790251185) * s)
+                    * (R(0.5) / R(CLPT_GAUSSIAN_HALF_MASS));
 }
 
-// Its integral from 0 to x (odd in x), for |x| <= r.
-inline vreal filter_gaussian_integral(vreal x, real stddev, real bias)
+// The s in [-1, 1] where g's CDF (over [-1, 1]) is p.
+inline vreal filter_gaussian_inverse(vreal p)
 {
-    return stddev * R(1.2533141373155003) * erf(x * (R(0.7071067811865476) / stddev)) - bias * x;
-}
-
-// The x in [lo, hi] whose integral is t (filter_gaussian_integral(lo) <= t
-// <= ...(hi)), by Newton's method from the better (the shorter Newton step)
-// of two guesses: the normal distribution's quantile (Abramowitz and Stegun
-// 26.2.23, within 4.5e-4 stddev of the unwindowed root) and, for the far
-// tails where the window dominates, the root of the filter's integral
-// linearized at the radius, bias r / (2 stddev^2) (r - |x|)^2. Every
-// evaluation shrinks a bracket around the root, and a step that would leave
-// it bisects instead. Converged to the precision of real in
-// FILTER_NEWTON_STEPS (tests/test_camera.py).
-#if CLPT_DOUBLE
-#define FILTER_NEWTON_STEPS 5
+    vreal t = R(2) * p - R(1), q = fmin(fabs(t), R(1));  // q: the half's CDF
+    vreal v = (R(1) - sqrt(R(1) - q)) * CLPT_GAUSSIAN_TABLE_BINS;
+    vreal s0, s1, kr;
+#if CLPT_LANES == 1
+    int k = min((int)v, CLPT_GAUSSIAN_TABLE_BINS - 1);
+    s0 = filter_gaussian_s[k]; s1 = filter_gaussian_s[k + 1]; kr = (real)k;
 #else
-#define FILTER_NEWTON_STEPS 4
-#endif
-
-inline vreal filter_gaussian_inverse(vreal t, vreal lo, vreal hi, real stddev, real bias, real r)
-{
-    real mass = stddev * R(1.2533141373155003) * erf(r * (R(0.7071067811865476) / stddev)) - bias * r;
-    vreal p = R(0.5) + t * (R(0.5) / mass);  // the whole filter's CDF at the root
-    vreal q = clamp(fmin(p, R(1) - p), R(1e-30), R(0.5)), side = copysign((vreal)R(1), p - R(0.5));
-    vreal s = sqrt(R(-2) * log(q));
-    vreal z = s - (R(2.515517) + s * (R(0.802853) + s * R(0.010328)))
-                  / (R(1) + s * (R(1.432788) + s * (R(0.189269) + s * R(0.001308))));
-    vreal xa = clamp(side * z * stddev, lo, hi);
-    vreal xb = clamp(side * (r - sqrt(R(4) * stddev * stddev * mass * q / (bias * r))), lo, hi);
-    vreal ga = filter_gaussian_integral(xa, stddev, bias) - t, gb = filter_gaussian_integral(xb, stddev, bias) - t;
-    vreal fa = filter_gaussian_eval(xa, stddev, bias), fb = filter_gaussian_eval(xb, stddev, bias);
-    lo = fmax(lo, fmax(VSEL(lo, xa, ga <= R(0)), VSEL(lo, xb, gb <= R(0))));
-    hi = fmin(hi, fmin(VSEL(hi, xa, ga >= R(0)), VSEL(hi, xb, gb >= R(0))));
-    vmask pick_b = fabs(gb) * fa < fabs(ga) * fb;  // |gb / fb| < |ga / fa|, 0 / 0 never picked
-    vreal x = VSEL(xa, xb, pick_b), g = VSEL(ga, gb, pick_b), f = VSEL(fa, fb, pick_b);
-    for (int i = 0; i < FILTER_NEWTON_STEPS; i++) {
-        vreal xn = x - g / f;
-        x = VSEL(R(0.5) * (lo + hi), xn, f > R(0) && xn >= lo && xn <= hi);
-        g = filter_gaussian_integral(x, stddev, bias) - t;
-        f = filter_gaussian_eval(x, stddev, bias);
-        lo = VSEL(lo, x, g <= R(0));
-        hi = VSEL(hi, x, g >= R(0));
+    for (int l = 0; l < CLPT_LANES; l++) {
+        int k = min((int)VLANE_R(v, l), CLPT_GAUSSIAN_TABLE_BINS - 1);
+        VLANE_R(s0, l) = filter_gaussian_s[k];
+        VLANE_R(s1, l) = filter_gaussian_s[k + 1];
+        VLANE_R(kr, l) = (real)k;
     }
-    return x;
+#endif
+    vreal e0 = R(1) - kr * (R(1) / CLPT_GAUSSIAN_TABLE_BINS), e1 = e0 - R(1) / CLPT_GAUSSIAN_TABLE_BINS;
+    vreal f = clamp((q - (R(1) - e0 * e0)) / (e0 * e0 - e1 * e1), R(0), R(1));  // the fraction of the bin's mass
+    // Within the bin, density g0 + (g1 - g0) d / w over d in [0, w]: its CDF reaches the
+    // fraction f at the root of (g1 - g0) / (2 w) d^2 + g0 d - f (g0 + g1) w / 2.
+    vreal g0 = filter_gaussian_eval(s0), g1 = filter_gaussian_eval(s1), w = s1 - s0;
+    vreal m = f * (g0 + g1) * w * R(0.5);
+    vreal root = sqrt(fmax(g0 * g0 + R(2) * (g1 - g0) * m / w, R(0)));
+    vreal d = R(2) * m / fmax(g0 + root, R(1e-30));
+    return copysign(fmin(s0 + fmin(d, w), R(1)), t);
 }
 
 // The offset from the pixel centre c (in pixels, along one axis of an image
@@ -104,8 +96,12 @@ CLPT_INLINE vreal filter_sample_offset(const FilterRec *f, int kind, vreal u, vr
         return clamp(filter_tent_inverse(mad(u, b - a, a), r), lo, hi);
     }
     if (kind == 2) {
-        vreal a = filter_gaussian_integral(lo, f->stddev, f->bias), b = filter_gaussian_integral(hi, f->stddev, f->bias);
-        return filter_gaussian_inverse(mad(u, b - a, a), lo, hi, f->stddev, f->bias, r);
+        vreal a = (vreal)R(0), b = (vreal)R(1);
+        if (VANY(lo > -r || hi < r)) {  // a pixel by the film's edge
+            a = filter_gaussian_cdf(lo * (R(1) / r));
+            b = filter_gaussian_cdf(hi * (R(1) / r));
+        }
+        return clamp(filter_gaussian_inverse(mad(u, b - a, a)) * r, lo, hi);
     }
     return u - R(0.5);  // the box (radius 0.5: never restricted)
 }

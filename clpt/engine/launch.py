@@ -11,8 +11,6 @@ source).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pyopencl as cl
 
@@ -36,11 +34,7 @@ def fill_scene_info(rec, counts, eps_abs: float):
 def fill_pixel_filter(rec, pf):
     """Fill rec, a FilterRec (a launch record's "pixel_filter" field), from a
     clpt.scene.PixelFilter; its kind is the build's (CLPT_PIXEL_FILTER)."""
-    r = pf.extent
-    rec["radius"] = r
-    rec["stddev"] = pf.sigma
-    # The gaussian's value at its radius, subtracted so that it reaches 0 there (Mitsuba's window).
-    rec["bias"] = math.exp(-0.5 * (r / pf.sigma) ** 2) if pf.kind == "gaussian" else 0.0
+    rec["radius"] = pf.extent
     rec["sample_border"] = int(pf.sample_border)
     return rec
 

@@ -278,11 +278,11 @@ __kernel void probe_light_pdf(__global const real4 *rec, __constant SceneInfo *i
 // The pixel filter's offset (camera.h filter_sample_offset) for filter `kind`
 // (0 box, 1 tent, 2 gaussian), for samples u of pixel centres c of an image n
 // pixels wide.
-__kernel void probe_pixel_filter(int kind, real radius, real stddev, real bias, uint sample_border, real n,
+__kernel void probe_pixel_filter(int kind, real radius, uint sample_border, real n,
                                  __global const real *u, __global const real *c, __global real *out)
 {
     size_t i = get_global_id(0);
     FilterRec f;
-    f.radius = radius; f.stddev = stddev; f.bias = bias; f.sample_border = sample_border;
+    f.radius = radius; f.sample_border = sample_border;
     ST(filter_sample_offset(&f, kind, LD(u, i), LD(c, i), n), out, i);
 }
