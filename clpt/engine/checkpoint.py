@@ -92,12 +92,13 @@ def _job_types() -> dict:
     from ..adaptive import AdaptiveSettings
     from ..denoise import FilterSettings, OidnSettings
     from ..photons import PhotonSettings
-    from ..scene import Box, Camera, Material, Mesh, Plane, Quad, RenderSettings, Scene, Sphere, Triangle
+    from ..scene import (Box, Camera, Material, Mesh, PixelFilter, Plane, Quad, RenderSettings, Scene, Sphere,
+                         Triangle)
     from .job import DeviceOptions
 
     return {c.__name__: c for c in (RenderJob, DeviceOptions, PhotonSettings, AdaptiveSettings, FilterSettings,
-                                    OidnSettings, Scene, Camera, RenderSettings, Material, Sphere, Triangle, Quad,
-                                    Plane, Box, Mesh)}
+                                    OidnSettings, Scene, Camera, PixelFilter, RenderSettings, Material, Sphere,
+                                    Triangle, Quad, Plane, Box, Mesh)}
 
 
 def _encode(obj, arrays: list):
