@@ -12,17 +12,18 @@ _register_runtimes()
 
 from .adaptive import AdaptiveSettings  # noqa: E402
 from .denoise import FilterSettings, OidnSettings  # noqa: E402
-from .device import DeviceError, list_devices  # noqa: E402
+from .device import list_devices  # noqa: E402
+from .errors import DeviceError, KernelBuildError, SceneError, SettingsError  # noqa: E402
 from .features import Features, scene_features  # noqa: E402
 from .image import load_image, save_image  # noqa: E402
+from .loading import load_scene  # noqa: E402
 from .photons import PhotonSettings  # noqa: E402
-from .program import KernelBuildError, clear_cache  # noqa: E402
-from .render import RenderResult, Renderer, RenderStats, RenderUpdate, render, resume as render_resume  # noqa: E402
+from .program import clear_cache  # noqa: E402
+from .render import Renderer, RenderUpdate, render, resume as render_resume  # noqa: E402
 from .resources import shipped_scenes  # noqa: E402
-from .scene import (Box, Camera, Material, Mesh, PixelFilter, Plane, Quad, RenderSettings, Scene, SceneError, SettingsError, Sphere, Triangle,
-                    load_scene, parse_scene)
-
-__version__ = "0.1.0"
+from .result import RenderResult, RenderStats  # noqa: E402
+from .scene import Box, Camera, Material, Mesh, PixelFilter, Plane, Quad, RenderSettings, Scene, Sphere, Triangle, parse_scene  # noqa: E402
+from .version import __version__  # noqa: E402
 
 __all__ = [
     "AdaptiveSettings", "FilterSettings", "OidnSettings", "PhotonSettings",

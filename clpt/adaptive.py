@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .constants import LUMA
+from .errors import SettingsError
 
 DARK_FLOOR = 1e-3  # luminance below which relative errors are measured against this
 
@@ -45,7 +46,6 @@ class AdaptiveSettings:
     paper_mode: str = "reduce"     # paper scheme: "reduce" or "stop" the agreeing pixels
 
     def check(self):
-        from .scene import SettingsError
         if self.scheme not in ("error", "paper"):
             raise SettingsError(f"adaptive: scheme must be 'error' or 'paper' (got {self.scheme!r})")
         for key in ("min_spp", "pass_spp"):

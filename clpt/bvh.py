@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import layout
+
 METHODS = ("sah", "lbvh")
 BINS = 16
 SAH_MIN = 64        # smaller nodes take the Morton split (binning them costs more than it gains)
@@ -315,7 +317,6 @@ def flatten(tree: Tree, wide: Wide, node_base: int, leaf_base: int, double: bool
     wide node (count 0) or of its leaf block (count > 0 items); count -1
     marks an empty slot. Leaf blocks are numbered in leaf order
     (tree.start). Boxes are rounded outwards to the kernel's precision."""
-    from . import layout
     ch = wide.children
     n_wide, width = ch.shape
     left = tree.left
@@ -351,7 +352,6 @@ def leaf_blocks(tree: Tree, leaves, items, width: int = MAX_LEAF):
     normal n.xyz, duals wu.xyz and wv.xyz, kind (wv.w), material (p.w),
     light + 1 (n.w) and primitive id (wu.w), by field name; empty slots have
     kind ITEM_EMPTY and zeros elsewhere."""
-    from . import layout
     start, count = tree.start[leaves], tree.count[leaves]
     if len(count) and count.max() > width:
         raise ValueError(f"a BVH leaf has {count.max()} items, more than {width}")

@@ -5,14 +5,19 @@ Both are fed from the renderer's feature buffers (render.py, CLPT_AUX):
 per pixel the normal, albedo and depth of the first surface seen (mirrors
 and glass as surfaces of albedo kr + kt; or, with aux_specular="through",
 the first non-delta vertex seen through them, their throughput folded into
-its albedo), a flag for pixels that see an emitter (whose albedo is then the
-emitter's own colour), the emission seen directly, and the photon map's
-caustic part. Both leave the directly seen emission out and add it back.
+its albedo), the share of samples that see an emitter directly or through
+mirrors and glass (where it is most, the pixel is flagged; an emitter that is
+the feature vertex gives its own colour as albedo), the emission seen so, and
+the photon map's caustic part. Both leave that emission out and add it back
+where the pixel's samples confirm it (`kept_emission`: a lamp, its
+reflections and refractions; not a lamp that one sample in sixteen met
+through the edge of a glass ball, which is noise and is filtered).
 
 The cone filter also leaves out the caustics (already a density estimate;
 filtering them again spreads them). The rest is divided by the albedo
 (demodulated), its fireflies are clamped (filter.cl: a pixel brighter than
-all 8 neighbours by more than `firefly_k` standard errors), and `iterations`
+all 8 neighbours by more than `firefly_k` standard errors, unless its own
+samples confirm it to `confirm_k` of its own standard errors), and `iterations`
 a-trous passes of a cone kernel of `width` pixels (steps 1, 2, 4, ...)
 smooth it where normals, depths, albedos, emitter flags and values (beyond
 the pixel's noise) agree. A numpy twin (`reference_cone_filter`) is there for the tests.
@@ -23,14 +28,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pyopencl as cl
 
 from .constants import LUMA, LUMA_WEIGHTS
-from .program import note_time
+from .errors import SceneError, SettingsError
 
 ALBEDO_FLOOR = 1e-3
 MAX_WIDTH = 16
-LOCAL_SIZE = 64
 OIDN_AUX = ("clean", "noisy", "none")
 
 
@@ -44,11 +47,12 @@ class FilterSettings:
     sigma_luminance: float = 5.0  # value differences, in standard errors of the pixel's noise
     guide_floor: float = 0.3     # least guide weight of a tap (edge pixels, whose guides are mixtures)
     firefly_k: float = 3.0       # clamp pixels above all 8 neighbours by this many standard errors; 0: off
+    confirm_k: float = 2.0       # a bright value the pixel's own samples confirm to this many standard errors
+                                 # is kept (lamps seen directly or in mirrors and glass; the clamp's exemption)
     keep_caustics: bool = True   # add the photon map's caustics back unfiltered
     interval: int = 0            # filter the preview every N passes (0: only the final image)
 
     def check(self):
-        from .scene import SettingsError
         if isinstance(self.width, bool) or not isinstance(self.width, (int, np.integer)) \
                 or not 0 <= self.width <= MAX_WIDTH:
             raise SettingsError(f"filter: width must be an integer from 0 to {MAX_WIDTH} (got {self.width!r})")
@@ -63,6 +67,8 @@ class FilterSettings:
                 raise SettingsError(f"filter: {k} must be > 0")
         if not self.firefly_k >= 0:
             raise SettingsError("filter: firefly_k must be >= 0")
+        if not self.confirm_k >= 0:
+            raise SettingsError("filter: confirm_k must be >= 0")
         return self
 
     def passes(self, width: int, height: int) -> int:
@@ -82,7 +88,6 @@ class OidnSettings:
     interval: int = 0
 
     def check(self):
-        from .scene import SettingsError
         if self.aux not in OIDN_AUX:
             raise SettingsError(f"oidn: aux must be one of {', '.join(OIDN_AUX)} (got {self.aux!r})")
         if self.quality not in ("high", "balanced", "fast"):
@@ -94,9 +99,8 @@ class OidnSettings:
 def oidn_module():
     """pyoidn, or a one-line error saying how to get it."""
     try:
-        import pyoidn
+        import pyoidn  # optional (clpt[oidn]): imported when asked for
     except ImportError:
-        from .scene import SceneError
         raise SceneError("the OIDN denoiser needs pyoidn: pip install 'clpt[oidn]'") from None
     return pyoidn
 
@@ -108,7 +112,7 @@ def demodulate(color, var, albedo):
     return color / alb, var / lum_alb ** 2, alb
 
 
-class _Planar:
+class Planar:
     """Planar images as filter.cl lays them out: rows of `pitch` (the width
     rounded up to 8) floats, each plane with `margin` zeros before and after."""
 
@@ -131,66 +135,15 @@ class _Planar:
         return np.moveaxis(body.reshape(planes, self.height, self.pitch)[:, :, :self.width], 0, -1)
 
 
-class ConeFilter:
-    """The filter's kernels on one device."""
-
-    def __init__(self, dctx, program):
-        self.dctx = dctx
-        self.firefly = cl.Kernel(program, "filter_firefly")
-        self.kernel = cl.Kernel(program, "filter_cone")
-        self.kernel_times = {}  # kernel name -> device seconds per launch
-
-    def __call__(self, color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
-        """Filtered colour (H x W x 3 float32) from the guides (H x W arrays);
-        var is each pixel mean's luminance variance, emitter the fraction of
-        its samples that see a light."""
-        h, w = color.shape[:2]
-        if settings.width == 0:
-            return color.astype(np.float32).copy()
-        irr, v, alb = demodulate(color.astype(np.float64), var.astype(np.float64), albedo.astype(np.float64))
-        ctx, q = self.dctx.context, self.dctx.queue
-        mf = cl.mem_flags
-        passes = settings.passes(w, h)
-        radius = min(int(settings.width), max(w, h))
-        lay = _Planar(w, h, radius, 1 << (passes - 1))
-        flag = np.zeros((h, w)) if emitter is None else (emitter > 0.5)
-        c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v])
-        g0 = lay.pack([normal[..., 0], normal[..., 1], normal[..., 2], flag,
-                       albedo[..., 0], albedo[..., 1], albedo[..., 2], depth])
-        c = [cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0),
-             cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0)]
-        gb = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g0)
-        dims = (np.uint32(w), np.uint32(h), np.uint32(lay.pitch), np.uint32(lay.plane), np.uint32(lay.margin))
-        src = 0
-        events = []
-        if settings.firefly_k > 0:
-            gsize = -(-(w * h) // LOCAL_SIZE) * LOCAL_SIZE
-            events.append(("filter_firefly", self.firefly(q, (gsize,), (LOCAL_SIZE,), c[0], *dims,
-                                                          np.float32(settings.firefly_k), c[1])))
-            src = 1
-        items = h * lay.pitch // 8
-        gsize = -(-items // LOCAL_SIZE) * LOCAL_SIZE
-        for it in range(passes):
-            events.append(("filter_cone", self.kernel(
-                q, (gsize,), (LOCAL_SIZE,), c[src], gb, *dims, np.int32(radius), np.int32(1 << it),
-                np.int32(settings.sigma_normal), np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
-                np.float32(settings.sigma_luminance), np.float32(settings.guide_floor), c[1 - src])))
-            src = 1 - src
-        out = np.empty_like(c0)
-        cl.enqueue_copy(q, out, c[src])
-        q.finish()
-        for name, ev in events:
-            note_time(self.kernel_times, name, ev)
-        return (lay.unpack(out, 4)[..., :3] * alb).astype(np.float32)
-
-
 def _lum(a):
     wr, wg, wb = LUMA_WEIGHTS
     return wr * a[..., 0] + wg * a[..., 1] + wb * a[..., 2]
 
 
-def reference_firefly(c, v, k):
-    """numpy twin of filter_firefly: (colour, variance) after the clamp."""
+def reference_firefly(c, v, k, k_confirm=None):
+    """numpy twin of filter_firefly: (colour, variance) after the clamp
+    (k_confirm: the pixel's own standard errors that exempt it; k if None)."""
+    k_confirm = k if k_confirm is None else k_confirm
     h, w = v.shape
     lp = _lum(c)
     pad_l = np.pad(lp, 1, constant_values=-np.inf)
@@ -207,13 +160,13 @@ def reference_firefly(c, v, k):
     count = np.isfinite(vs).sum(0)
     vmed = np.take_along_axis(vs, (count // 2)[None], 0)[0]
     bound = lmax + k * np.sqrt(vmed)
-    clip = (count > 1) & (lp > bound)
+    clip = (count > 1) & (lp > bound) & (lp - k_confirm * np.sqrt(v) <= bound)
     s = np.where(clip, np.maximum(bound, 0) / np.where(clip, lp, 1), 1.0)
     return (c * s[..., None]).astype(np.float32), np.where(clip, vmed, v).astype(np.float32)
 
 
 def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
-    """numpy twin of ConeFilter (slow; for tests on small images)."""
+    """numpy twin of the cone filter (clpt/engine/passes.py FilterPass; slow, for tests on small images)."""
     h, w = color.shape[:2]
     if settings.width == 0:
         return color.astype(np.float32).copy()
@@ -221,7 +174,7 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
     c = irr.astype(np.float32)
     v = v.astype(np.float32)
     if settings.firefly_k > 0:
-        c, v = reference_firefly(c, v, settings.firefly_k)
+        c, v = reference_firefly(c, v, settings.firefly_k, settings.confirm_k)
     has = (normal * normal).sum(-1) > 0
     flag = np.zeros((h, w), bool) if emitter is None else emitter > 0.5
     ys, xs = np.mgrid[0:h, 0:w]
@@ -266,14 +219,41 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
     return (c * alb).astype(np.float32)
 
 
+def kept_emission(aux, count, k: float):
+    """The emission the denoisers leave out and add back (H x W x 3): a
+    pixel's emission seen directly or through mirrors and glass, where the
+    share f of its n samples that see an emitter so is confirmed: its
+    relative standard error, sqrt((1 - f) / (f n)), at most 1 / k (f n >=
+    k^2 (1 - f)), or in one of its 8 neighbours (the edge of a lamp's image,
+    or of its reflection's). Elsewhere (a lamp reached by one sample in
+    sixteen, through the edge of a glass ball) the emission is noise and is
+    filtered with the rest. k = 0 keeps all of it out."""
+    emission = aux["emission"]
+    if not k > 0:
+        return emission
+    f = np.clip(aux["emitter"], 0.0, 1.0)
+    confirmed = (f > 0) & (f * np.maximum(count, 1.0) >= k * k * (1.0 - f))
+    # The edge of a confirmed image (a lamp's, or its reflection's) is kept too.
+    pad = np.pad(confirmed, 1)
+    h, w = confirmed.shape
+    near = np.zeros_like(confirmed)
+    for dy in range(3):
+        for dx in range(3):
+            near |= pad[dy:dy + h, dx:dx + w]
+    return np.where(near[..., None], emission, 0.0).astype(np.float32)
+
+
 def apply_denoiser(cone, image, lum_var, count, aux, settings):
     """The denoised image (H x W x 3) of a render: image, its per-sample
     luminance variance and sample counts (H x W), the feature images (aux,
     with "caustic" and "caustic_var"), settings a FilterSettings (cone, on
-    `cone`, a ConeFilter) or an OidnSettings."""
-    # Emission seen directly is not noise to smooth: both denoisers leave it
-    # out (next to a lamp, OIDN would otherwise spread it into a halo).
-    keep = aux["emission"]
+    `cone`, a FilterPass) or an OidnSettings."""
+    # Emission seen directly, or through mirrors and glass, is not noise to
+    # smooth where the pixel's samples confirm it: both denoisers leave it out
+    # (next to a lamp, OIDN would otherwise spread it into a halo; the cone
+    # filter would average a lamp's reflection with the dark mirror around it).
+    k = settings.confirm_k if isinstance(settings, FilterSettings) else FilterSettings.confirm_k
+    keep = kept_emission(aux, count, k)
     if isinstance(settings, OidnSettings):
         return keep + oidn_denoise(image - keep, aux["albedo"], aux["normal"], settings)
     # Nor are the photon map's caustics, for the cone filter: a density

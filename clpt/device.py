@@ -29,13 +29,14 @@ name.
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 
 import pyopencl as cl
 
-
-class DeviceError(RuntimeError):
-    """No usable OpenCL device matches what was asked for."""
+from . import probe, tune
+from .errors import DeviceError, DeviceWarning
+from .runtimes import platform_short_name
 
 
 @dataclass(frozen=True)
@@ -84,19 +85,6 @@ def _all_devices():
         for di, d in enumerate(devs):
             out.append((pi, di, p, d))
     return out
-
-
-def platform_short_name(platform_name: str) -> str:
-    """A platform's short name for --device: pocl, intel, nvidia, amd, or the
-    first word of its name, lowercased, without (R)/(TM)."""
-    low = platform_name.lower()
-    if "portable computing language" in low or "pocl" in low:
-        return "pocl"
-    for known in ("intel", "nvidia", "amd", "apple", "rusticl", "clover"):
-        if known in low:
-            return known
-    words = low.replace("(r)", "").replace("(tm)", "").split()
-    return words[0] if words else low
 
 
 def device_has_fp64(dev) -> bool:
@@ -159,10 +147,6 @@ def _match(spec: str, found) -> list:
                       f"name one exactly, by platform:device, or by a platform's short name")
 
 
-class DeviceWarning(UserWarning):
-    """A device left out of a selection: one line naming it and why."""
-
-
 # Simulators and debuggers: never chosen by default or by "all", whatever
 # device type they report (Oclgrind reports a GPU); only by name.
 SIMULATORS = ("oclgrind",)
@@ -203,8 +187,6 @@ def check_device(device, lanes: int | None = None, photons: bool = False, found=
     an ok result without running anything for simulators, sub-devices and
     when CLPT_DEVICE_CHECK=0. wait=False: the cached result, else None (after
     starting the check in the background, unless background=False)."""
-    from . import probe, tune
-
     n = lanes or tune.predict(device).lanes  # the width of the Cornell box's kernel on this device
     where = _where(device, found if found is not None else _all_devices())
     if not probe.enabled() or is_simulator(device) or where is None:
@@ -310,8 +292,6 @@ _NO_DEVICE = f"no OpenCL device found. {_FIX}"
 def _checked(devices, lanes, found, explicit_one: bool, spec: str) -> list:
     """The devices that pass their checks; one named alone that fails is an
     error, others that fail are left out with a DeviceWarning each."""
-    import warnings
-
     out, failed = [], []
     for d in devices:
         r = check_device(d, lanes, False, found)
@@ -352,8 +332,6 @@ def choose_devices(spec=None, *, photons: bool = False, lanes: int | None = None
     checked at `lanes` (clpt/probe.py): one named alone that cannot render
     is an error, never a silent switch; in a list or "all", those that cannot
     are left out with a warning, and simulators are left out of "all"."""
-    import warnings
-
     found = _all_devices()
     if not found:
         raise DeviceError(_NO_DEVICE)

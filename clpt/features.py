@@ -55,6 +55,7 @@ class Features:
     phong: bool = True
     mirror: bool = True
     glass: bool = True
+    microfacet: bool = True    # the rough conductor's microfacet lobe
     triangle_lights: bool = True
     sphere_lights: bool = True
     mesh_lights: bool = True
@@ -81,6 +82,7 @@ class Features:
             "CLPT_HAS_PHONG": int(self.phong),
             "CLPT_HAS_MIRROR": int(self.mirror),
             "CLPT_HAS_GLASS": int(self.glass),
+            "CLPT_HAS_MICROFACET": int(self.microfacet),
             "CLPT_HAS_TRIANGLE_LIGHTS": int(self.triangle_lights),
             "CLPT_HAS_SPHERE_LIGHTS": int(self.sphere_lights),
             "CLPT_HAS_MESH_LIGHTS": int(self.mesh_lights),
@@ -135,6 +137,7 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         phong=packed.has_phong,
         mirror=packed.has_mirror,
         glass=packed.has_glass,
+        microfacet=packed.has_microfacet,
         triangle_lights="triangle" in packed.light_kinds,
         sphere_lights="sphere" in packed.light_kinds,
         mesh_lights="mesh" in packed.light_kinds,

@@ -15,11 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import ImageError
+
 FLOAT_FORMATS = {".exr", ".hdr", ".tif", ".tiff", ".pfm"}
-
-
-class ImageError(RuntimeError):
-    """An image could not be written or read."""
 
 
 def linear_to_srgb(x: np.ndarray) -> np.ndarray:
@@ -65,7 +63,7 @@ def _attribute_value(v, typed: bool):
 
 def save_image(path, img: np.ndarray, metadata: dict | None = None, exposure: float = 0.0):
     """Write H x W x C linear float data; the format follows the file extension."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # optional and heavy: imported when an EXR or other format needs it
 
     path = Path(path)
     img = np.asarray(img)
@@ -111,7 +109,7 @@ def save_image(path, img: np.ndarray, metadata: dict | None = None, exposure: fl
 
 def load_image(path) -> np.ndarray:
     """Read an image as float32 H x W x C (8-bit files scaled to [0, 1], not linearized)."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # optional and heavy: imported when an EXR or other format needs it
 
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
@@ -126,7 +124,7 @@ def load_image(path) -> np.ndarray:
 
 
 def read_metadata(path) -> dict:
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # optional and heavy: imported when an EXR or other format needs it
 
     inp = oiio.ImageInput.open(str(path))
     if inp is None:

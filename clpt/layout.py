@@ -167,9 +167,11 @@ def _r4(*names):
     return tuple((n, "real4") for n in names)
 
 
-MATERIAL = Rows("material", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_sides", "params"),
+MATERIAL = Rows("material", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_sides", "params", "km_pm",
+                                      "eta_alpha", "k_dist"),
                 "material: kd.rgb, p_diffuse | ks.rgb, p_phong | kr.rgb, p_mirror | kt.rgb, p_refract | "
-                "Le.rgb, two_sided | shininess, ior, nondelta, one_sided")
+                "Le.rgb, two_sided | shininess, ior, nondelta, one_sided | km.rgb, p_microfacet | "
+                "eta.rgb, alpha | k.rgb, distribution (0 GGX, 1 Beckmann)")
 SPHERE = Rows("sphere", "SPHERE", _r4("center_radius", "mat"),
               "sphere: center.xyz, radius | material, light + 1 (0: not a light), prim id, 0")
 PLANAR = Rows("planar", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "wv_kind"),

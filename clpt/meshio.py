@@ -25,13 +25,17 @@ import io
 import math
 import os
 import re
+import struct
 import warnings
+import zlib
 from array import array
 from pathlib import Path
 
 import numpy as np
 
-from .scene import SceneError, open_regular_file
+from . import hostio
+from .errors import MeshError, SceneError
+from .hostio import open_regular_file
 
 FORMATS = ("obj", "ply", "serialized")
 
@@ -45,11 +49,6 @@ READ_BYTES_PER_FILE_BYTE = {"obj": 4, "ply": 10, "serialized": 1}  # serialized:
 OBJ_WHOLE_FILE_BYTES_PER_FILE_BYTE = 15
 MAX_PLY_HEADER_BYTES = 1 << 16
 MAX_INDEX = 2 ** 62  # larger indices and counts cannot be in range of any file that fits in memory
-
-
-class MeshError(SceneError):
-    """A mesh file or array is missing, unreadable or malformed; the one-line
-    message names it. A SceneError (and so a ValueError)."""
 
 
 def fan_triangulate(faces):
@@ -97,8 +96,6 @@ def read_mesh(path, shape_index=0):
 def _read_bytes(p: Path, name, fmt) -> bytes:
     """The file's bytes: a regular file whose reading fits in memory (checked
     before reading)."""
-    from .preflight import available_host_bytes
-
     try:
         f = open_regular_file(p, name, "mesh file")
     except MeshError:
@@ -108,7 +105,7 @@ def _read_bytes(p: Path, name, fmt) -> bytes:
     with f:
         size = os.fstat(f.fileno()).st_size
         need = size * READ_BYTES_PER_FILE_BYTE[fmt]
-        avail = available_host_bytes()
+        avail = hostio.available_host_bytes()
         if avail is not None and need > avail:
             raise MeshError(f"{name}: a {size / 2**30:.1f} GiB mesh file needs about {need / 2**30:.1f} GiB of "
                             f"memory to read and {avail / 2**30:.1f} GiB are available; too large")
@@ -140,9 +137,7 @@ def _read_obj(data: bytes, path):
     Every other statement is skipped. A regular file is read at once
     (_obj_arrays); any other, and any damaged one, line by line (_obj_lines),
     which names the line of the first problem."""
-    from .preflight import available_host_bytes
-
-    avail = available_host_bytes()
+    avail = hostio.available_host_bytes()
     whole = avail is None or len(data) * OBJ_WHOLE_FILE_BYTES_PER_FILE_BYTE <= avail
     v, vn, c, ct, cn, sizes = (whole and _obj_arrays(data)) or _obj_lines(data, path)
     # Only the vertices faces use, each once per (position, texture coordinate,
@@ -634,9 +629,6 @@ def _read_serialized(data: bytes, path, shape_index: int):
     """(vertices, triangles, normals or None) of one shape of a .serialized
     file. Every fault is a one-line MeshError naming the shape and the byte
     (of the file, or of the shape's decompressed stream)."""
-    import struct
-    import zlib
-
     def fail(at, reason, inner=False):
         where = f"shape {shape_index}, {'uncompressed ' if inner else ''}byte {at}"
         raise MeshError(f"{path}: {where}: {reason}")
@@ -699,9 +691,8 @@ def _read_serialized(data: bytes, path, shape_index: int):
     if need > ZLIB_MAX_RATIO * len(stream) + 64:
         fail(at - 16, f"the header declares {n_vert} vertices and {n_tri} triangles ({need} bytes), more than "
                       f"the {len(stream)} compressed bytes that follow can hold", inner=True)
-    from .preflight import available_host_bytes
 
-    avail = available_host_bytes()
+    avail = hostio.available_host_bytes()
     if avail is not None and need * SERIALIZED_READ_BYTES_PER_BYTE > avail:
         raise MeshError(f"{path}: shape {shape_index}: {n_vert} vertices and {n_tri} triangles need about "
                         f"{need * SERIALIZED_READ_BYTES_PER_BYTE / 2**30:.1f} GiB of memory to read and "
@@ -743,8 +734,6 @@ def _read_serialized(data: bytes, path, shape_index: int):
 def _serialized_extent(data: bytes, path, version: int, shape_index: int):
     """(start, end) in the file of shape shape_index, from the dictionary of
     offsets at its end."""
-    import struct
-
     width = 8 if version == 4 else 4
     size = len(data)
     if size < 8:

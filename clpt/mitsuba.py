@@ -15,7 +15,6 @@ include cycles, undefined ids or parameters), e.g.::
 
 from __future__ import annotations
 
-import json
 import math
 import re
 import warnings
@@ -25,9 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .scene import (FILTER_MAX_RADIUS, Camera, Material, PixelFilter, Quad, RenderSettings, Scene, SceneError,
-                    SceneWarning, Sphere, _suggest, read_file_bytes)
-from .spectrum import constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb_checked
+from .scene import (ALPHA_RANGE, DISTRIBUTIONS, FILTER_MAX_RADIUS, Camera, Material, Mesh, PixelFilter, Quad, RenderSettings,
+                    Scene, SceneError, SceneWarning, Sphere, _suggest, read_file_bytes)
+from .errors import ImageError
+from .image import load_image
+from .meshio import read_mesh, transform_mesh, vertex_normals
+from .spectrum import conductor_ior, ior_data as _ior_data, constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb_checked
 
 
 # Mitsuba counts path segments (1: emitters only); clpt counts scattering events.
@@ -267,20 +269,6 @@ def _apply(m: np.ndarray, p) -> np.ndarray:
 
 
 # --- the loader ----------------------------------------------------------------------------
-
-
-def _load_json(name):
-    return json.loads((Path(__file__).resolve().parent / "data" / name).read_text())
-
-
-_IOR_DATA = None
-
-
-def _ior_data():
-    global _IOR_DATA
-    if _IOR_DATA is None:
-        _IOR_DATA = _load_json("mitsuba_ior.json")
-    return _IOR_DATA
 
 
 def fresnel_dielectric(cos_i: float, eta: float) -> float:
@@ -696,8 +684,6 @@ class _Loader:
         return (0.5, 0.5, 0.5)
 
     def _bitmap_mean(self, tex: _Node, tp: _Props):
-        from .image import ImageError, load_image
-
         path = self.resolve(tex, tp.string("filename") or tex.fail("missing property 'filename'"))
         raw = tp.boolean("raw", False)
         try:
@@ -737,13 +723,20 @@ class _Loader:
             m = replace(self.bsdf(inner[0]), one_sided=False)
         elif t == "diffuse":
             m = Material(kd=p.color("reflectance", 0.5), one_sided=True)
-        elif t in ("conductor", "roughconductor"):
+        elif t == "conductor":
             spec = np.array(p.color("specular_reflectance", 1.0)) * self._conductor_albedo(p)
-            if t == "conductor":
-                m = Material(kr=tuple(spec), one_sided=True)
-            else:
-                m = Material(ks=tuple(spec), shininess=phong_exponent(self._alpha(p)), one_sided=True)
-                p.string("distribution")
+            m = Material(kr=tuple(spec), one_sided=True)
+        elif t == "roughconductor":
+            # The microfacet lobe itself (kernels/microfacet.h), Fresnel from eta + i k per channel.
+            spec = p.color("specular_reflectance", 1.0)
+            eta, k = self._conductor_ior(p)
+            dist = p.string("distribution", "beckmann")  # Mitsuba 3's default
+            if dist not in DISTRIBUTIONS:
+                p.props["distribution"].fail(f"unknown distribution {dist!r}{_suggest(dist, DISTRIBUTIONS)}; "
+                                             f"known: {', '.join(DISTRIBUTIONS)}")
+            p.boolean("sample_visible", True)  # either way the same expectation; clpt samples visible normals
+            m = Material(km=tuple(spec), alpha=min(self._alpha(p), ALPHA_RANGE[1]), distribution=dist,
+                         eta=eta, k=k, one_sided=True)
         elif t in ("dielectric", "roughdielectric", "thindielectric"):
             eta = p.ior("int_ior", "bk7") / p.ior("ext_ior", "air")
             refl = np.array(p.color("specular_reflectance", 1.0))
@@ -827,6 +820,21 @@ class _Loader:
             a = p.float("alpha", 0.1, lo=0.0)
         return max(a, 1e-4)
 
+    def _conductor_ior(self, p: _Props) -> tuple:
+        """(eta, k) RGB of a conductor: `eta`/`k` given, else the named `material`."""
+        if p.has("eta") or p.has("k"):
+            eta = tuple(p.color("eta", 0.0, bounded=False))
+            k = tuple(p.color("k", 1.0, bounded=False))
+            p.string("material")
+            if min(eta) < 0 or min(k) < 0:
+                p.node.fail(f"eta and k must not be negative (got eta {eta}, k {k})")
+            return eta, k
+        name = p.string("material", "none")
+        try:
+            return conductor_ior(name)
+        except SceneError as e:
+            p.props["material"].fail(str(e))
+
     def _conductor_albedo(self, p: _Props) -> np.ndarray:
         if p.has("eta") or p.has("k"):
             eta = np.array(p.color("eta", 0.0, bounded=False))
@@ -862,6 +870,8 @@ class _Loader:
                 continue
             emission = ep.color("radiance", emitter=True)
             ep.finish()
+        if emission is not None and not bsdfs:
+            mat = Material(one_sided=True)  # Mitsuba 3 gives an emitter without a BSDF a black diffuse one
         flip = p.boolean("flip_normals", False)
         name = node.attrs.get("id") or f"{t} at {node.where()}"
         kw = dict(material=mat, emission=emission, two_sided=False, name=name)
@@ -919,8 +929,6 @@ class _Loader:
             tris = np.vstack([np.stack([i, j, k + j], axis=1), np.stack([i, k + j, k + i], axis=1)])
             out.append(self._mesh(node, verts, tris, np.vstack([radial, radial]), m, flip, kw))
         elif t in ("obj", "ply", "serialized"):
-            from .meshio import read_mesh
-
             path = self.resolve(node, p.string("filename") or node.fail("missing property 'filename'"))
             index = p.integer("shape_index", 0) if t == "serialized" else 0
             if index < 0:
@@ -962,8 +970,6 @@ class _Loader:
         so that a coarse mesh is shaded as Mitsuba shades it, not faceted."""
         if normals is not None:
             return self._mesh(node, verts, tris, normals, m, flip, kw)
-        from .meshio import transform_mesh, vertex_normals
-        from .scene import Mesh
 
         try:
             verts, _ = transform_mesh(np.asarray(verts, dtype=np.float64), None, m)
@@ -977,9 +983,6 @@ class _Loader:
         return Mesh(vertices=verts, triangles=tris, normals=normals, **kw)
 
     def _mesh(self, node, verts, tris, normals, m, flip, kw):
-        from .meshio import transform_mesh
-        from .scene import Mesh
-
         try:
             verts, normals = transform_mesh(np.asarray(verts, dtype=np.float64),
                                             None if normals is None else np.asarray(normals, dtype=np.float64), m)

@@ -23,7 +23,7 @@ from .image import png_bytes
 
 def _widgets():
     try:
-        import ipywidgets
+        import ipywidgets  # optional (notebooks): imported when a live view is made
     except ImportError:
         return None
     return ipywidgets
@@ -51,7 +51,7 @@ class LiveView:
 
     def __init__(self, *, exposure: float = 0.0, width: int | None = None, widgets: bool | None = None,
                  title: str = ""):
-        from IPython.display import HTML, display
+        from IPython.display import HTML, display  # optional (notebooks)
 
         self.exposure, self.width, self.title = exposure, width, title
         self.updates = 0
@@ -73,7 +73,7 @@ class LiveView:
         return self.width or max(w, 256)
 
     def __call__(self, u):
-        from IPython.display import HTML, Image
+        from IPython.display import HTML, Image  # optional (notebooks)
 
         img = u.display_image() if u.final else u.image
         png = png_bytes(img, self.exposure)
@@ -111,7 +111,7 @@ def _as_image(x) -> np.ndarray:
 def side_by_side(images, titles=None, *, exposure: float = 0.0, width: int | None = None):
     """Images (arrays or RenderResults: their filtered image when they have
     one) in a row with captions, as an IPython HTML object."""
-    from IPython.display import HTML
+    from IPython.display import HTML  # optional (notebooks)
 
     images = [_as_image(x) for x in images]
     titles = list(titles) if titles is not None else [""] * len(images)

@@ -94,6 +94,10 @@ class PackedScene:
         return any(max(m.ks) > 0 for m in self.materials)
 
     @property
+    def has_microfacet(self) -> bool:
+        return any(max(m.km) > 0 for m in self.materials)
+
+    @property
     def has_mirror(self) -> bool:
         return any(max(m.kr) > 0 for m in self.materials)
 
@@ -112,10 +116,10 @@ class PackedScene:
 
 
 def lobe_probabilities(m: Material):
-    """Russian-roulette probabilities of the diffuse, Phong, mirror and refraction
-    lobes: each lobe's largest channel, scaled down if they sum past one.
+    """Russian-roulette probabilities of the diffuse, Phong, mirror, refraction
+    and microfacet lobes: each lobe's largest channel, scaled down if they sum past one.
     Absorption takes the rest, so a lobe's throughput weight k / p is <= 1."""
-    p = np.array([max(m.kd), max(m.ks), max(m.kr), max(m.kt)], dtype=np.float64)
+    p = np.array([max(m.kd), max(m.ks), max(m.kr), max(m.kt), max(m.km)], dtype=np.float64)
     return p / max(1.0, p.sum())
 
 
@@ -123,13 +127,18 @@ def _material_records(materials) -> np.ndarray:
     """MATERIAL records of the materials, in order."""
     out = layout.MATERIAL.zeros(len(materials))
     for rec, m in zip(out, materials):
-        p_d, p_s, p_r, p_t = lobe_probabilities(m)
+        p_d, p_s, p_r, p_t, p_m = lobe_probabilities(m)
         rec["kd_pd"] = (*m.kd, p_d)
         rec["ks_ps"] = (*m.ks, p_s)
         rec["kr_pr"] = (*m.kr, p_r)
         rec["kt_pt"] = (*m.kt, p_t)
         rec["le_sides"] = (*m.emission, 1.0 if m.two_sided else 0.0)
-        rec["params"] = (m.shininess, m.ior, 1.0 if p_d > 0 or p_s > 0 else 0.0, 1.0 if m.one_sided else 0.0)
+        rec["params"] = (m.shininess, m.ior, 1.0 if p_d > 0 or p_s > 0 or p_m > 0 else 0.0,
+                         1.0 if m.one_sided else 0.0)
+        if p_m > 0:
+            rec["km_pm"] = (*m.km, p_m)
+            rec["eta_alpha"] = (*m.eta, m.alpha)
+            rec["k_dist"] = (*m.k, 1.0 if m.distribution == "beckmann" else 0.0)
     return out
 
 
@@ -173,10 +182,10 @@ def alias_table(weights):
 
 
 def is_caustic_caster(m: Material) -> bool:
-    """Purely specular (mirror and/or refraction, no diffuse or Phong part):
+    """Purely specular (mirror and/or refraction, no diffuse, Phong or microfacet part):
     the surfaces photons pass through on their way to a caustic. Surfaces
     that mix in a diffuse or Phong part are left to the path tracer."""
-    return (max(m.kr) > 0 or max(m.kt) > 0) and max(m.kd) == 0 and max(m.ks) == 0
+    return (max(m.kr) > 0 or max(m.kt) > 0) and max(m.kd) == 0 and max(m.ks) == 0 and max(m.km) == 0
 
 
 def _caustic_objects(scene: Scene):

@@ -12,11 +12,14 @@ from __future__ import annotations
 
 import math
 import os
-import resource
 import tempfile
 from pathlib import Path
 
-from .scene import SceneError
+from .errors import ImageError, SceneError
+from .hostio import available_host_bytes
+from .image import save_image
+from .options import ADAPTIVE_OPTIONS, CONE_FILTER_OPTIONS, DENOISER_OPTIONS, OIDN_OPTIONS, PHOTON_OPTIONS, given
+from .scene import Mesh
 
 # Measured peak resident memory of `clpt render` (cornell_box, PoCL, 1 spp;
 # 1024^2 and 2048^2 against 256^2): bytes per pixel of the plain render, and
@@ -71,7 +74,7 @@ def check_output(path, what: str = "-o") -> Path:
     """An output path that can be written, in a format OpenImageIO writes:
     its folder is created and written to (check_folder), an existing file
     opened for writing (not truncated)."""
-    import OpenImageIO as oiio
+    import OpenImageIO as oiio  # optional and heavy: imported only to check an image format
 
     if path is None or str(path).strip() == "":
         raise SceneError(f"{what}: the output path is empty; give a file name such as out.png or out.exr")
@@ -143,8 +146,6 @@ def check_render_options(a):
 
 def warn_unused_options(a, scene_has_casters: bool, warn):
     """One line for each given option that will have no effect."""
-    from .options import ADAPTIVE_OPTIONS, CONE_FILTER_OPTIONS, DENOISER_OPTIONS, OIDN_OPTIONS, PHOTON_OPTIONS, given
-
     photon_opts = [o.flag for o in given(a, PHOTON_OPTIONS)]
     if photon_opts and not scene_has_casters:
         warn(f"{', '.join(photon_opts)} ignored: the scene has no mirror or glass objects, so no photon map")
@@ -168,8 +169,6 @@ def scene_resources(scene) -> list[tuple[str, int]]:
     """(what, bytes) of each of the scene's resources while it renders, from
     the measured costs above: its meshes. Textures, when clpt reads them,
     add an entry each here (their texels, and any mip levels)."""
-    from .scene import Mesh
-
     out = []
     for s in scene.shapes:
         if isinstance(s, Mesh):
@@ -197,38 +196,6 @@ def check_scene_memory(scene, available: int | None = None):
     raise SceneError(f"{scene.source}: its meshes need about {need / 2**30:.1f} GiB of memory to render "
                      f"({len(items)} mesh{'es' if len(items) > 1 else ''}, the largest a {what}: "
                      f"{most / 2**30:.1f} GiB) and {max(avail, 0) / 2**30:.1f} GiB are available")
-
-
-def available_host_bytes() -> int | None:
-    """What this process may still allocate: the least of the memory the
-    system has available, the cgroup's limit and the address-space limit."""
-    limits = []
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    limits.append(int(line.split()[1]) * 1024)
-    except (OSError, ValueError):
-        pass
-    try:
-        mx = Path("/sys/fs/cgroup/memory.max").read_text().strip()
-        if mx != "max":
-            cur = int(Path("/sys/fs/cgroup/memory.current").read_text())
-            limits.append(int(mx) - cur)
-    except (OSError, ValueError):
-        pass
-    try:
-        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
-        if soft != resource.RLIM_INFINITY:
-            vm = 0
-            with open("/proc/self/status") as f:
-                for line in f:
-                    if line.startswith("VmSize:"):
-                        vm = int(line.split()[1]) * 1024
-            limits.append(soft - vm)
-    except (OSError, ValueError):
-        pass
-    return max(0, min(limits)) if limits else None
 
 
 def check_memory(width: int, height: int, aux: bool, adaptive: bool, photons: int, cpu_device: bool = True,
@@ -268,8 +235,6 @@ def fallback_path(out: Path) -> Path:
 def save_with_fallback(save, out: Path, image, metadata, warn) -> Path | None:
     """save(out); if that fails, the image as a float EXR at fallback_path(out)
     (returned) after warning with both reasons."""
-    from .image import ImageError, save_image
-
     try:
         save(out)
         return None

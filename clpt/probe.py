@@ -33,6 +33,10 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from .program import cache_dir
+from .resources import kernel_dir
+from .version import __version__
+
 CHECK_SECONDS = 30.0  # a healthy CPU runtime builds and renders it in 1-6 s
 CHECK_SIZE, CHECK_SPP, CHECK_SEED = 16, 32, 1
 CHECK_MEAN = (0.098, 0.198)
@@ -58,9 +62,6 @@ def enabled() -> bool:
 
 
 def _sources_hash() -> str:
-    from . import __version__
-    from .resources import kernel_dir
-
     h = hashlib.sha256(__version__.encode())
     for p in sorted(kernel_dir().iterdir()):
         if p.suffix in (".h", ".cl"):
@@ -77,8 +78,6 @@ def _key(identity: str, lanes: int) -> str:
 
 
 def _path(key: str) -> Path:
-    from .program import cache_dir
-
     return cache_dir() / "devices" / f"{key}.json"
 
 
@@ -126,7 +125,7 @@ def _reason(proc: subprocess.CompletedProcess) -> str:
 
 
 def _command() -> list[str]:
-    return [sys.executable, "-m", "clpt.probe"]
+    return [sys.executable, "-m", "clpt.probe_check"]
 
 
 def check(device, identity: str, label: str, lanes: int, where: tuple[int, int]) -> CheckResult:
@@ -166,27 +165,6 @@ def check(device, identity: str, label: str, lanes: int, where: tuple[int, int])
         r = CheckResult(True, lanes, "", secs, out["mean"])
     _save(identity, label, r)
     return r
-
-
-def _child():
-    """The check itself, in its own process (python -m clpt.probe, the job on stdin)."""
-    import warnings
-
-    import numpy as np
-    import pyopencl as cl
-
-    job = json.loads(sys.stdin.read())
-    warnings.simplefilter("ignore")
-    from .device import DeviceContext
-    from .render import Renderer
-
-    p = cl.get_platforms()[job["platform"]]
-    d = p.get_devices()[job["device"]]
-    if DeviceContext(d).identity() != job["identity"]:
-        sys.exit("the device list changed while checking")
-    r = Renderer("cornell_box", device=d, lanes=job["lanes"], photons=False, use_cache=False)  # no cache filled
-    img = r.render(CHECK_SPP, width=CHECK_SIZE, height=CHECK_SIZE, seed=CHECK_SEED).image
-    print(json.dumps({"finite": bool(np.isfinite(img).all()), "mean": float(np.nan_to_num(img).mean())}))
 
 
 def check_in_background(identity: str, label: str, lanes: int, where: tuple[int, int]) -> bool:
@@ -232,6 +210,3 @@ def _check_main(text: str):
     finally:
         Path(job["marker"]).unlink(missing_ok=True)
 
-
-if __name__ == "__main__":
-    _child()

@@ -56,23 +56,14 @@ from pathlib import Path
 import pyopencl as cl
 
 from .constants import kernel_defines
-from .resources import kernel_dir
+from .errors import KernelBuildError
+from .layout import c_source
+from .resources import cache_dir, kernel_dir
 
 # Device libraries in dependency order; entry files (*.cl) come after them.
 LIBRARY_FILES = ("features.h", "simd.h", "rng.h", "sampler.h", "sampling.h", "scene.h", "bvh.h", "lights.h",
-                 "photon_aim.h", "camera.h", "film.h", "bsdf.h", "photon_grid.h")
-
-
-class KernelBuildError(RuntimeError):
-    """The OpenCL compiler rejected a kernel build."""
-
-
-def cache_dir() -> Path:
-    env = os.environ.get("CLPT_CACHE_DIR")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "clpt"
+                 "photon_aim.h", "camera.h", "film.h", "microfacet.h", "bsdf.h",
+                 "photon_grid.h")
 
 
 def clear_cache() -> int:
@@ -90,7 +81,6 @@ def stitch(entry_files, generated: dict[str, str] | None = None, after: str = "s
     markers. `generated` maps a pseudo file name to text inserted right after
     the library file `after`; the record layout (clpt/layout.py) always comes
     right after simd.h."""
-    from .layout import c_source
     kd = kernel_dir()
     parts = [f'#line 1 "<constants>"\n{kernel_defines()}']
     for name in list(LIBRARY_FILES) + list(entry_files):

@@ -15,128 +15,32 @@ a per-pixel caustic buffer that is added to the path-traced image.
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 import weakref
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from .adaptive import AdaptiveSettings
-from .denoise import FilterSettings
 from . import tune
-from .device import DeviceContext, DeviceError, choose_devices
-from .engine.checkpoint import Checkpoint, CheckpointError
-from .engine.device import DeviceWorker, device_features, kernel_source, kernel_sources  # noqa: F401
-from .engine.driver import Driver
+from .adaptive import AdaptiveSettings
+from .device import DeviceContext, choose_devices
+from .engine.checkpoint import Checkpoint
+from .engine.device import DeviceWorker, device_features, kernel_source
+from .engine.driver import Driver, run_item
 from .engine.executors import DaskExecutor, LocalExecutor
-from .engine.job import DeviceOptions, RenderJob, kernel_photons
+from .engine.job import DeviceOptions, RenderJob, WorkItem, kernel_photons
+from .engine.processes import ProcessExecutor
 from .engine.schedule import Schedule
+from .errors import CheckpointError, DeviceError, SettingsError
 from .features import KERNEL_MODES, Experimental, Features
-from .photons import PhotonSettings, pilot
+from .loading import load_scene
+from .photons import PhotonSettings, pilot_choice
 from .preview import RenderUpdate  # noqa: F401 - part of the API
-from .scene import Scene, SceneError, SettingsError, load_scene
-
-
-@dataclass
-class RenderStats:
-    nonfinite: int = 0       # samples dropped because they were NaN or infinite
-    camera_rays: int = 0
-    bounce_rays: int = 0
-    shadow_rays: int = 0
-    build_seconds: float = 0.0
-    cache_hits: int = 0
-    first_launch_seconds: float = 0.0  # includes a lazy device compile (PoCL)
-    render_seconds: float = 0.0
-    passes: list = field(default_factory=list)  # (device label, first sample, samples, seconds)
-    photon_maps: list = field(default_factory=list)  # per build: stored, radius, trace/grid device seconds
-    adaptive_rounds: int = 0
-    photon_pilot: dict | None = None  # what the pilot measured and chose (PhotonSettings.pilot)
-    launches: dict = field(default_factory=dict)  # kernel name -> launches, all devices
-    kernel_seconds: dict = field(default_factory=dict)  # kernel name -> device seconds per launch (profiling)
-    failures: list = field(default_factory=list)  # (worker, error) of workers dropped mid-render
-    checkpoints: list = field(default_factory=list)  # (seconds the render waited, seconds to write, bytes) each
-
-    @property
-    def rays(self) -> int:
-        return self.camera_rays + self.bounce_rays + self.shadow_rays
-
-
-@dataclass
-class RenderResult:
-    image: np.ndarray          # H x W x 3 float32, linear RGB
-    sample_count: np.ndarray   # H x W samples per pixel
-    lum_var: np.ndarray        # H x W variance of one sample's luminance (lum_var / count: of the mean)
-    spp: int
-    seed: int
-    max_depth: int
-    rr_depth: int
-    devices: list
-    features: Features
-    stats: RenderStats
-    photons: PhotonSettings | None = None
-    caustic_image: np.ndarray | None = None  # offline photon mapping: the caustic buffer (part of image)
-    aux: dict | None = None                  # feature images: normal, albedo, depth, emission, emitter,
-                                             # caustic (Renderer(aux=True))
-    filtered: np.ndarray | None = None       # the denoiser's output (render(filter=...)): cone filter or OIDN
-    adaptive: AdaptiveSettings | None = None
-    interrupted: bool = False    # stopped by Ctrl-C (KeyboardInterrupt)
-    time_limited: bool = False   # stopped by time_limit before the samples asked for
-    scene_source: str | None = None
-    scene_sha256: str | None = None
-
-    @property
-    def samples(self) -> int:
-        return int(self.sample_count.sum())
-
-    def __repr__(self):
-        h, w = self.image.shape[:2]
-        spp = f"{self.sample_count.mean():.4g} spp on average" if self.stats.adaptive_rounds else f"{self.spp} spp"
-        return (f"<RenderResult {w}x{h}, {spp}, seed {self.seed}, {self.stats.render_seconds:.2f} s"
-                f"{', filtered' if self.filtered is not None else ''}{', interrupted' if self.interrupted else ''}>")
-
-    def metadata(self, exposure: float | None = None) -> dict:
-        """What the image files record of the render (clpt:* keys)."""
-        from . import __version__
-
-        count = self.sample_count
-        meta = {"clpt:version": __version__,
-                "clpt:spp": round(float(count.mean()), 4) if count.size else 0.0,
-                "clpt:spp_min": int(count.min()) if count.size else 0,
-                "clpt:spp_max": int(count.max()) if count.size else 0,
-                "clpt:seed": self.seed, "clpt:max_depth": self.max_depth,
-                "clpt:rr_depth": self.rr_depth, "clpt:device": "; ".join(self.devices),
-                "clpt:render_seconds": round(self.stats.render_seconds, 4),
-                "clpt:kernel": self.features.describe(), "clpt:interrupted": int(self.interrupted),
-                "clpt:time_limited": int(self.time_limited)}
-        if self.scene_source is not None:
-            meta["clpt:scene"] = self.scene_source
-        if self.scene_sha256 is not None:
-            meta["clpt:scene_sha256"] = self.scene_sha256
-        if exposure is not None:
-            meta["clpt:exposure"] = float(exposure)
-        if self.stats.photon_pilot is not None:
-            meta["clpt:photon_choice"] = self.stats.photon_pilot["choice"]
-        if self.photons is not None:
-            p = self.photons
-            meta["clpt:photons"] = (f"{p.count} photons, radius {p.radius}{'' if p.radius_absolute else ' x size'}, "
-                                    f"k {p.cone_k}, {p.mode}{', progressive alpha %g' % p.alpha if p.progressive else ''}"
-                                    f", budget {p.budget}, max {p.max_photons or 'all'}, aim {p.aim}")
-        if self.adaptive is not None:
-            a = self.adaptive
-            meta["clpt:adaptive"] = (f"{a.scheme}, min spp {a.min_spp}, threshold {a.threshold:g}, "
-                                     f"pass spp {a.pass_spp}, {self.stats.adaptive_rounds} rounds")
-        return meta
-
-    def save(self, path, exposure: float = 0.0):
-        from .image import save_image
-        save_image(path, self.image, metadata=self.metadata(exposure), exposure=exposure)
-
-    def _repr_png_(self) -> bytes:
-        """Notebooks show a result as its image, tone-mapped as save() writes a PNG."""
-        from .image import png_bytes
-        return png_bytes(self.image)
+from .result import RenderResult, RenderStats  # noqa: F401 - part of the API
+from .scene import Scene
 
 
 class Renderer:
@@ -223,15 +127,17 @@ class Renderer:
 
     def _trial(self, st, spp: int, seed: int):
         """Render spp samples per pixel of a tune.TRIAL_SIZE square image the
-        default way on worker st alone; (samples/s of the passes after the
-        one-sample probe, seconds per spp)."""
-        shell = Renderer.__new__(Renderer)
-        shell.scene, shell.packed, shell.states, shell.features = self.scene, self.packed, [st], st.features
-        shell.options, shell._local, shell._processes = self.options, None, None
-        shell.experimental = self.experimental
-        shell.photon_settings, shell._twins = self.photon_settings, {}
+        default way (the photon pilot included) on worker st alone, as a job
+        of its own; (samples/s of the passes after the one-sample probe,
+        seconds per spp)."""
         n = tune.TRIAL_SIZE
-        res = shell.render(spp, width=n, height=n, seed=seed, pass_seconds=1e9)
+        ex = LocalExecutor([st])
+        try:
+            job = self._job(st.features, spp, width=n, height=n, seed=seed)
+            job = self._pilot(job, ex)[0]
+            res = self._run(job, None, None, 0.0, pass_seconds=1e9, executor=ex, workers=[st])
+        finally:
+            ex.close()
         passes = res.stats.passes[1:] or res.stats.passes
         secs = max(sum(p[3] for p in passes), 1e-9)
         done = sum(p[2] for p in passes)
@@ -246,6 +152,14 @@ class Renderer:
             photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
             filter=None, aux_specular: str = "surface") -> RenderJob:
         """The RenderJob of render()'s settings (checked; the scene's where not given)."""
+        return self._job(self.features, spp, seed=seed, max_depth=max_depth, rr_depth=rr_depth, width=width,
+                         height=height, photons=photons, adaptive=adaptive, filter=filter, aux_specular=aux_specular)
+
+    def _job(self, features: Features, spp: int | None = None, *, seed: int | None = None,
+             max_depth: int | None = None, rr_depth: int | None = None, width: int | None = None,
+             height: int | None = None, photons: PhotonSettings | None = None,
+             adaptive: AdaptiveSettings | None = None, filter=None, aux_specular: str = "surface") -> RenderJob:
+        """job() for workers of the given build."""
         if photons is None:
             photons = self.photon_settings
         elif photons is False:  # path tracing only, with the kernels built for photons
@@ -265,9 +179,9 @@ class Renderer:
                 raise SettingsError(f"render: {name} must be an integer >= {lo} (got {v!r})")
         if spp >= 2**32 or seed >= 2**32:
             raise SettingsError("render: spp and seed must be below 2^32")
-        pset = (photons or PhotonSettings()).check().resolved(width * height) if self.features.photons else None
+        pset = (photons or PhotonSettings()).check().resolved(width * height) if features.photons else None
         if pset is not None:
-            kernel_photons(pset, self.packed.length_scale).check_radius(self.packed.size, self.features.double)
+            kernel_photons(pset, self.packed.length_scale).check_radius(self.packed.size, features.double)
         aset = adaptive.check() if adaptive is not None else None
         fset = filter.check() if filter is not None else None
         if aux_specular not in ("through", "surface"):
@@ -319,12 +233,7 @@ class Renderer:
         _check_run_options(on_update, update_interval, time_limit, pass_seconds, checkpoint_every)
         if pass_seconds is None:
             pass_seconds = self.states[0].tuning.pass_seconds
-        t_pilot = time.perf_counter()
-        pset, pilot_info = job.photons, None
-        if pset is not None and pset.pilot and pset.mode == "merge" and pset.count > 0 and job.adaptive is None:
-            pset, pilot_info = pilot(self, pset, seed=job.seed)
-            job = replace(job, photons=pset)
-        pilot_seconds = time.perf_counter() - t_pilot if pilot_info is not None else 0.0
+        job, pilot_info, pilot_seconds = self._pilot(job, self._executor(None))
         if pilot_info is not None and time_limit is not None:
             time_limit = max(time_limit - pilot_seconds, 0.0)  # the pilot is part of the render's time
         res = self._run(job, None, None, 0.0, progress=progress, preview=preview, time_limit=time_limit,
@@ -334,6 +243,22 @@ class Renderer:
         res.stats.render_seconds += pilot_seconds
         res.stats.photon_pilot = pilot_info
         return res
+
+    def _pilot(self, job: RenderJob, executor) -> tuple[RenderJob, dict | None, float]:
+        """(the job to render, what the photon pilot measured, its seconds):
+        where the job's photon settings ask for the pilot, a job of their own
+        builds one photon map on the executor's first worker and the pilot
+        chooses between photon merging and path tracing from it
+        (photons.pilot_choice); else the job as it is."""
+        pset = job.photons
+        if not (pset is not None and pset.pilot and pset.mode == "merge" and pset.count > 0
+                and job.adaptive is None):
+            return job, None, 0.0
+        t0 = time.perf_counter()
+        res = run_item(executor, job, WorkItem("photons", iteration=0))
+        pm = res.photon_maps[0]
+        pset, info = pilot_choice(pset, pm["power"], self.packed.max_flux, pm["stored"], pm["host_seconds"])
+        return replace(job, photons=pset), info, time.perf_counter() - t0
 
     def resume(self, checkpoint, *, out_checkpoint=None, **kw) -> RenderResult:
         """Continue the render saved in `checkpoint` (of this Renderer's scene
@@ -374,7 +299,6 @@ class Renderer:
             return self._local
         if executor == "processes":  # each device in a process of its own, kept for the next render
             if self._processes is None:
-                from .engine.processes import ProcessExecutor
                 self._processes = ProcessExecutor([d.device for d in self.devices])
                 weakref.finalize(self, self._processes.close)
             self._processes.live = set(range(len(self._processes.children)))
@@ -388,23 +312,28 @@ class Renderer:
 
     def _run(self, job, schedule, initial, elapsed_before, *, progress=None, preview=None, time_limit=None,
              pass_seconds=None, executor=None, checkpoint=None, checkpoint_every=None, on_update=None,
-             update_interval=0.25, stop=None):
+             update_interval=0.25, stop=None, workers=None):
+        """Render job on the executor; workers: the local workers whose build
+        it renders with (default: this Renderer's)."""
+        workers = self.states if workers is None else workers
+        features = workers[0].features
         if pass_seconds is None:
-            pass_seconds = self.states[0].tuning.pass_seconds
-        stats = RenderStats(build_seconds=self.build_seconds, cache_hits=sum(s.build.cache_hit for s in self.states))
+            pass_seconds = workers[0].tuning.pass_seconds
+        stats = RenderStats(build_seconds=sum(s.build.seconds for s in workers),
+                            cache_hits=sum(s.build.cache_hit for s in workers))
         ex = self._executor(executor)
-        empty = self.states[0].empty_sums
+        empty = workers[0].empty_sums
         if initial is not None:
             try:
                 initial = initial.with_layout(empty(job))  # fp64 sums onto a Kahan device, or back
             except ValueError as e:
                 raise CheckpointError(f"the checkpoint's sums do not fit this render: {e}") from None
         drv = Driver(job, ex, stats=stats, lum_scale=self.packed.lum_scale, length_scale=self.packed.length_scale,
-                     lanes=self.features.lanes,
+                     lanes=features.lanes,
                      schedule=schedule, initial=initial, empty=lambda: empty(job), pass_seconds=pass_seconds,
                      time_limit=time_limit, progress=progress, preview=preview, on_update=on_update,
                      update_interval=update_interval, checkpoint=checkpoint, checkpoint_every=checkpoint_every,
-                     stop=stop, elapsed_before=elapsed_before, describe=self.features.describe())
+                     stop=stop, elapsed_before=elapsed_before, describe=features.describe())
         interrupted = drv.run()
         sums = drv.total()
         if interrupted:
@@ -412,12 +341,9 @@ class Renderer:
         stats.render_seconds = drv.elapsed()
         stats.failures = drv.failures
         stats.checkpoints = drv.checkpoints
-        if ex.resident:
-            for w in self.states:
-                w.launches = dict(w.launches)
         res = sums.finish(job.width, job.height, self.packed.lum_scale, self.packed.length_scale, seed=job.seed,
                           max_depth=job.max_depth, rr_depth=job.rr_depth, devices=list(ex.labels),
-                          features=self.features, stats=stats, photons=job.photons, adaptive=job.adaptive,
+                          features=features, stats=stats, photons=job.photons, adaptive=job.adaptive,
                           interrupted=interrupted, scene_source=self.scene.source, scene_sha256=self.scene.sha256)
         # Stopped by the time limit, not by a signal (adaptive: not by convergence either).
         if time_limit is not None and not interrupted:
@@ -452,8 +378,6 @@ def render(scene, *, spp: int | None = None, device=None, **kw) -> np.ndarray:
     spp=64). Every other keyword is Renderer's (device, lanes, precision,
     photons, ...) or Renderer.render's (seed, width, height, adaptive,
     filter, time_limit, ...), each with the same name and meaning there."""
-    import inspect
-
     own = set(inspect.signature(Renderer.__init__).parameters) - {"self", "scene"}
     runs = set(inspect.signature(Renderer.render).parameters) - {"self", "spp"}
     unknown = set(kw) - own - runs

@@ -1,11 +1,12 @@
 """Where the kernel sources and shipped scenes are, in a source checkout or an
 installed package (the wheel carries kernels/ and scenes/ as clpt/kernels and
-clpt/scenes)."""
+clpt/scenes), and where clpt's cache is."""
 
 from __future__ import annotations
 
 import contextlib
 import importlib.resources
+import os
 from pathlib import Path
 
 
@@ -38,3 +39,12 @@ def scene_path(name: str) -> Path | None:
 
 def shipped_scenes() -> list[str]:
     return sorted(p.stem for p in scene_dir().glob("*.toml"))
+
+
+def cache_dir() -> Path:
+    """Where clpt caches kernel builds, device checks and tunings (CLPT_CACHE_DIR, else the user's cache folder)."""
+    env = os.environ.get("CLPT_CACHE_DIR")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "clpt"

@@ -32,7 +32,10 @@ import hashlib
 import os
 import tempfile
 from dataclasses import dataclass
+from importlib import metadata
 from pathlib import Path
+
+from .resources import cache_dir
 
 SYSTEM_VENDORS = "/etc/OpenCL/vendors"
 
@@ -52,8 +55,6 @@ _done: Registration | None = None
 def bundled_runtime_libraries() -> list[Path]:
     """The OpenCL runtime libraries that pip installed beside clpt (Intel's
     CPU runtime), found through the installed distributions' file lists."""
-    from importlib import metadata
-
     out = []
     try:
         dist = metadata.distribution("intel-opencl-rt")
@@ -99,8 +100,6 @@ def _same_library(a: str, b: Path) -> bool:
 
 
 def _folder_for(entries: dict[str, str]) -> Path:
-    from .program import cache_dir
-
     text = "\n".join(f"{k}\t{v}" for k, v in sorted(entries.items()))
     name = hashlib.sha256(text.encode()).hexdigest()[:16]
     for base in (cache_dir() / "opencl-vendors", Path(tempfile.gettempdir()) / f"clpt-opencl-vendors-{os.getuid()}"):
@@ -160,3 +159,15 @@ def registration() -> Registration | None:
     """What register() did in this process (None before it ran)."""
     return _done
 
+
+def platform_short_name(platform_name: str) -> str:
+    """A platform's short name for --device: pocl, intel, nvidia, amd, or the
+    first word of its name, lowercased, without (R)/(TM)."""
+    low = platform_name.lower()
+    if "portable computing language" in low or "pocl" in low:
+        return "pocl"
+    for known in ("intel", "nvidia", "amd", "apple", "rusticl", "clover"):
+        if known in low:
+            return known
+    words = low.replace("(r)", "").replace("(tm)", "").split()
+    return words[0] if words else low

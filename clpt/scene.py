@@ -3,7 +3,8 @@
 A scene is a camera, named materials and a list of shapes; any shape with
 emission is an area light. The same classes are the Python API
 (``clpt.Scene(camera=..., shapes=[clpt.Sphere(...)])``) and what
-``load_scene`` builds from a TOML file (format: scenes/README.md).
+``parse_scene`` builds from a TOML file's text (format: scenes/README.md;
+``clpt.load_scene``, clpt/loading.py, reads a file of either format).
 
 Every mistake in a user's scene is reported as a ``SceneError`` whose message
 names the file, the key path and the reason, e.g.::
@@ -24,26 +25,15 @@ from typing import Union
 
 import numpy as np
 
+from .errors import MeshError, SceneError, SceneWarning, SettingsError  # noqa: F401 - importable from here
+from .hostio import open_regular_file
+from .meshio import check_mesh, compose, cross_rows, norm_rows, read_mesh, transform_mesh
 from .presets import PRESETS
+from .spectrum import conductor_ior
 
 Vec3 = tuple[float, float, float]
 
 FOV_AXES = ("x", "y", "smaller", "larger")
-
-
-class SceneError(ValueError):
-    """A scene is invalid. The message names the source, key path and reason."""
-
-
-class SettingsError(SceneError):
-    """A render setting (PhotonSettings, AdaptiveSettings, FilterSettings,
-    OidnSettings, or a keyword of Renderer.render) is out of range or of the
-    wrong type. A SceneError too, so one except clause catches bad input of
-    either kind."""
-
-
-class SceneWarning(UserWarning):
-    """Part of a scene is approximated or left out; the message says which and where."""
 
 
 # --- data model --------------------------------------------------------------------
@@ -56,7 +46,12 @@ class Material:
     kd: diffuse albedo; ks and shininess: modified-Phong specular lobe
     (f = ks (n+2)/(2 pi) cos^n alpha); kr: perfect mirror; kt and ior:
     refraction through a dielectric interface with exact Fresnel. Absorption
-    is what remains, 1 - (kd + ks + kr + kt), which must not be negative.
+    is what remains, 1 - (kd + ks + km + kr + kt), which must not be negative.
+    km, alpha, distribution, eta and k: a rough conductor's microfacet lobe
+    as Mitsuba 3's `roughconductor` defines it (f = km F D G / (4 cos_o
+    cos_i)): roughness alpha, distribution "beckmann" (Mitsuba's default) or "ggx",
+    conductor Fresnel of the complex index eta + i k per channel (eta 0, k 1:
+    F = 1); `Material.rough_conductor` fills them from a named conductor.
     emission is radiance leaving the surface (on the side its normal points
     to, or both sides if two_sided). one_sided makes the surface black from
     behind (the side its normal points away from): no reflection, no
@@ -72,15 +67,23 @@ class Material:
     emission: Vec3 = (0.0, 0.0, 0.0)
     two_sided: bool = False
     one_sided: bool = False
+    km: Vec3 = (0.0, 0.0, 0.0)
+    alpha: float = 0.1
+    distribution: str = "beckmann"
+    eta: Vec3 = (0.0, 0.0, 0.0)
+    k: Vec3 = (1.0, 1.0, 1.0)
 
     def __post_init__(self):
         # Types now (a clear TypeError at the mistake); ranges in check_material.
-        for key in ("kd", "ks", "kr", "kt", "emission"):
+        for key in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k"):
             v = getattr(self, key)
             if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 3 or \
                     not all(_is_number(c) for c in v):
                 raise TypeError(f"Material.{key} must be 3 numbers, e.g. (0.5, 0.5, 0.5) (got {v!r})")
-        for key in ("shininess", "ior"):
+        if not isinstance(self.distribution, str):
+            raise TypeError(f"Material.distribution must be a string, one of {', '.join(DISTRIBUTIONS)} "
+                            f"(got {self.distribution!r})")
+        for key in ("shininess", "ior", "alpha"):
             if not _is_number(getattr(self, key)):
                 raise TypeError(f"Material.{key} must be a number (got {getattr(self, key)!r})")
         if not isinstance(self.two_sided, (bool, np.bool_)):
@@ -92,6 +95,17 @@ class Material:
         if name not in PRESETS:
             raise SceneError(f"unknown material preset {name!r}{_suggest(name, PRESETS)}")
         return cls(**{**PRESETS[name], **overrides})
+
+    @classmethod
+    def rough_conductor(cls, material: str = "none", alpha: float = 0.1, distribution: str = "beckmann",
+                        specular_reflectance: Vec3 = (1.0, 1.0, 1.0), **overrides) -> "Material":
+        """A rough conductor (Mitsuba 3's `roughconductor`, one-sided): a named
+        conductor's eta and k as Mitsuba's RGB variants use them (`clpt
+        check` on an XML scene lists the names; "none": F = 1)."""
+        eta, k = conductor_ior(material)
+        base = dict(km=tuple(float(c) for c in specular_reflectance), alpha=alpha, distribution=distribution,
+                    eta=eta, k=k, one_sided=True)
+        return cls(**{**base, **overrides})
 
     @property
     def is_emissive(self) -> bool:
@@ -419,7 +433,6 @@ class Mesh(_ShapeBase):
     normals: np.ndarray | None = None
 
     def __post_init__(self):
-        from .meshio import check_mesh
         v, t, n = check_mesh(self.vertices, self.triangles, self.normals,
                              source=f"mesh {self.name!r}" if self.name else "mesh")
         for a in (v, t, n):
@@ -433,7 +446,6 @@ class Mesh(_ShapeBase):
         pass  # checked (and degenerate triangles dropped) on construction
 
     def triangle_areas(self) -> np.ndarray:
-        from .meshio import cross_rows, norm_rows
         v, t = self.vertices, self.triangles
         a = v[t[:, 0]]
         return 0.5 * norm_rows(cross_rows(v[t[:, 1]] - a, v[t[:, 2]] - a))
@@ -453,7 +465,6 @@ class Mesh(_ShapeBase):
     @classmethod
     def from_file(cls, path, transform=None, **kw) -> "Mesh":
         """Read an OBJ or PLY file; transform: a 4x4 matrix applied to it."""
-        from .meshio import read_mesh, transform_mesh
         v, t, n = read_mesh(path)
         if transform is not None:
             v, n = transform_mesh(v, n, transform)
@@ -584,6 +595,8 @@ def _emission(source, path, v):
 FLOAT_MAX = float(np.finfo(np.float32).max)
 LENGTH_RANGE = 2.0 ** 60
 MAX_SHININESS = 1e30
+DISTRIBUTIONS = ("ggx", "beckmann")
+ALPHA_RANGE = (1e-4, 10.0)  # float resolves the half vector to ~1e-7 rad: alpha below 1e-4 is a mirror
 IOR_RANGE = (1e-6, 1e6)
 
 
@@ -656,8 +669,16 @@ def _length_in_range(source, path, size, extent):
 
 def check_material(source, path, m: Material):
     total = np.zeros(3)
-    for key in ("kd", "ks", "kr", "kt"):
+    for key in ("kd", "ks", "km", "kr", "kt"):
         total += _finite_vec(source, f"{path}.{key}", getattr(m, key), nonneg=True)
+    if max(m.km) > 0:
+        _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
+                hi_open=False)
+        if m.distribution not in DISTRIBUTIONS:
+            _fail(source, f"{path}.distribution", f"must be one of {', '.join(DISTRIBUTIONS)} "
+                                                   f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
+        _finite_vec(source, f"{path}.eta", m.eta, nonneg=True)
+        _finite_vec(source, f"{path}.k", m.k, nonneg=True)
     _emission(source, f"{path}.emission", m.emission)
     _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False, hi=MAX_SHININESS, hi_open=False)
     _finite(source, f"{path}.ior", m.ior, lo=IOR_RANGE[0], lo_open=False, hi=IOR_RANGE[1], hi_open=False)
@@ -665,7 +686,7 @@ def check_material(source, path, m: Material):
         _fail(source, f"{path}.two_sided", f"must be True or False (got {m.two_sided!r})")
     if (total > 1.0 + 1e-6).any():
         c = "rgb"[int(np.argmax(total))]
-        _fail(source, path, f"not energy conserving: kd + ks + kr + kt = {total.max():.6g} > 1 "
+        _fail(source, path, f"not energy conserving: kd + ks + km + kr + kt = {total.max():.6g} > 1 "
                             f"in the {c} channel (absorption would be negative)")
 
 
@@ -848,7 +869,8 @@ def _tname(v):
             dict: "table"}.get(type(v), type(v).__name__)
 
 
-_MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided", "one_sided"}
+_MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided", "one_sided",
+                  "km", "alpha", "distribution", "eta", "k"}
 _COMMON_SHAPE_KEYS = {"type", "material", "emission", "two_sided", "name"}
 _SHAPE_KEYS = {
     "sphere": {"center", "radius"},
@@ -870,12 +892,14 @@ def _read_material(r: _Reader, d, path) -> Material:
             r.fail(f"{path}.preset", f"unknown preset {name!r}{_suggest(name, PRESETS)}; "
                                      f"presets: {', '.join(PRESETS)}")
         base = dict(PRESETS[name])
-    for k in ("kd", "ks", "kr", "kt", "emission"):
+    for k in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k"):
         if k in d:
             base[k] = r.vec3(d[k], f"{path}.{k}")
-    for k in ("shininess", "ior"):
+    for k in ("shininess", "ior", "alpha"):
         if k in d:
             base[k] = r.number(d[k], f"{path}.{k}")
+    if "distribution" in d:
+        base["distribution"] = r.string(d["distribution"], f"{path}.distribution")
     for k in ("two_sided", "one_sided"):
         if k in d:
             base[k] = r.boolean(d[k], f"{path}.{k}")
@@ -887,7 +911,6 @@ def _read_material(r: _Reader, d, path) -> Material:
 def _read_transform(r: _Reader, d, path):
     """A transform table: a 4x4 `matrix` (rows), or translate/rotate/scale
     (scale first, then rotate in degrees about x, y, z, then translate)."""
-    from .meshio import compose
     r.table(d, path, _TRANSFORM_KEYS)
     if "matrix" in d:
         if {"translate", "rotate", "scale"} & set(d):
@@ -904,7 +927,6 @@ def _read_transform(r: _Reader, d, path):
 
 
 def _read_mesh(r: _Reader, d, path, base_dir, kw):
-    from .meshio import MeshError
     name = r.string(r.require(d, path, "file"), f"{path}.file")
     file = Path(name) if Path(name).is_absolute() or base_dir is None else Path(base_dir) / name
     matrix = _read_transform(r, d["transform"], f"{path}.transform") if "transform" in d else None
@@ -1028,34 +1050,6 @@ def parse_scene(text: str, source: str = "<string>", base_dir=None) -> Scene:
 MAX_SCENE_BYTES = 16 << 20
 
 
-def open_regular_file(p: Path, name, what: str, limit: int | None = None):
-    """The file open for reading in binary, checked first: it exists, is a
-    regular file (a FIFO or a device would block or never end) and has at
-    most `limit` bytes. Every failure is a one-line SceneError naming the
-    file as `name`."""
-    import os
-    import stat
-
-    try:
-        fd = os.open(p, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
-    except FileNotFoundError:
-        raise SceneError(f"{name}: no such {what}") from None
-    except OSError as e:
-        raise SceneError(f"{name}: cannot read the {what}: {e.strerror or e}") from None
-    try:
-        st = os.fstat(fd)
-        if stat.S_ISDIR(st.st_mode):
-            raise SceneError(f"{name}: is a folder, not a {what}")
-        if not stat.S_ISREG(st.st_mode):
-            raise SceneError(f"{name}: not a regular file (a pipe or device); save the {what} to a file")
-        if limit is not None and st.st_size > limit:
-            raise SceneError(f"{name}: {st.st_size} bytes is too large for a {what} (at most {limit >> 20} MiB)")
-        return os.fdopen(fd, "rb")
-    except BaseException:
-        os.close(fd)
-        raise
-
-
 def read_file_bytes(p: Path, name, what: str = "scene file", limit: int = MAX_SCENE_BYTES) -> bytes:
     """The bytes of a file clpt reads whole (a scene, an included scene, a
     spectrum), of at most `limit` bytes (open_regular_file)."""
@@ -1076,23 +1070,3 @@ def _read_scene_text(p: Path, name) -> str:
         return data.decode("utf-8")
     except UnicodeDecodeError as e:
         raise SceneError(f"{name}: not UTF-8 text ({e.reason} at byte {e.start})") from None
-
-
-def load_scene(path, params: dict | None = None, *, strict: bool = False) -> Scene:
-    """Read a TOML scene file (or a shipped scene's name, e.g. "cornell_box"),
-    or a Mitsuba 3 XML file (.xml, clpt.mitsuba): params then override its
-    <default> values, and strict makes every SceneWarning an error."""
-    p = Path(path)
-    if p.suffix.lower() == ".xml":
-        from .mitsuba import load_mitsuba
-        return load_mitsuba(p, params, strict=strict)
-    if params:
-        raise SceneError(f"{path}: parameters (-D NAME=VALUE) apply to Mitsuba XML scenes only")
-    if not p.exists() and p.suffix == "" and len(p.parts) == 1:
-        from .resources import scene_path
-        shipped = scene_path(str(path))
-        if shipped is not None:
-            p = shipped
-    text = _read_scene_text(p, path)
-    return parse_scene(text, source=str(path), base_dir=p.parent)
-

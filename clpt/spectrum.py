@@ -13,10 +13,14 @@ for an emitter the colour of the equal-energy spectrum times the value.
 
 from __future__ import annotations
 
+import difflib
 import functools
+import json
 from pathlib import Path
 
 import numpy as np
+
+from .errors import SceneError
 
 CIE_MIN, CIE_MAX = 360.0, 830.0
 STEPS = 1000  # Riemann sum samples, as Mitsuba
@@ -102,3 +106,23 @@ def parse_spectrum_pairs(text: str):
     if not wl:
         raise ValueError("empty spectrum")
     return wl, vals
+
+
+@functools.cache
+def ior_data() -> dict:
+    """Mitsuba 3's tables of named dielectrics ("ior") and conductors
+    ("conductor": RGB eta and k), from clpt/data/mitsuba_ior.json."""
+    return json.loads((Path(__file__).resolve().parent / "data" / "mitsuba_ior.json").read_text())
+
+
+def conductor_ior(name: str) -> tuple:
+    """(eta, k), RGB tuples, of a conductor Mitsuba 3 names ("none": eta 0,
+    k 1, a perfect mirror)."""
+    if name == "none":
+        return (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)
+    table = ior_data()["conductor"]
+    if name not in table:
+        close = difflib.get_close_matches(str(name), list(table), n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise SceneError(f"unknown conductor {name!r}{hint}; known: none, {', '.join(table)}")
+    return tuple(float(x) for x in table[name]["eta"]), tuple(float(x) for x in table[name]["k"])

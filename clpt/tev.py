@@ -75,7 +75,7 @@ def parse_address(text: str) -> tuple[str, int]:
 
 def _packets():
     try:
-        from tevclient import packet
+        from tevclient import packet  # optional (clpt[tev]): imported when a viewer connects
     except ImportError:
         raise ImportError("streaming to tev needs the tevclient package: pip install 'clpt[tev]'") from None
     return packet

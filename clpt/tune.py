@@ -63,9 +63,12 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
-from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
+import pyopencl as cl
+
 from . import program
+from .constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
 from .program import cache_dir
+from .runtimes import platform_short_name
 
 LANE_WIDTHS = (1, 2, 4, 8, 16)
 PASS_SECONDS = 0.25
@@ -99,10 +102,6 @@ def predict(device, photons: bool = False, cpu: bool | None = None) -> Tuning:
     """What a pyopencl Device's queries and the kernel's kind predict (see
     the module's docstring); photons: the kernel gathers caustic photons;
     cpu: whether to treat it as a CPU (default: its device type)."""
-    import pyopencl as cl
-
-    from .device import platform_short_name
-
     if not (bool(device.type & cl.device_type.CPU) if cpu is None else cpu):
         local = min(LOCAL_SIZE_GPU, device.max_work_group_size)
         return Tuning(1, local, PASS_SECONDS, "query", "a GPU runs work-items in lockstep: 1 lane")
@@ -177,7 +176,7 @@ def cached_choices(dctx) -> list[dict]:
 
 
 def measure_candidates(states, trial) -> dict:
-    """Samples/s of each state (a _DeviceState of one lane width) rendering
+    """Samples/s of each state (a DeviceWorker of one lane width) rendering
     the scene's default way (photons included) on a small image, in
     interleaved rounds: {"msamples_per_s": {lanes: best round}, "launch_seconds":
     the fixed cost of an empty launch}. trial(st, spp, seed) renders and
@@ -218,8 +217,8 @@ def measure_local_sizes(st, trial, candidates) -> dict:
 
 
 def choose(dctx, source: str, options, make_state, trial, *, lanes=None, local_size=None, use_cache=True):
-    """(Tuning, the built _DeviceState of the chosen width if choosing built
-    one, else None). make_state(lanes) builds a _DeviceState of that width;
+    """(Tuning, the built DeviceWorker of the chosen width if choosing built
+    one, else None). make_state(lanes) builds a DeviceWorker of that width;
     trial as for measure_candidates."""
     policy = os.environ.get("CLPT_TUNE", "auto").lower()
     if policy not in ("auto", "query", "measure"):

@@ -1,8 +1,9 @@
 // bsdf.h: the materials' lobes as sample / eval / pdf.
 //
 // A material is the paper's mix of lobes, chosen per scattering event by
-// Russian roulette: diffuse (kd), modified Phong (ks, shininess), mirror (kr)
-// and refraction (kt); absorption takes the rest. Before rr_depth the
+// Russian roulette: diffuse (kd), modified Phong (ks, shininess), the rough
+// conductor's microfacet lobe (km, alpha, eta + i k; microfacet.h), mirror
+// (kr) and refraction (kt); absorption takes the rest. Before rr_depth the
 // absorption branch is left out (the lobe probabilities renormalized).
 // Directions follow pbrt: d is the incoming ray direction, wi points away
 // from the surface, n is the shading normal on the side of -d.
@@ -12,16 +13,36 @@
 // record and material_fetch (scene.h), and a CLPT_HAS_<lobe> flag.
 
 // Lobe probabilities of m at this depth (absorption allowed or not).
-typedef struct { vreal d, s, r, t; } LobeProbs;
+typedef struct { vreal d, s, m, r, t; } LobeProbs;
 
 inline LobeProbs lobe_probs(const Material *m, vmask no_absorb)
 {
     LobeProbs p;
+#if CLPT_HAS_MICROFACET
+    vreal sum = m->p_d + m->p_s + m->p_m + m->p_r + m->p_t;
+#else
     vreal sum = m->p_d + m->p_s + m->p_r + m->p_t;
+#endif
     vreal k = VSEL((vreal)R(1), R(1) / sum, no_absorb && sum > R(0));
     p.d = m->p_d * k; p.s = m->p_s * k; p.r = m->p_r * k; p.t = m->p_t * k;
+    p.m = m->p_m * k;
     return p;
 }
+
+#if CLPT_HAS_MICROFACET
+// Solid-angle pdf of wi under the microfacet lobe's sampling (visible
+// normals, reflected): D(h) G1(-d, h) / (4 cos_o); 0 unless both directions
+// are above the surface and on the front of h.
+inline vreal microfacet_pdf(const Material *m, V3 d, V3 n, V3 wi)
+{
+    vreal co = -v3_dot(d, n), ci = v3_dot(wi, n);
+    V3 h = v3_normalize(v3_sub(wi, d));
+    vreal hn = v3_dot(h, n), oh = -v3_dot(d, h);
+    vreal D = mf_D(hn, mf_sin2(h, n), m->alpha, m->beckmann != R(0));
+    vreal pdf = D * mf_G1(co, mf_sin2(d, n), oh, m->alpha, m->beckmann != R(0)) / (R(4) * co);
+    return VSEL((vreal)R(0), pdf, co > R(0) && ci > R(0) && oh > R(0) && v3_dot(wi, h) > R(0) && D > R(0));
+}
+#endif
 
 // f(d -> wi) of the non-delta lobes.
 inline V3 bsdf_eval(const Material *m, V3 d, V3 n, V3 wi)
@@ -31,6 +52,21 @@ inline V3 bsdf_eval(const Material *m, V3 d, V3 n, V3 wi)
     vreal ca = v3_dot(v3_reflect(d, n), wi);
     vreal k = (m->shininess + R(2)) * R(0.5 * M_1_PI) * phong_cos_pow(ca, m->shininess);
     f = v3_fma(m->ks, k, f);
+#endif
+#if CLPT_HAS_MICROFACET
+    vmask mf = m->p_m > R(0);
+    if (VANY(mf)) {
+        vreal co = -v3_dot(d, n), ci = v3_dot(wi, n);
+        V3 h = v3_normalize(v3_sub(wi, d));
+        vreal hn = v3_dot(h, n), oh = -v3_dot(d, h);
+        vreal D = mf_D(hn, mf_sin2(h, n), m->alpha, m->beckmann != R(0));
+        vreal G = mf_G1(co, mf_sin2(d, n), oh, m->alpha, m->beckmann != R(0)) *
+                  mf_G1(ci, mf_sin2(wi, n), v3_dot(wi, h), m->alpha, m->beckmann != R(0));
+        vreal k = D * G / (R(4) * co * ci);
+        k = VSEL((vreal)R(0), k, mf && co > R(0) && ci > R(0) && D > R(0));
+        V3 F = fresnel_conductor3(oh, m->eta, m->k);
+        f = v3_sel(f, v3_fma(v3_mul(m->km, F), k, f), mf);
+    }
 #endif
     return f;
 }
@@ -44,6 +80,12 @@ inline vreal bsdf_pdf(const Material *m, LobeProbs p, V3 d, V3 n, V3 wi)
     vreal pdf = p.d * cosine_hemisphere_pdf(c);
 #if CLPT_HAS_PHONG
     pdf += p.s * phong_lobe_pdf(v3_dot(v3_reflect(d, n), wi), m->shininess);
+#endif
+#if CLPT_HAS_MICROFACET
+    vmask mf = p.m > R(0);
+    if (VANY(mf)) {
+        pdf = VSEL(pdf, pdf + p.m * microfacet_pdf(m, d, n, wi), mf);
+    }
 #endif
     return VSEL(pdf, (vreal)R(0), c <= R(0));
 }
@@ -84,7 +126,7 @@ typedef struct {
     V3 wi;          // unit direction of the scattered ray
     V3 weight;      // f cos / pdf of the chosen lobe, over the lobe's probability
     vreal pdf;      // solid-angle pdf of wi under the whole non-delta mixture; 0 after a delta lobe
-    vmask chosen;   // a lobe was chosen (not absorbed; a Phong direction above the surface)
+    vmask chosen;   // a lobe was chosen (not absorbed; a Phong or microfacet direction above the surface)
     vmask delta;    // ... and it is the mirror or refraction
     vmask up;       // wi leaves on the side of n (not refracted through)
 } BsdfSample;
@@ -102,8 +144,16 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
     vreal c = u.lobe;
     vmask is_d = c < pr.d;
     vmask is_s = !is_d && c < pr.d + pr.s;
+#if CLPT_HAS_MICROFACET
+    vreal c_m = pr.d + pr.s + pr.m;
+    vmask is_m = !is_d && !is_s && c < c_m;
+    vmask is_r = !is_d && !is_s && !is_m && c < c_m + pr.r;
+    vmask is_t = !is_d && !is_s && !is_m && !is_r && c < c_m + pr.r + pr.t;
+#else
+    vmask is_m = is_d && !is_d;
     vmask is_r = !is_d && !is_s && c < pr.d + pr.s + pr.r;
     vmask is_t = !is_d && !is_s && !is_r && c < pr.d + pr.s + pr.r + pr.t;
+#endif
     V3 wi = v3_reflect(d, n);
     V3 w = v3_scale(m->kr, R(1) / pr.r);
     bs.up = alive;
@@ -127,6 +177,31 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
             is_s = is_s && cos_i > R(0);
         }
 #endif
+#if CLPT_HAS_MICROFACET
+        // --- rough conductor: a visible normal h, reflected about ------------------------
+        // f cos_i / pdf = km F(-d.h) G1(wi, h) (microfacet.h); lost where -d is
+        // below the shading normal or wi leaves below it.
+        if (VANY(is_m)) {
+            V3 t, b;
+            frame_from_z(n, &t, &b);
+            V3 o = v3_neg(d);
+            vreal oz = v3_dot(o, n);
+            vmask bk = m->beckmann != R(0);
+            V3 hl = mf_sample_visible(v3(v3_dot(o, t), v3_dot(o, b), oz), m->alpha, bk, u.u1, u.u2);
+            V3 h = v3_normalize(v3(hl.x * t.x + hl.y * b.x + hl.z * n.x, hl.x * t.y + hl.y * b.y + hl.z * n.y,
+                                   hl.x * t.z + hl.y * b.z + hl.z * n.z));
+            vreal oh = v3_dot(o, h);
+            V3 wm = v3_reflect(d, h);
+            vreal cos_i = v3_dot(wm, n);
+            vreal g1 = mf_G1(cos_i, mf_sin2(wm, n), v3_dot(wm, h), m->alpha, bk);
+            V3 F = fresnel_conductor3(oh, m->eta, m->k);
+            wi = v3_sel(wi, wm, is_m);
+            w = v3_sel(w, v3_scale(v3_mul(m->km, F), g1 / pr.m), is_m);
+            is_m = is_m && oz > R(0) && oh > R(0) && cos_i > R(0) && g1 > R(0);
+        }
+#endif
+    } else {
+        is_m = is_m && !is_m;
     }
 #if CLPT_HAS_MIRROR
     // --- perfect mirror ------------------------------------------------------------
@@ -146,12 +221,12 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
         bs.up = bs.up && !(is_t && !refl);
     }
 #endif
-    bs.chosen = is_d || is_s || is_r || is_t;
+    bs.chosen = is_d || is_s || is_m || is_r || is_t;
     bs.delta = is_r || is_t;
     bs.wi = v3_normalize(wi);
     bs.weight = w;
     // The pdf of the direction under the whole non-delta mixture (what light
     // sampling's weight is measured against), not only the chosen lobe's.
-    bs.pdf = nondelta ? VSEL((vreal)R(0), bsdf_pdf(m, pr, d, n, bs.wi), is_d || is_s) : (vreal)R(0);
+    bs.pdf = nondelta ? VSEL((vreal)R(0), bsdf_pdf(m, pr, d, n, bs.wi), is_d || is_s || is_m) : (vreal)R(0);
     *out = bs;
 }

@@ -13,7 +13,8 @@
     || !defined(CLPT_HAS_PLANES)
 #error "clpt: every CLPT_HAS_<shape> flag must be defined"
 #endif
-#if !defined(CLPT_HAS_PHONG) || !defined(CLPT_HAS_MIRROR) || !defined(CLPT_HAS_GLASS)
+#if !defined(CLPT_HAS_PHONG) || !defined(CLPT_HAS_MIRROR) || !defined(CLPT_HAS_GLASS) \
+    || !defined(CLPT_HAS_MICROFACET)
 #error "clpt: every CLPT_HAS_<lobe> flag must be defined"
 #endif
 #if !defined(CLPT_HAS_TRIANGLE_LIGHTS) || !defined(CLPT_HAS_SPHERE_LIGHTS) || !defined(CLPT_HAS_MESH_LIGHTS)

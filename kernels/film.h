@@ -161,8 +161,9 @@ inline void film_add_sample(Film *f, vmask done, V3 L, real lum_scale, uint *non
 // --- features for the denoisers (CLPT_AUX) ------------------------------------------
 // Per pixel, sums over samples of the feature vertex's shading normal (w:
 // count), of its albedo seen through the specular chain (rgb) and distance
-// from the camera (w), of the emission reached up to and at that vertex
-// (rgb; w: samples whose feature vertex is an emitter it sees), and of the
+// from the camera (w), of the emission reached up to and at that vertex or
+// through mirrors and glass alone (rgb; w: samples that see an emitter so,
+// directly or through mirrors and glass), and of the
 // photon map's contribution at the first vertex with a non-delta part (the
 // gather there, or its merge; rgb; w: its squared luminance times
 // lum_scale^2). The feature vertex is the first vertex with a non-delta part
@@ -177,6 +178,8 @@ typedef struct {
     V3 emission; vreal lights;      // plane 2
     V3 caustic;  vreal caustic_sq;  // plane 3
     vmask found;     // this sample's feature vertex is recorded
+    vmask chain;     // this sample's path has met only mirrors and glass so far
+    vmask lit;       // this sample has reached an emitter directly or through mirrors and glass
     vreal path_len;  // distance this sample's path has travelled
 } VisibleSurface;
 
@@ -188,7 +191,7 @@ inline void visible_load(VisibleSurface *v, vuint pixel, uint n_pix, __global co
 {
     v->normal = v->albedo = v->emission = v->caustic = v3_zero();
     v->count = v->depth = v->lights = v->caustic_sq = v->path_len = (vreal)R(0);
-    v->found = v->count != v->count;
+    v->found = v->chain = v->lit = v->count != v->count;
     for (int l = 0; l < CLPT_LANES; l++) {
         uint p = VLANE_U(pixel, l);
         if (p >= n_pix)
@@ -226,31 +229,41 @@ inline void visible_store(VisibleSurface *v, vuint pixel, uint n_pix, __global f
 inline void visible_start(VisibleSurface *v, vmask start)
 {
     v->found = v->found && !start;
+    v->chain = v->chain || start;
+    v->lit = v->lit && !start;
     v->path_len = VSEL(v->path_len, (vreal)R(0), start);
 }
 
 // The surface the lanes in `hit` reached, t further along the path: recorded
-// where it is this sample's feature vertex. Returns the lanes for which the
-// vertex is the feature vertex or comes before it (whose emission is seen
-// directly).
+// where it is this sample's feature vertex. Returns the lanes whose emission
+// here the denoisers keep out of the filtering (seen directly): the vertex
+// is the feature vertex or comes before it, or every vertex before it is a
+// mirror or glass (a lamp's reflection or refraction, in either mode).
 inline vmask visible_add_vertex(VisibleSurface *v, vmask hit, vreal t, const Material *m, V3 n, V3 beta,
                                 vmask front, uint aux_specular)
 {
     v->path_len = VSEL(v->path_len, v->path_len + t, hit);
-    vmask before_x = !v->found;
+    vmask before_x = !v->found || v->chain;
+    // An emitter seen here is counted (once a sample) in both modes.
+    vreal le_max = fmax(m->Le.x, fmax(m->Le.y, m->Le.z));
+    vmask facing = le_max > R(0) && (front || m->two_sided != R(0));
+    vmask seen = hit && before_x && !v->lit && facing;
+    vreal_add_where(&v->lights, (vreal)R(1), seen);
+    v->lit = v->lit || seen;
+    v->chain = v->chain && !(hit && m->nondelta != R(0));
     vmask rec = hit && !v->found && (m->nondelta != R(0) || aux_specular != 0u);
     if (VANY(rec)) {
         V3 surf = v3_add(m->kd, m->ks);
+#if CLPT_HAS_MICROFACET
+        surf = v3_add(surf, m->km);
+#endif
         if (aux_specular != 0u) {  // a mirror or glass vertex is a surface of albedo kr + kt (at most 1)
             V3 spec = v3_add(m->kr, m->kt);
             surf = v3_sel(surf, v3(fmin(spec.x, R(1)), fmin(spec.y, R(1)), fmin(spec.z, R(1))),
                           m->nondelta == R(0));
         }
-        // An emitter it sees is described by its own colour, and flagged.
-        vreal le_max = fmax(m->Le.x, fmax(m->Le.y, m->Le.z));
-        vmask light = rec && le_max > R(0) && (front || m->two_sided != R(0));
-        surf = v3_sel(surf, v3_scale(m->Le, R(1) / fmax(le_max, R(1e-30))), light);
-        vreal_add_where(&v->lights, (vreal)R(1), light);
+        // An emitter it sees is described by its own colour.
+        surf = v3_sel(surf, v3_scale(m->Le, R(1) / fmax(le_max, R(1e-30))), rec && facing);
         v3_add_where(&v->normal, n, rec);
         v3_add_where(&v->albedo, v3_mul(beta, surf), rec);
         vreal_add_where(&v->depth, v->path_len, rec);

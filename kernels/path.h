@@ -74,7 +74,7 @@ typedef struct {
     V3 x;              // the point
     V3 n, ng;          // shading and geometric normals, on the side of the incoming ray
     vmask hit, front;  // the ray hit something; it hit the front face (the normal's side)
-    vmask nondelta;    // the surface has a diffuse or Phong part
+    vmask nondelta;    // the surface has a diffuse, Phong or microfacet part
     vmask at_x;        // (photons) the first vertex with a non-delta part
     vmask merge_here;  // (photons) a vertex where merging may happen
 } Vertex;
@@ -164,7 +164,9 @@ inline V3 path_emission(const Scene *sc, const PhotonLookup *pl, const PathState
 inline void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState *ps, Vertex *v,
                               const Sampler *sp, vreal max_depth, vmask *go, VisibleSurface *vis, real lum_scale)
 {
-    v->at_x = v->hit && ps->own == (real)OWN_BEFORE_X && v->m.nondelta != R(0);
+    // x is the first vertex with a non-delta part, if the map can estimate it there.
+    vmask first_nd = v->hit && ps->own == (real)OWN_BEFORE_X && v->m.nondelta != R(0);
+    v->at_x = first_nd && material_mergeable(&v->m);
     if (pl->gather && VANY(v->at_x)) {
         V3 Lc = photon_gather(pm, &v->m, v->pr, v->x, v->n, ps->d, sample_merge(sp, ps->depth), v->at_x, 0,
                               max_depth - ps->depth - R(1));
@@ -173,9 +175,9 @@ inline void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState 
         visible_add_caustic(vis, v3_mul(ps->beta, Lc), v->at_x, lum_scale);
 #endif
     }
-    if (pl->stop_at_x)
-        *go = *go && !v->at_x;
-    v->merge_here = *go && v->nondelta && ps->nd_count < (real)pl->merge_vertices;
+    if (pl->stop_at_x)  // (a path whose first non-delta vertex is not x has nothing to gather either)
+        *go = *go && !first_nd;
+    v->merge_here = *go && v->nondelta && material_mergeable(&v->m) && ps->nd_count < (real)pl->merge_vertices;
     if (pl->merge && VANY(v->merge_here)) {
         vreal u = sample_merge(sp, ps->depth);
         vmask merges = v->merge_here && u < pl->merge_p;
@@ -252,6 +254,12 @@ inline void path_class_update(PathState *ps, const Vertex *v, vmask cont, real m
     vmask pure_delta = v->m.nondelta == R(0);
     vreal own = ps->own;
     own = VSEL(own, VSEL((vreal)R(OWN_NOT), (vreal)R(OWN_AFTER_D), !ps->specular), v->at_x);
+#if CLPT_HAS_MICROFACET
+    // A first non-delta vertex the photon map cannot estimate (a microfacet
+    // lobe): the path is path tracing's alone.
+    own = VSEL(own, (vreal)R(OWN_NOT), v->hit && ps->own == (real)OWN_BEFORE_X && v->nondelta &&
+                                           !material_mergeable(&v->m));
+#endif
     vmask after = ps->own == (real)OWN_AFTER_D || ps->own == (real)OWN_OWNED;
     own = VSEL(own, VSEL((vreal)R(OWN_NOT), (vreal)R(OWN_OWNED), pure_delta), after && v->hit);
     ps->own = own;

@@ -13,7 +13,9 @@
 // Photons follow mirror/refraction choices by Russian roulette over kr, kt
 // and absorption (bsdf.h bsdf_sample, the lobes camera paths sample), and are
 // stored at the first surface with a diffuse or Phong part after at least
-// one specular bounce (L S+ D), then stop. Random numbers: sampler.h.
+// one specular bounce (L S+ D), then stop; a surface with a microfacet lobe
+// (a rough conductor) ends them unstored, as camera paths do not merge
+// there (scene.h material_mergeable). Random numbers: sampler.h.
 //
 // Launch: one work-item per CLPT_LANES photons (index gid * CLPT_LANES +
 // lane); any local size. Photon i is written to slot i, stored or not
@@ -64,7 +66,7 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
         vmask front = v3_dot(h.ng, d) < R(0);
         live = live && (front || m.one_sided == R(0));  // a one-sided surface absorbs from behind
         vmask diffuse = live && m.nondelta != R(0);
-        vmask store = diffuse && bounces > R(0);
+        vmask store = diffuse && bounces > R(0) && material_mergeable(&m);
         s_pos = v3_sel(s_pos, x, store);
         s_dir = v3_sel(s_dir, d, store);
         s_bounces = VSEL(s_bounces, bounces, store);

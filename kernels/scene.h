@@ -385,9 +385,24 @@ typedef struct {
     vreal p_d, p_s, p_r, p_t;  // lobe probabilities (absorption takes the rest)
     vreal shininess, ior;
     vreal two_sided;           // emission on both sides (else the normal's side)
-    vreal nondelta;            // 1 if kd or ks is nonzero (light sampling applies)
+    vreal nondelta;            // 1 if kd, ks or km is nonzero (light sampling applies)
     vreal one_sided;           // 1: black from behind (no reflection or transmission)
+    V3 km, eta, k;             // rough conductor: reflectance, complex index eta + i k
+    vreal p_m, alpha;          // ... its lobe probability, roughness
+    vreal beckmann;            // ... 1: Beckmann, 0: GGX
 } Material;
+
+// A vertex whose non-delta part photon merging and the photon map can
+// estimate (diffuse and Phong lobes; the photon gathers evaluate no
+// microfacet lobe, so a material with one is left to path tracing).
+inline vmask material_mergeable(const Material *m)
+{
+#if CLPT_HAS_MICROFACET
+    return m->nondelta != R(0) && m->p_m == R(0);
+#else
+    return m->nondelta != R(0);
+#endif
+}
 
 // Per-lane material by selecting over the (few) materials: cheaper on a CPU
 // than eight scattered loads per field.
@@ -397,6 +412,9 @@ inline Material material_fetch(const Scene *sc, vreal id)
     m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
     m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.nondelta = m.one_sided = (vreal)R(0);
     m.ior = (vreal)R(1);
+    m.km = m.eta = m.k = v3_zero();
+    m.p_m = m.beckmann = (vreal)R(0);
+    m.alpha = (vreal)R(1);
     for (uint i = 0; i < NUM_MATERIALS; i++) {
         uint r = MAT_STRIDE * i;
         vmask is = id == (real)i;
@@ -416,6 +434,13 @@ inline Material material_fetch(const Scene *sc, vreal id)
         real4 e = scene_rec(sc, r + MAT_KT_PT);
         m.kt = v3_sel4(m.kt, e, is); m.p_t = VSEL(m.p_t, (vreal)e.w, is);
         m.ior = VSEL(m.ior, (vreal)g.y, is);
+#endif
+#if CLPT_HAS_MICROFACET
+        real4 mk = scene_rec(sc, r + MAT_KM_PM), me = scene_rec(sc, r + MAT_ETA_ALPHA),
+              mq = scene_rec(sc, r + MAT_K_DIST);
+        m.km = v3_sel4(m.km, mk, is); m.p_m = VSEL(m.p_m, (vreal)mk.w, is);
+        m.eta = v3_sel4(m.eta, me, is); m.alpha = VSEL(m.alpha, (vreal)me.w, is);
+        m.k = v3_sel4(m.k, mq, is); m.beckmann = VSEL(m.beckmann, (vreal)mq.w, is);
 #endif
         m.Le = v3_sel4(m.Le, f, is); m.two_sided = VSEL(m.two_sided, (vreal)f.w, is);
         m.nondelta = VSEL(m.nondelta, (vreal)g.z, is);

@@ -16,9 +16,10 @@ from clpt.engine.driver import Driver, lane_group_max
 from clpt.engine.executors import LocalExecutor
 from clpt.engine.job import RenderJob, WorkItem
 from clpt.engine.launch import AUX_ARGS, PHOTON_ARGS, PHOTON_PASS_ARGS, TRACE_ARGS
+from clpt.engine.runresult import RunResult
 from clpt.engine.schedule import Schedule
 from clpt.photons import PhotonSettings
-from clpt.render import RenderStats
+from clpt.result import RenderStats
 from clpt.resources import kernel_dir
 
 
@@ -195,7 +196,7 @@ class FakeWorker:
             for s in range(item.s0, item.s0 + item.n):
                 self._add(all_pix, s)
         self.items.append(item)
-        return {"seconds": 0.0, "stats": np.zeros(4, np.uint64), "first": len(self.items) == 1}
+        return RunResult(seconds=0.0, first=len(self.items) == 1)
 
     def sums(self):
         return self.acc.copy()
@@ -212,7 +213,7 @@ class ReturningExecutor(LocalExecutor):
         def run():
             w.acc = Accumulator(w.job.n_pix)
             res = w.run(item)
-            res["sums"] = w.sums()
+            res.sums = w.sums()
             return res
 
         self._queues[slot].put((run, lambda err, res: done(slot, item, res, err)))

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 
 import clpt
-from clpt.denoise import (LUMA, ConeFilter, FilterSettings, OidnSettings, apply_denoiser, reference_cone_filter,
-                          reference_firefly)
-from clpt.metrics import relmse
+from clpt.denoise import LUMA, FilterSettings, OidnSettings, apply_denoiser, reference_cone_filter, reference_firefly
+from clpt.engine.passes import FilterPass
+from clpt.tools.metrics import relmse
 
 
 @pytest.fixture(scope="module")
 def cone(probes):
     probe = probes(1)
-    return ConeFilter(probe.dctx, probe.program)
+    return FilterPass(probe.dctx, probe.program)
 
 
 def guides(h, w, normal=(0, 0, 1), albedo=0.5, depth=2.0):
@@ -33,7 +33,8 @@ def noisy(rng, h, w, level=0.3, sigma=0.05):
 
 @pytest.mark.parametrize("settings", [FilterSettings(), FilterSettings(width=1, iterations=1),
                                       FilterSettings(width=3, iterations=3, sigma_luminance=1.0, guide_floor=0.0),
-                                      FilterSettings(firefly_k=0.0, guide_floor=0.5)])
+                                      FilterSettings(firefly_k=0.0, guide_floor=0.5),
+                                      FilterSettings(confirm_k=0.0), FilterSettings(confirm_k=1e6)])
 def test_kernel_matches_numpy_twin(cone, settings):
     rng = np.random.default_rng(0)
     h, w = 20, 23
@@ -45,6 +46,7 @@ def test_kernel_matches_numpy_twin(cone, settings):
     d += rng.uniform(0, 0.5, (h, w)).astype(np.float32)
     img[:, 17:] *= 3                    # a shadow edge
     img[3, 4] *= 40                     # a firefly
+    img[10, 20] *= 40                   # a highlight its samples confirm (var unchanged)
     emitter = np.zeros((h, w), np.float32)
     emitter[14:17, 2:6] = 1.0           # a light
     got = cone(img, var, n, a, d, settings, emitter=emitter)
@@ -249,3 +251,63 @@ def test_oidn_denoises_with_our_buffers(caustic_renders):
 def test_oidn_settings_are_checked():
     with pytest.raises(clpt.SceneError, match="aux"):
         OidnSettings(aux="bright").check()
+
+
+def _mirror_facing_a_lamp():
+    """The camera looks at a mirror (kr 0.9) and, behind the camera, a lamp
+    faces the mirror: every pixel sees the lamp, through the mirror only."""
+    lamp = clpt.Material(kd=(0.5, 0.5, 0.5), emission=(2.0, 3.0, 4.0))
+    return clpt.Scene(
+        camera=clpt.Camera(origin=(0, 0, 0), target=(0, 0, -1), fov=40),
+        shapes=[clpt.Quad(corner=(-4, -4, -1), edge_u=(8, 0, 0), edge_v=(0, 8, 0),
+                          material=clpt.Material(kr=(0.9, 0.9, 0.9))),
+                clpt.Quad(corner=(-4, -4, 1), edge_u=(0, 8, 0), edge_v=(8, 0, 0), material=lamp)])
+
+
+@pytest.mark.parametrize("mode", ["surface", "through"])
+def test_a_lamp_seen_in_a_mirror_is_kept_out_in_both_modes(device_spec, mode):
+    """The emission reached through mirrors and glass alone is the denoisers'
+    to keep out, and counted as seen, whatever describes the mirror itself."""
+    r = clpt.Renderer(_mirror_facing_a_lamp(), device=device_spec, aux=True, photons=False)
+    res = r.render(4, width=8, height=8, max_depth=1, seed=1, aux_specular=mode)
+    assert np.allclose(res.image, 0.9 * np.array([2.0, 3.0, 4.0]), rtol=1e-5)
+    assert np.allclose(res.aux["emission"], res.image, rtol=1e-5)
+    assert (res.aux["emitter"] == 1.0).all()
+    mirror = mode == "surface"  # the mirror as a surface (albedo kr, its normal), or the lamp seen in it
+    assert np.allclose(res.aux["normal"], (0, 0, 1) if mirror else (0, 0, -1), atol=1e-5)
+    assert np.allclose(res.aux["albedo"], 0.9 if mirror else 0.9 * np.array([0.5, 0.75, 1.0]), rtol=1e-5)
+    from clpt.denoise import kept_emission
+    assert np.array_equal(kept_emission(res.aux, res.sample_count, FilterSettings().confirm_k), res.aux["emission"])
+
+
+def test_kept_emission_needs_the_pixels_samples_to_confirm_it():
+    """Emission is kept out of the filtering where the share f of a pixel's n
+    samples that see it has a relative standard error under 1 / k (f n >=
+    k^2 (1 - f)): at n = 16 and k = 2, four hits and more, not three; and
+    at the edge of such a pixel (a lamp's image, or its reflection's)."""
+    from clpt.denoise import kept_emission
+    f = np.zeros((16, 16), np.float32)
+    f[2, 2], f[2, 8], f[8, 2], f[8, 8], f[8, 9] = 1 / 16, 3 / 16, 4 / 16, 1.0, 1 / 16
+    aux = {"emission": np.repeat(f[..., None], 3, -1) * 10, "emitter": f}
+    n = np.full(f.shape, 16.0)
+    kept = kept_emission(aux, n, 2.0)[..., 0] > 0
+    assert np.argwhere(kept).tolist() == [[8, 2], [8, 8], [8, 9]]  # isolated hits are noise; (8, 9) is an edge
+    assert np.array_equal(kept_emission(aux, n, 0.0), aux["emission"])   # k = 0: all of it
+    kept64 = kept_emission(aux, np.full(f.shape, 64.0), 2.0)[..., 0] > 0
+    assert kept64[2, 2] and kept64[2, 8]  # 4 and 12 hits of 64
+
+
+def test_firefly_clamp_spares_what_the_pixels_own_samples_confirm():
+    """A pixel far above its neighbours is clamped when its own standard
+    error is as large as its excess (a firefly: one sample among n), and
+    kept when its samples agree (a highlight most of them see)."""
+    rng = np.random.default_rng(5)
+    img, var = noisy(rng, 32, 32, level=1.0, sigma=0.05)
+    img[10, 10] = 20.0
+    var[10, 10] = 20.0 ** 2          # its standard error is its value: one sample's outlier
+    img[20, 20] = 20.0
+    var[20, 20] = 2.0 ** 2           # 10% relative error: its samples agree
+    c, _ = reference_firefly(img, var, 3.0, 2.0)
+    assert c[10, 10] @ LUMA < 2.0 and np.array_equal(c[20, 20], img[20, 20])
+    c, _ = reference_firefly(img, var, 3.0, 12.0)  # demanding more than 10 standard errors: clamped too
+    assert c[20, 20] @ LUMA < 2.0

@@ -164,7 +164,7 @@ def test_a_pipe_or_a_mesh_too_large_for_memory_is_refused_before_reading(tmp_pat
             read_mesh(tmp_path / "pipe.obj")
     p = tmp_path / "m.obj"
     p.write_text(TRIANGLE + "f 1 2 3\n")
-    monkeypatch.setattr("clpt.preflight.available_host_bytes", lambda: 50)
+    monkeypatch.setattr("clpt.hostio.available_host_bytes", lambda: 50)
     _refused(p, TRIANGLE + "f 1 2 3\n", r"m.obj: a 0.0 GiB mesh file needs about 0.0 GiB of memory to read and "
              r"0.0 GiB are available; too large")
 

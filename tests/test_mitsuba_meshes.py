@@ -221,7 +221,7 @@ def test_a_decompression_bomb_is_refused_before_it_is_decompressed(tmp_path, mon
     stream += z.flush()
     p = tmp_path / "bomb.serialized"
     p.write_bytes(struct.pack("<HH", 0x041C, 4) + stream)
-    monkeypatch.setattr("clpt.preflight.available_host_bytes", lambda: 1 << 28)
+    monkeypatch.setattr("clpt.hostio.available_host_bytes", lambda: 1 << 28)
     with pytest.raises(MeshError, match=r"bomb.serialized: shape 0: 9000000 vertices and 1 triangles need about "
                                         r"0.5 GiB of memory to read and 0.2 GiB are available; too large"):
         read_mesh(p)

@@ -9,7 +9,8 @@ import pytest
 
 import clpt
 from clpt import options
-from clpt.cli import _adaptive_settings, _filter_settings, _photon_settings, build_parser
+from clpt.cli import build_parser
+from clpt.cli.render import _adaptive_settings, _filter_settings, _photon_settings
 
 
 def parse(*args):

@@ -9,7 +9,8 @@ import pyopencl as cl
 import pytest
 
 import clpt
-from clpt.photons import PhotonMap, PhotonSettings
+from clpt.engine.passes import PhotonPass
+from clpt.photons import PhotonSettings
 
 from stats import assert_mean_within
 
@@ -17,7 +18,7 @@ from stats import assert_mean_within
 @pytest.fixture(scope="module")
 def pmap(probes):
     probe = probes(8)
-    return probe, PhotonMap(probe.dctx, probe.program, probe.real)
+    return probe, PhotonPass(probe.dctx, probe.program, probe.real)
 
 
 def gather(probe, pm, queries, kd=(0.5, 0.5, 0.5), ks=(0, 0, 0), shininess=0.0, cone_k=1.1, max_photons=0,

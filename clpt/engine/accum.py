@@ -21,6 +21,8 @@ import warnings
 
 import numpy as np
 
+from ..result import RenderResult
+
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 WIDTHS = {"sum": 4, "sq": 0, "comp": 5, "aux": 16, "c_sum": 4, "c_sq": 0, "c_comp": 5}
 
@@ -156,8 +158,6 @@ class Accumulator:
     def finish(self, width: int, height: int, lum_scale: float = 1.0, length_scale: float = 1.0, **result):
         """A RenderResult of these sums; `result` gives its other fields
         (seed, max_depth, rr_depth, devices, features, stats, ...)."""
-        from ..render import RenderResult
-
         image, var, count, caustic, aux = self.images(width, height, lum_scale, length_scale)
         spp = int(count.max()) if count.size else 0
         return RenderResult(image=image, sample_count=count.astype(np.uint32), lum_var=var, spp=spp,

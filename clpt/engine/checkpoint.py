@@ -30,27 +30,25 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import SceneError, open_regular_file
+from .. import hostio
+from ..adaptive import AdaptiveSettings
+from ..denoise import FilterSettings, OidnSettings
+from ..errors import CheckpointError, SceneError
+from ..hostio import open_regular_file
+from ..photons import PhotonSettings
+from ..scene import Box, Camera, Material, Mesh, PixelFilter, Plane, Quad, RenderSettings, Scene, Sphere, Triangle
+from ..version import __version__
 from .accum import WIDTHS, Accumulator
-from .job import FORMAT, RenderJob
+from .job import FORMAT, DeviceOptions, RenderJob
 
 JOB_ENCODING = "json-1"  # meta["job_encoding"]: how "job" is written (no pickle)
-
-
-class CheckpointError(SceneError):
-    """A checkpoint that cannot be read, or that belongs to another render."""
-
-
-def _version() -> str:
-    from .. import __version__
-    return __version__
 
 
 def write_checkpoint(path, job: RenderJob, sums: Accumulator, schedule_state: dict, *, elapsed: float,
                      devices=(), extra: dict | None = None) -> int:
     """Write atomically; returns the file's size in bytes."""
     path = Path(path)
-    meta = {"format": FORMAT, "clpt_version": _version(), "scene_key": job.scene_key(), "job_key": job.key,
+    meta = {"format": FORMAT, "clpt_version": __version__, "scene_key": job.scene_key(), "job_key": job.key,
             "settings": job.settings(), "schedule": schedule_state, "elapsed": elapsed, "devices": list(devices),
             "samples": sums.samples, **(extra or {})}
     if job.spp_per_map:
@@ -89,13 +87,6 @@ def write_checkpoint(path, job: RenderJob, sums: Accumulator, schedule_state: di
 
 def _job_types() -> dict:
     """The classes a job is made of, by name: the only ones reading builds."""
-    from ..adaptive import AdaptiveSettings
-    from ..denoise import FilterSettings, OidnSettings
-    from ..photons import PhotonSettings
-    from ..scene import (Box, Camera, Material, Mesh, PixelFilter, Plane, Quad, RenderSettings, Scene, Sphere,
-                         Triangle)
-    from .job import DeviceOptions
-
     return {c.__name__: c for c in (RenderJob, DeviceOptions, PhotonSettings, AdaptiveSettings, FilterSettings,
                                     OidnSettings, Scene, Camera, PixelFilter, RenderSettings, Material, Sphere,
                                     Triangle, Quad, Plane, Box, Mesh)}
@@ -194,12 +185,6 @@ def _check_types(obj, fail):
 def _check_job(job, fail):
     """A decoded job's own settings of the right types and in range, and its
     scene checked."""
-    from ..adaptive import AdaptiveSettings
-    from ..denoise import FilterSettings, OidnSettings
-    from ..photons import PhotonSettings
-    from ..scene import Scene
-    from .job import DeviceOptions
-
     if not isinstance(job, RenderJob):
         fail(f"not a render job (a {type(job).__name__})")
     for name, types in (("scene", Scene), ("options", DeviceOptions), ("photons", (PhotonSettings, type(None))),
@@ -239,13 +224,11 @@ class _Archive:
     header agrees with its size."""
 
     def __init__(self, path: Path, f):
-        from ..preflight import available_host_bytes
-
         self.path = path
         self.zip = zipfile.ZipFile(f)
         self.infos = {i.filename[:-4]: i for i in self.zip.infolist() if i.filename.endswith(".npy")}
         total = sum(i.file_size for i in self.infos.values())
-        avail = available_host_bytes()
+        avail = hostio.available_host_bytes()
         if avail is not None and total > avail:
             raise CheckpointError(f"{path}: its members need {total / 2**30:.1f} GiB of memory and "
                                   f"{avail / 2**30:.1f} GiB are available")
@@ -305,9 +288,9 @@ class Checkpoint:
                 self.meta = m = z.json("meta")
                 if not isinstance(m, dict):
                     z.fail("meta", "is not a JSON object")
-                if m.get("format") != FORMAT or m.get("clpt_version") != _version():
+                if m.get("format") != FORMAT or m.get("clpt_version") != __version__:
                     raise CheckpointError(f"{path}: written by clpt {m.get('clpt_version')} (checkpoint format "
-                                          f"{m.get('format')}); this is clpt {_version()} (format {FORMAT}): it "
+                                          f"{m.get('format')}); this is clpt {__version__} (format {FORMAT}): it "
                                           f"cannot continue it")
                 if m.get("job_encoding") != JOB_ENCODING:
                     z.fail("job", "not in the JSON encoding of this clpt (older checkpoints pickled the job, "

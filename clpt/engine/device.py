@@ -5,27 +5,35 @@ buffers for an image and loads the sums to continue from; run(item) adds an
 item's samples; sums() reads them back. The sums stay on the device between
 items, so one device adds every pixel's samples in sample order whatever the
 items were, and its image is bit-identical however the render was split.
+
+The worker composes: the scene's records (every pass reads them), a job's
+sums (film.py) and the passes (passes.py) that own the kernels, the buffers
+only they use and their launches' timings: the trace pass, the photon pass
+(scenes with caustic casters) and the filter pass (builds with feature
+buffers).
 """
 
 from __future__ import annotations
 
 import time
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 
 import numpy as np
 import pyopencl as cl
 
-from .. import program
-from ..constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, OFFSET_FLOOR
-from ..denoise import ConeFilter
-from ..device import DeviceContext, DeviceError
+from .. import program, tune
+from ..constants import OFFSET_FLOOR
+from ..device import DeviceContext
+from ..errors import DeviceError, SceneError
 from ..features import Experimental, Features, scene_features
 from ..pack import MAX_FLOAT_RECORDS, PackedScene, camera_frame
-from ..photons import PM_OFF, PM_PREPASS, PhotonMap, PhotonSettings
-from ..scene import SceneError
+from ..photons import PM_PREPASS, PhotonSettings
 from .accum import Accumulator
+from .film import Film
 from .job import DeviceOptions, RenderJob, WorkItem, kernel_photons, photon_plan
-from .launch import RecordBuffer, fill_pixel_filter, fill_scene_info, trace_args, trace_record
+from .passes import FilterPass, PhotonPass, TraceArgs, TracePass
+from .runresult import RunResult
 
 PREPASS_SEED_SALT = 0x2545F491
 
@@ -39,7 +47,6 @@ def device_features(dctx: DeviceContext, packed: PackedScene, opts: DeviceOption
         raise DeviceError(f"{dctx.label} has no double precision (cl_khr_fp64); render with precision='float'")
     acc_double = dctx.fp64 if opts.accumulate == "auto" else opts.accumulate == "double"
     if not (lanes or opts.lanes):
-        from .. import tune
         photons = packed.has_caustics and opts.photons is not False
         lanes = tune.query_tuning(dctx, photons).lanes  # no trial renders here
     return scene_features(packed, lanes=lanes or opts.lanes,
@@ -63,46 +70,43 @@ def kernel_source(packed: PackedScene | None, features: Features) -> str:
     return "\n".join(kernel_sources(packed, features))
 
 
-class _Sums:
-    """Per-pixel sums on a device (kernels/film.h's layout)."""
+def build_programs(dctx: DeviceContext, packed: PackedScene, features: Features, scene_buf, eps_abs: float,
+                   use_cache: bool = True) -> tuple[cl.Program, PhotonPass | None, program.BuildInfo]:
+    """Build a scene's programs on dctx: (the path pass's program, the photon
+    pass or None, what the build took). The photon program builds beside the
+    path pass's where the runtime takes two builds at once, and its kernels
+    then run a one-photon map: PoCL generates their machine code at the first
+    launch, here while the path pass is still compiling."""
+    real = np.float64 if features.double else np.float32
+    sources = kernel_sources(packed, features)
+    t0 = time.perf_counter()
 
-    def __init__(self, dctx, n_pix: int, accum_double: bool):
-        self.dctx, self.n_pix, self.accum_double = dctx, n_pix, accum_double
-        ctx = dctx.context
-        self.pix_sum = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 32)
-        self.pix_sq = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n_pix * 8)
-        self.zero()
+    def build(source):
+        return program.build(dctx, source, features.options(), use_cache=use_cache)
 
-    def zero(self):
-        q = self.dctx.queue
-        cl.enqueue_fill_buffer(q, self.pix_sum, np.float32(0), 0, self.n_pix * 32)
-        cl.enqueue_fill_buffer(q, self.pix_sq, np.float32(0), 0, self.n_pix * 8)
+    def build_photon_pass(source):
+        prg, info = build(source)
+        photon = PhotonPass(dctx, prg, real)
+        photon.build(scene_buf, packed.counts, eps_abs, features.lanes, 0, PhotonSettings(count=1),
+                     0.01 * max(packed.size, 1e-30))
+        photon.counters.clear()
+        return photon, info
 
-    def read(self):
-        """(pix_sum, pix_sq) as the device holds them (float64, or Kahan pairs of float32)."""
-        raw, _ = self.read_async()
-        self.dctx.queue.finish()
-        return raw
-
-    def read_async(self):
-        """Queue copies of the sums into fresh host arrays: ((pix_sum, pix_sq), events)."""
-        q = self.dctx.queue
-        if self.accum_double:
-            s, sq = np.empty((self.n_pix, 4), np.float64), np.empty(self.n_pix, np.float64)
-        else:
-            s, sq = np.empty((self.n_pix, 8), np.float32), np.empty((self.n_pix, 2), np.float32)
-        return (s, sq), [cl.enqueue_copy(q, s, self.pix_sum, is_blocking=False),
-                         cl.enqueue_copy(q, sq, self.pix_sq, is_blocking=False)]
-
-    def write(self, s, sq):
-        q = self.dctx.queue
-        cl.enqueue_copy(q, self.pix_sum, s)
-        cl.enqueue_copy(q, self.pix_sq, sq)
-        q.finish()
+    if len(sources) == 1:
+        built = [build(sources[0])]
+    elif not program.builds_at_once(dctx):  # a runtime not known to take two builds at once
+        built = [build(sources[0]), build_photon_pass(sources[1])]
+    else:  # the OpenCL compilers release the GIL: the programs build at once
+        with ThreadPoolExecutor(2) as pool:
+            photon_side = pool.submit(build_photon_pass, sources[1])
+            built = [build(sources[0]), photon_side.result()]
+    info = program.BuildInfo(time.perf_counter() - t0, all(b.cache_hit for _, b in built),
+                             "+".join(b.key for _, b in built), built[0][1].options)
+    return built[0][0], (built[1][0] if len(built) > 1 else None), info
 
 
 class DeviceWorker:
-    """Everything one device holds for one scene: programs, kernels, buffers, sums."""
+    """One device's passes for one scene, the scene's records and a job's sums."""
 
     def __init__(self, dctx: DeviceContext, packed: PackedScene, features: Features, use_cache: bool = True):
         self.dctx = dctx
@@ -110,255 +114,154 @@ class DeviceWorker:
         self.features = features
         self.packed = packed
         real = np.float64 if features.double else np.float32
-        mf = cl.mem_flags
         if not features.double and len(packed.records) > MAX_FLOAT_RECORDS:
             raise SceneError(f"{len(packed.records)} scene records exceed what float kernels index exactly "
                              f"({MAX_FLOAT_RECORDS}); render with double=True or a smaller scene")
         recs = np.ascontiguousarray(packed.records, dtype=real)
         if recs.size == 0:
             recs = np.zeros((1, 4), dtype=real)
+        mf = cl.mem_flags
         self.scene_buf = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
         self.eps_abs = OFFSET_FLOOR['double' if features.double else 'float']  # kernels/scene.h
-        self.real = real
-        sources = kernel_sources(packed, features)
-        t0 = time.perf_counter()
-
-        def build(source):
-            return program.build(dctx, source, features.options(), use_cache=use_cache)
-
-        def build_photons(source):
-            # Then a one-photon map: PoCL generates the photon kernels' machine code
-            # at their first launch, here while the path pass is still compiling.
-            prg, info = build(source)
-            pmap = PhotonMap(dctx, prg, real)
-            pmap.build(self.scene_buf, packed.counts, self.eps_abs, features.lanes, 0, PhotonSettings(count=1),
-                       0.01 * max(packed.size, 1e-30))
-            pmap.launches.clear()
-            pmap.kernel_times.clear()
-            return pmap, info
-
-        if len(sources) == 1:
-            built = [build(sources[0])]
-            self.pmap = None
-        elif not program.builds_at_once(dctx):  # a runtime not known to take two builds at once
-            built = [build(sources[0]), build_photons(sources[1])]
-            self.pmap = built[1][0]
-        else:  # the OpenCL compilers release the GIL: the programs build at once
-            with ThreadPoolExecutor(2) as pool:
-                photon_side = pool.submit(build_photons, sources[1])
-                built = [build(sources[0]), photon_side.result()]
-            self.pmap = built[1][0]
-        self.program = built[0][0]
-        self.build = program.BuildInfo(time.perf_counter() - t0, all(b.cache_hit for _, b in built),
-                                       "+".join(b.key for _, b in built), built[0][1].options)
-        self.kernel = cl.Kernel(self.program, "trace_paths")
-        self.launch = RecordBuffer(dctx, trace_record(features.double))
-        self.local = LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
-        self.launched = False
-        self.filter = ConeFilter(dctx, self.program) if features.aux else None
-        self.aux = None
-        self.launches = {}
+        self.program, self.photon, self.build = build_programs(dctx, packed, features, self.scene_buf,
+                                                               self.eps_abs, use_cache)
+        self.trace = TracePass(dctx, self.program, features)
+        self.filter = FilterPass(dctx, self.program) if features.aux else None
+        self.passes = [p for p in (self.photon, self.trace, self.filter) if p is not None]
+        self.film = None
+        self.launches = {}      # kernel name -> launches since start()
         self.kernel_times = {}  # kernel name -> device seconds of each launch since start()
         self.job = None
 
-    # --- a job's buffers ------------------------------------------------------------
-    def _allocate(self, n_pix: int, caustic_buffer: bool):
-        groups = -(-n_pix // self.features.lanes)
-        self.global_size = -(-groups // self.local) * self.local
-        need = n_pix * 40 * (2 if caustic_buffer else 1) + self.global_size * 16 + n_pix * 64 * self.features.aux
-        dev = self.dctx.device
-        if n_pix * 32 > dev.max_mem_alloc_size or need > dev.global_mem_size:
-            raise DeviceError(f"{n_pix} pixels need {need / 2**20:.0f} MiB of accumulation buffers, more than "
-                              f"{self.label} offers ({dev.global_mem_size / 2**20:.0f} MiB, at most "
-                              f"{dev.max_mem_alloc_size / 2**20:.0f} MiB per buffer); render a smaller image")
-        ctx, q, rw = self.dctx.context, self.dctx.queue, cl.mem_flags.READ_WRITE
-        try:
-            self.main = _Sums(self.dctx, n_pix, self.features.accum_double)
-            self.caustic = _Sums(self.dctx, n_pix, self.features.accum_double) if caustic_buffer else None
-            self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
-            self.jobs_buf = cl.Buffer(ctx, rw, 16)  # adaptive passes replace it
-            # The feature sums: four planes of n_pix float4 (kernels/film.h VisibleSurface).
-            self.aux = cl.Buffer(ctx, rw, 4 * n_pix * 16) if self.features.aux else None
-            self._zero_aux()
-            q.finish()
-        except cl.Error as e:
-            raise DeviceError(f"cannot allocate {need / 2**20:.0f} MiB on {self.label} for "
-                              f"{n_pix} pixels ({e}); render a smaller image") from None
-        self.stats_host = np.empty((self.global_size, 4), dtype=np.uint32)
-        self.n_pix = n_pix
+    # The photon map (tests and benchmarks read its buffers), the feature
+    # sums, and the trace pass's work-group size.
+    @property
+    def pmap(self) -> PhotonPass | None:
+        return self.photon
 
-    def _zero_aux(self):
-        if self.aux is not None:
-            cl.enqueue_fill_buffer(self.dctx.queue, self.aux, np.float32(0), 0, self.aux.size)
+    @property
+    def aux(self):
+        return self.film.aux if self.film is not None else None
 
+    @property
+    def local(self) -> int:
+        return self.trace.local
+
+    @local.setter
+    def local(self, value: int):
+        self.trace.local = value
+
+    # --- a job ----------------------------------------------------------------------
     def start(self, job: RenderJob, initial: Accumulator | None = None):
         """Get ready for a job: buffers for its image, zero sums (or `initial`)."""
-        n_pix = job.n_pix
-        self._allocate(n_pix, caustic_buffer=job.offline)
+        self.film = None  # the last job's buffers go first
+        self.film = Film(self.dctx, job.n_pix, accum_double=self.features.accum_double, caustic=job.offline,
+                         aux=self.features.aux, extra_bytes=self.trace.buffer_bytes_for(job.n_pix), label=self.label)
+        self.trace.allocate(job.n_pix)
         frame = camera_frame(job.scene.camera, job.width, job.height, self.packed.length_scale)
-        rec = trace_record(self.features.double)
-        fill_scene_info(rec["scene"], self.packed.counts, self.eps_abs)
-        rec["lum_scale"] = self.packed.lum_scale
-        for k in ("origin", "corner", "dx", "dy"):
-            rec["camera"][k] = (*getattr(frame, k), 0)
-        rec["width"], rec["height"] = job.width, job.height
-        rec["max_depth"], rec["rr_depth"] = min(job.max_depth, 2**31), min(job.rr_depth, 2**31)
-        rec["aux_specular"] = int(job.aux_specular == "surface")
-        fill_pixel_filter(rec["pixel_filter"], job.scene.camera.pixel_filter)
-        self.record = rec
+        self.trace.set_image(job, self.packed, frame, self.eps_abs)
         self.job = job
-        self.pm_iteration = None
+        if self.photon is not None:
+            self.photon.held = None
+        for p in self.passes:  # what ran before belongs to no item of this job
+            p.counters.clear()
         self.launches = {}
         self.kernel_times = {}
         if initial is not None:
-            self.load(initial)
+            self.film.load(initial)
 
     # --- photon maps --------------------------------------------------------------------
-    def build_photons(self, seed: int, settings: PhotonSettings, radius: float, mode: int):
-        info = self.pmap.build(self.scene_buf, self.packed.counts, self.eps_abs, self.features.lanes, seed, settings,
-                               radius)
-        self.pm_settings = settings
-        self.pm_mode = mode
-        for k, v in self.pmap.launches.items():
-            self.launches[k] = self.launches.get(k, 0) + v
-        self.pmap.launches.clear()
-        for k, v in self.pmap.kernel_times.items():
-            self.kernel_times.setdefault(k, []).extend(v)
-        self.pmap.kernel_times.clear()
+    def build_photons(self, seed: int, settings: PhotonSettings, radius: float, mode: int = 0) -> dict:
+        """Build a photon map of `settings` (in the packed scene's lengths) from
+        `seed`: its info. (`mode`, what launches do with the map, does not
+        change the map.)"""
+        info = self.photon.build(self.scene_buf, self.packed.counts, self.eps_abs, self.features.lanes, seed,
+                                 settings, radius)
+        self.photon.held = None
         return {**info, "radius": radius, "seed": seed}
 
-    def prepare_photons(self, iteration: int):
-        """Build the photon map of `iteration` unless it is the one held; returns its info or None."""
+    def prepare_photons(self, iteration: int) -> dict | None:
+        """Build the photon map of `iteration` unless it is the one held; its info or None."""
         job = self.job
-        if self.pmap is None or job.photons is None or self.pm_iteration == iteration:
+        if self.photon is None or job.photons is None or self.photon.held == iteration:
             return None
         seed, radius = photon_plan(job, iteration, self.packed.size, self.packed.length_scale)
-        info = self.build_photons(seed, kernel_photons(job.photons, self.packed.length_scale), radius,
-                                  job.pm_mode)
-        self.pm_iteration = iteration
+        info = self.build_photons(seed, kernel_photons(job.photons, self.packed.length_scale), radius)
+        self.photon.held = iteration
         return {"device": self.label, "iteration": iteration, **info}
 
     # --- work ---------------------------------------------------------------------------
-    def run(self, item: WorkItem) -> dict:
-        """Add an item's samples to the sums. Returns {"seconds" (device time of
-        the launch), "wall", "stats" (non-finite, camera, bounce, shadow),
-        "photon_maps", "launches"}."""
-        before = dict(self.launches)
-        times_before = {k: len(v) for k, v in self.kernel_times.items()}
+    def _take_counters(self) -> tuple[dict, dict]:
+        """Every pass's launches and device seconds since the last item (the
+        filter's run between items), added to the worker's since start()."""
+        launches, seconds = {}, {}
+        for p in self.passes:
+            got_l, got_s = p.counters.take()
+            for k, v in got_l.items():
+                launches[k] = launches.get(k, 0) + v
+            for k, v in got_s.items():
+                seconds.setdefault(k, []).extend(v)
+        for k, v in launches.items():
+            self.launches[k] = self.launches.get(k, 0) + v
+        for k, v in seconds.items():
+            self.kernel_times.setdefault(k, []).extend(v)
+        return launches, seconds
+
+    def run(self, item: WorkItem) -> RunResult:
+        """Add an item's samples to the sums; or, for a "photons" item, build
+        the photon map of its iteration and measure the power it stores."""
         pm = self.prepare_photons(item.iteration)
+        if item.kind == "photons":
+            if pm is None:
+                raise ValueError(f"{self.label}: the job has no photon map to build")
+            pm["power"] = self.photon.stored_power()
+            launches, seconds = self._take_counters()
+            return RunResult(seconds=pm["host_seconds"], wall=pm["host_seconds"], photon_maps=[pm],
+                             launches=launches, kernel_seconds=seconds)
         prepass = item.kind == "prepass"
-        rec = self.record.copy()
-        rec["seed"] = (self.job.seed ^ PREPASS_SEED_SALT) if prepass else self.job.seed
-        global_size = self.global_size
-        if item.kind == "pixels":
-            rec["n_list"] = n_list = len(item.pixels)
-            global_size = -(-(-(-n_list // self.features.lanes)) // self.local) * self.local
-            if global_size > len(self.stats_host):
-                self.stats_buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_WRITE, global_size * 16)
-                self.stats_host = np.empty((global_size, 4), dtype=np.uint32)
-            mf = cl.mem_flags
-            jobs = np.array(item.jobs, dtype=np.uint32).reshape(-1, 4)
-            jobs[:, 3] = item.pixels  # (samples, max depth, first sample, pixel): kernels/film.h lane_jobs
-            self.jobs_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=jobs)
-        else:
-            rec["sample_begin"], rec["n_samples"] = item.s0, item.n
-        sums = self.caustic if prepass else self.main
-        buffers = {"scene": self.scene_buf, "pix_sum": sums.pix_sum, "pix_sq": sums.pix_sq, "stats": self.stats_buf,
-                   "pix_jobs": self.jobs_buf, "aux": self.aux}
+        job = self.job
+        lookup = None
         if self.features.photons:
-            pset = kernel_photons(self.job.photons, self.packed.length_scale) or PhotonSettings()
-            self.pmap.lookup(rec["photons"], pset, PM_PREPASS if prepass else self.job.pm_mode)
-            buffers.update(self.pmap.buffers())
-        buffers["launch"] = self.launch.write(rec)
-        self.kernel.set_args(*trace_args(buffers, self.features.aux, self.features.photons))
-        q = self.dctx.queue
-        t0 = time.perf_counter()
-        ev = cl.enqueue_nd_range_kernel(q, self.kernel, (global_size,), (self.local,))
-        stats = self.stats_host[:global_size]
-        cl.enqueue_copy(q, stats, self.stats_buf)
-        wall = time.perf_counter() - t0
-        program.note_time(self.kernel_times, "trace_paths", ev)
-        seconds = self.kernel_times["trace_paths"][-1]
-        if not seconds == seconds:  # no profiling information: the host's time
-            seconds = wall
-        first = not self.launched
-        self.launched = True
-        self.launches["trace_paths"] = self.launches.get("trace_paths", 0) + 1
-        delta = {k: v - before.get(k, 0) for k, v in self.launches.items() if v != before.get(k, 0)}
-        if self.filter is not None and self.filter.kernel_times:
-            for k, v in self.filter.kernel_times.items():
-                self.kernel_times.setdefault(k, []).extend(v)
-            self.filter.kernel_times = {}
-        times = {k: v[times_before.get(k, 0):] for k, v in self.kernel_times.items() if len(v) > times_before.get(k, 0)}
-        return {"seconds": seconds, "wall": wall, "first": first, "stats": stats.sum(axis=0, dtype=np.uint64),
-                "photon_maps": [pm] if pm else [], "launches": delta, "kernel_seconds": times}
+            pset = kernel_photons(job.photons, self.packed.length_scale) or PhotonSettings()
+            lookup = partial(self.photon.lookup, settings=pset, mode=PM_PREPASS if prepass else job.pm_mode)
+        rec, global_size = self.trace.item_record((job.seed ^ PREPASS_SEED_SALT) if prepass else job.seed, item,
+                                                  lookup)
+        sums = self.film.caustic if prepass else self.film.main
+        args = TraceArgs(scene=self.scene_buf, launch=None, pix_sum=sums.pix_sum, pix_sq=sums.pix_sq, stats=None,
+                         pix_jobs=None, aux=self.film.aux)
+        if self.features.photons:
+            self.photon.fill(args)
+        secs, wall, first, stats = self.trace.run(rec, global_size, args)
+        launches, seconds = self._take_counters()
+        return RunResult(seconds=secs, wall=wall, first=first, stats=stats, photon_maps=[pm] if pm else [],
+                         launches=launches, kernel_seconds=seconds)
 
     def launch_seconds(self) -> float:
         """Host seconds of an empty launch (no samples): the fixed cost of a pass."""
-        return self.run(WorkItem("samples", 0, 0))["wall"]
+        return self.run(WorkItem("samples", 0, 0)).wall
 
     def buffer_bytes(self) -> dict[str, int]:
         """Device memory per buffer this worker holds (after a render)."""
         out = {"scene records": self.scene_buf.size}
-        for name, sums in (("pixel sums", getattr(self, "main", None)), ("caustic sums", getattr(self, "caustic", None))):
-            if sums is not None:
-                out[name] = sums.pix_sum.size + sums.pix_sq.size
-        if hasattr(self, "stats_buf"):
-            out["work-item stats"] = self.stats_buf.size
-            out["adaptive lists"] = self.jobs_buf.size
-        if self.aux is not None:
-            out["feature buffers"] = self.aux.size
-        if self.pmap is not None:
-            out.update(self.pmap.buffer_bytes())
+        for part in (self.film, self.trace, self.photon):
+            if part is not None:
+                out.update(part.buffer_bytes())
         return out
 
     # --- sums -----------------------------------------------------------------------------
     def sums(self) -> Accumulator:
-        raw, _ = self.snapshot()
-        self.dctx.queue.finish()
-        return Accumulator.from_device(*raw)
+        return self.film.read()
 
     def snapshot(self):
-        """Queue copies of the sums without waiting for them: ((main, caustic,
-        aux) raw arrays for Accumulator.from_device, events). The queue is in
-        order, so queued from any thread they see the sums between two items."""
-        main, events = self.main.read_async()
-        caustic = None
-        if self.caustic is not None:
-            caustic, ev = self.caustic.read_async()
-            events += ev
-        aux = None
-        if self.aux is not None:
-            aux = [np.empty((self.n_pix, 4), np.float32) for _ in range(4)]
-            events += [cl.enqueue_copy(self.dctx.queue, h, self.aux, src_offset=k * h.nbytes, is_blocking=False)
-                       for k, h in enumerate(aux)]
-        self.dctx.queue.flush()
-        return (main, caustic, aux), events
+        """Film.snapshot: copies of the sums queued now, and their events."""
+        return self.film.snapshot()
 
     def load(self, acc: Accumulator):
         """Replace the sums by acc's (in this device's layout)."""
-        kahan = not self.features.accum_double
-        self.main.write(*acc.to_device("", kahan))
-        if self.caustic is not None:
-            if "c_sum" in acc.planes:
-                self.caustic.write(*acc.to_device("c_", kahan))
-            else:
-                self.caustic.zero()
-        if self.aux is not None:
-            if "aux" in acc.planes:
-                for k, h in enumerate(acc.aux_to_device()):
-                    h = np.ascontiguousarray(h, dtype=np.float32)
-                    cl.enqueue_copy(self.dctx.queue, self.aux, h, dst_offset=k * h.nbytes)
-            else:
-                self._zero_aux()
-        self.dctx.queue.finish()
+        self.film.load(acc)
 
     def zero(self):
-        self.main.zero()
-        if self.caustic is not None:
-            self.caustic.zero()
-        self._zero_aux()
-        self.dctx.queue.finish()
+        self.film.zero()
 
     def empty_sums(self, job: RenderJob) -> Accumulator:
         return Accumulator(job.n_pix, kahan=not self.features.accum_double, aux=self.features.aux,

@@ -24,17 +24,29 @@ import copy
 import numpy as np
 
 from ..adaptive import allocate_error, allocate_paper
+from ..errors import WorkerFailure
 from ..preview import RenderUpdate
 from .accum import LUMA, Accumulator
 from .checkpoint import write_checkpoint
 from .job import RenderJob, WorkItem
+from .runresult import RunResult
 from .schedule import Schedule
 
 MAX_RANGE = 1 << 16
 
 
-class WorkerFailure(RuntimeError):
-    """Every worker failed: the render cannot go on."""
+def run_item(executor, job: RenderJob, item: WorkItem) -> RunResult:
+    """Start the executor's workers on `job` and run one item on the first
+    live one, waiting for it: a job's preliminary work (the photon pilot)."""
+    executor.start(job, None)
+    if not executor.slots:
+        raise WorkerFailure("no worker to run the job on")
+    box = queue.SimpleQueue()
+    executor.submit(executor.slots[0], item, lambda slot, it, res, err: box.put((res, err)))
+    res, err = box.get()
+    if err is not None:
+        raise err
+    return res
 
 
 def lane_group_max(n: np.ndarray, lanes: int) -> np.ndarray:
@@ -138,32 +150,32 @@ class Driver:
             return
         self.schedule.done(item)
         self.fresh = True  # work done since the last checkpoint
-        if res.get("sums") is not None:
-            self.host.add(res["sums"])
+        if res.sums is not None:
+            self.host.add(res.sums)
         elif self.ex.resident:
             self.done_items.setdefault(slot, []).append(item)
         wall = time.perf_counter() - t_sub
         st = self.stats
-        row = res["stats"]
+        row = res.stats
         st.nonfinite += int(row[0])
         st.camera_rays += int(row[1])
         st.bounce_rays += int(row[2])
         st.shadow_rays += int(row[3])
-        for k, v in res.get("launches", {}).items():
+        for k, v in res.launches.items():
             st.launches[k] = st.launches.get(k, 0) + v
-        for k, v in res.get("kernel_seconds", {}).items():
+        for k, v in res.kernel_seconds.items():
             st.kernel_seconds.setdefault(k, []).extend(v)
-        st.photon_maps.extend(res.get("photon_maps", []))
+        st.photon_maps.extend(res.photon_maps)
         if item.kind == "samples":
             self.done_spp += item.n
-            st.passes.append((res.get("label", label), item.s0, item.n, res["seconds"]))
-            if res.get("first"):
+            st.passes.append((res.label or label, item.s0, item.n, res.seconds))
+            if res.first:
                 st.first_launch_seconds += wall
             else:
                 self.per_spp[slot] = wall / item.n
         elif item.kind == "pixels":
             self.round_samples += item.samples
-            st.passes.append((res.get("label", label), -1, item.samples / self.job.n_pix, res["seconds"]))
+            st.passes.append((res.label or label, -1, item.samples / self.job.n_pix, res.seconds))
         if item.kind == "samples" and self.progress is not None:
             e = self.elapsed()
             self.progress(self.done_spp, self.job.spp, e, self.done_spp * self.job.n_pix / max(e, 1e-9))

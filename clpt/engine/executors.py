@@ -14,11 +14,15 @@ Both call done(slot, item, result, error) from another thread when an item ends.
 from __future__ import annotations
 
 import queue
+import socket
 import threading
 
 import pyopencl as cl
 
+from ..denoise import apply_denoiser
+from ..device import DeviceContext, select_devices
 from .accum import Accumulator
+from .device import DeviceWorker, device_features
 
 
 class LocalExecutor:
@@ -104,8 +108,6 @@ class LocalExecutor:
 
     def denoise(self, *args):
         """apply_denoiser(*args) with a live worker's cone filter, on its thread."""
-        from ..denoise import apply_denoiser
-
         i = min(self.live) if self.live else 0
         w = self.workers[i]
         return self._call(i, lambda: apply_denoiser(w.filter, *args))
@@ -123,9 +125,6 @@ _WORKER_LOCK = threading.Lock()
 
 def _worker_device(job, device):
     """This process's DeviceWorker for the job's scene and options (built once)."""
-    from ..device import DeviceContext, select_devices
-    from .device import DeviceWorker, device_features
-
     key = (job.scene_key(), job.options, device)
     w = _WORKER_CACHE.get(key)
     if w is None:
@@ -145,21 +144,17 @@ def _worker_device(job, device):
 
 def dask_run_item(job, item, device=None):
     """A Dask task: the raw sums of one work item, rendered from zero."""
-    import socket
-
     with _WORKER_LOCK:  # one device per process: its items run one at a time
         w = _worker_device(job, device)
         w.zero()
         res = w.run(item)
-        res["sums"] = w.sums()
-        res["host"] = socket.gethostname()
-        res["label"] = w.label
+        res.sums = w.sums()
+        res.host = socket.gethostname()
+        res.label = w.label
         return res
 
 
 def dask_denoise(job, args, device=None):
-    from ..denoise import apply_denoiser
-
     with _WORKER_LOCK:
         w = _worker_device(job, device)
         return apply_denoiser(w.filter, *args)

@@ -16,6 +16,7 @@ import numpy as np
 
 from ..adaptive import AdaptiveSettings
 from ..denoise import FilterSettings
+from ..pack import pack_scene
 from ..photons import PM_MERGE, PM_OFF, PM_OFFLINE, PM_OWNED, PhotonSettings, photon_seed
 from ..scene import Scene
 
@@ -69,7 +70,6 @@ class DeviceOptions:
 
     def pack(self, scene: Scene):
         """The scene packed for the kernels as these options say (clpt.pack.pack_scene)."""
-        from ..pack import pack_scene
         return pack_scene(scene, bvh=self.bvh, bvh_method=self.bvh_method)
 
 

@@ -6,7 +6,8 @@ uploaded into a small constant buffer the kernel reads through a
 ``__constant`` pointer; the rest of a kernel's arguments are buffers, in the
 order TRACE_ARGS (+ AUX_ARGS, + PHOTON_ARGS) and PHOTON_PASS_ARGS give them
 (kernels/trace.cl, kernels/photons.cl; a test checks them against the
-source).
+source), which the passes' argument records (passes.py TraceArgs,
+PhotonPassArgs) follow.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from .. import layout
 
 TRACE_ARGS = ("scene", "launch", "pix_sum", "pix_sq", "stats", "pix_jobs")
 AUX_ARGS = ("aux",)
-PHOTON_ARGS = ("ph_pos", "ph_dir", "ph_pow", "bucket_start", "ph_occ")  # as PhotonMap.buffers gives them
+PHOTON_ARGS = ("ph_pos", "ph_dir", "ph_pow", "bucket_start", "ph_occ")  # the photon map's (PhotonPass.fill)
 PHOTON_PASS_ARGS = ("scene", "launch", "ph_pos", "ph_dir", "ph_pow", "n_stored")
 
 
@@ -67,8 +68,3 @@ class RecordBuffer:
         cl.enqueue_copy(self.dctx.queue, self.buffer, np.ascontiguousarray(record), is_blocking=True)
         return self.buffer
 
-
-def trace_args(buffers: dict, aux: bool, photons: bool) -> list:
-    """trace_paths' arguments, by name from buffers."""
-    names = TRACE_ARGS + (AUX_ARGS if aux else ()) + (PHOTON_ARGS if photons else ())
-    return [buffers[n] for n in names]

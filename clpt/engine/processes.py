@@ -23,14 +23,17 @@ import struct
 import subprocess
 import sys
 import threading
+import warnings
+
+from ..denoise import apply_denoiser
+from ..device import DeviceContext, _all_devices, select_devices
+from .executors import _worker_device
 
 _JOB = {}  # in a worker process: the job being rendered, by key
 
 
 def device_spec(device) -> str:
     """The "platform:device" index selector of a pyopencl Device (as clpt.device lists them)."""
-    from ..device import _all_devices
-
     for pi, di, _, d in _all_devices():
         if d == device:
             return f"{pi}:{di}"
@@ -59,27 +62,20 @@ def _recv(f):
 # --- in the worker process ---------------------------------------------------------------
 
 def _start(job, device: str) -> str:
-    from .executors import _worker_device
-
     _JOB.clear()
     _JOB[job.key] = job
     return _worker_device(job, device).label
 
 
 def _run(key: str, item, device: str) -> dict:
-    from .executors import _worker_device
-
     w = _worker_device(_JOB[key], device)
     w.zero()
     res = w.run(item)
-    res["sums"] = w.sums()
+    res.sums = w.sums()
     return res
 
 
 def _denoise(key: str, args, device: str):
-    from ..denoise import apply_denoiser
-    from .executors import _worker_device
-
     return apply_denoiser(_worker_device(_JOB[key], device).filter, *args)
 
 
@@ -146,8 +142,6 @@ class ProcessExecutor:
     retries = 0
 
     def __init__(self, devices, env: dict | None = None):
-        from ..device import DeviceContext, select_devices
-
         devs = select_devices(list(devices) if isinstance(devices, (list, tuple)) else devices)
         self.specs = [device_spec(d) for d in devs]
         self.labels = [f"{DeviceContext(d).label} [process {i}]" for i, d in enumerate(devs)]
@@ -162,8 +156,6 @@ class ProcessExecutor:
 
     def start(self, job, initial):
         """Every process builds the job's worker (in parallel)."""
-        import warnings
-
         self.key = job.key
         errors = {}
         for i in sorted(self.live):
@@ -192,7 +184,7 @@ class ProcessExecutor:
         def work():
             try:
                 res = self.children[slot].call("run", self.key, item, self.specs[slot])
-                res["label"] = self.labels[slot]
+                res.label = self.labels[slot]
             except BaseException as e:  # noqa: BLE001 - reported to the driver
                 done(slot, item, None, e)
             else:

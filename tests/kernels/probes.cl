@@ -286,3 +286,43 @@ __kernel void probe_pixel_filter(int kind, real radius, uint sample_border, real
     f.radius = radius; f.sample_border = sample_border;
     ST(filter_sample_offset(&f, kind, LD(u, i), LD(c, i), n), out, i);
 }
+
+// The rough conductor's lobe (bsdf.h, microfacet.h) at a vertex with normal
+// +z, alone in its material: for each incoming direction d, a sample from
+// (u1, u2) (its direction, weight f cos / pdf, mixture pdf and whether a lobe
+// was chosen) and f and pdf of the given direction w.
+// par: alpha, 1 for Beckmann; eta, k: the conductor's index; km: reflectance.
+__kernel void probe_microfacet(real4 par, real4 eta, real4 k, real4 km,
+                               __global const real *dx, __global const real *dy, __global const real *dz,
+                               __global const real *u1, __global const real *u2,
+                               __global const real *wx, __global const real *wy, __global const real *wz,
+                               __global real *sx, __global real *sy, __global real *sz,
+                               __global real *fr, __global real *fg, __global real *fb,
+                               __global real *spdf, __global real *chosen,
+                               __global real *er, __global real *eg, __global real *eb, __global real *epdf)
+{
+    size_t i = get_global_id(0);
+    Material m;
+    m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
+    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.one_sided = (vreal)R(0);
+    m.ior = (vreal)R(1);
+    m.nondelta = (vreal)R(1);
+    m.km = v3_splat(km); m.eta = v3_splat(eta); m.k = v3_splat(k);
+    m.p_m = (vreal)R(1); m.alpha = (vreal)par.x; m.beckmann = (vreal)par.y;
+    LobeProbs pr = lobe_probs(&m, (vmask)0);
+    V3 n = v3((vreal)R(0), (vreal)R(0), (vreal)R(1));
+    V3 d = LD3(dx, dy, dz, i);
+    BsdfU u;
+    u.lobe = (vreal)R(0.5); u.u1 = LD(u1, i); u.u2 = LD(u2, i); u.fresnel = (vreal)R(0.5);
+    vmask all = (vmask)(-1);
+    BsdfSample bs;
+    bsdf_sample(&m, pr, d, n, all, all, u, TRANSPORT_RADIANCE, 1, &bs);
+    ST3(bs.wi, sx, sy, sz, i);
+    ST3(bs.weight, fr, fg, fb, i);
+    ST(bs.pdf, spdf, i);
+    ST(VSEL((vreal)R(0), (vreal)R(1), bs.chosen), chosen, i);
+    V3 w = LD3(wx, wy, wz, i);
+    V3 f = bsdf_eval(&m, d, n, w);
+    ST3(f, er, eg, eb, i);
+    ST(bsdf_pdf(&m, pr, d, n, w), epdf, i);
+}

@@ -11,7 +11,8 @@
   ones, the error floor (MSE minus the image's own variance).
 
 The reference is a high-spp path-traced EXR (photon mapping off, so it is
-unbiased), given by the user or rendered once and cached.
+unbiased), given by the user or rendered once and cached
+(clpt/tools/reference.py).
 """
 
 from __future__ import annotations
@@ -26,13 +27,13 @@ from pathlib import Path
 import numpy as np
 
 from . import metrics
-from .constants import LUMA
-from .adaptive import AdaptiveSettings
-from .denoise import FilterSettings, OidnSettings
-from .image import load_image, save_image
-from .photons import PhotonSettings
-from .render import Renderer
-from .scene import load_scene
+from ..constants import LUMA
+from ..adaptive import AdaptiveSettings
+from ..denoise import FilterSettings, OidnSettings
+from ..photons import PhotonSettings
+from ..render import Renderer
+from ..loading import load_scene
+from .reference import reference_image
 
 
 @dataclass
@@ -46,36 +47,6 @@ class Setting:
     @property
     def label(self) -> str:
         return f"{self.knob}={self.value}"
-
-
-class Reference(np.ndarray):
-    """A reference image; .noise is the mean variance of its pixel means (what
-    its own noise adds to any MSE against it), 0 if unknown."""
-
-    noise = 0.0
-
-
-def reference_image(scene, width, height, spp, path=None, device=None) -> Reference:
-    """The reference: read from `path` if it exists, else rendered by path
-    tracing alone (unbiased) and saved there, with its noise level in the
-    metadata."""
-    if path is not None and Path(path).exists():
-        from .image import read_metadata
-        ref = load_image(path)[..., :3]
-        if ref.shape[:2] != (height, width):
-            raise ValueError(f"{path} is {ref.shape[1]}x{ref.shape[0]}, not {width}x{height}")
-        out = ref.astype(np.float64).view(Reference)
-        out.noise = float(read_metadata(path).get("clpt:noise", 0.0))
-        return out
-    r = Renderer(scene, device=device, photons=False)
-    res = r.render(spp, width=width, height=height, seed=0x5EED)
-    noise = float((res.lum_var / np.maximum(res.sample_count, 1)).mean())
-    if path is not None:
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        save_image(path, res.image, metadata={"clpt:reference_spp": spp, "clpt:noise": noise})
-    out = res.image.astype(np.float64).view(Reference)
-    out.noise = noise
-    return out
 
 
 class _Renderers:

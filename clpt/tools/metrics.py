@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .constants import LUMA
+from ..constants import LUMA
 
 
 
@@ -39,7 +39,7 @@ def _gauss_blur(x, sigma=1.5, radius=5):
 
 
 def _display_luma(img):
-    from .image import linear_to_srgb
+    from ..image import linear_to_srgb
     return linear_to_srgb(np.asarray(img, np.float64)) @ LUMA
 
 
@@ -62,7 +62,7 @@ def flip(img, ref) -> float | None:
         import flip_evaluator
     except ImportError:
         return None
-    from .image import linear_to_srgb
+    from ..image import linear_to_srgb
     a = np.ascontiguousarray(linear_to_srgb(np.asarray(ref, np.float64)).astype(np.float32))
     b = np.ascontiguousarray(linear_to_srgb(np.asarray(img, np.float64)).astype(np.float32))
     _, mean, _ = flip_evaluator.evaluate(a, b, "LDR")

@@ -46,11 +46,11 @@ import time
 
 import numpy as np
 
-from .constants import LUMA
+from ..constants import LUMA
 
 
 def _cold_build_child(scene: str, device, lanes, local_size, precision, kernel, nee) -> dict:
-    from .render import Renderer
+    from ..render import Renderer
 
     t0 = time.perf_counter()
     r = Renderer(scene, device=device, lanes=lanes, local_size=local_size, precision=precision, kernel=kernel,
@@ -67,7 +67,7 @@ def cold_build(scene: str, device: str, lanes, local_size, precision, kernel, ne
         env = dict(os.environ, CLPT_CACHE_DIR=os.path.join(tmp, "clpt"), POCL_CACHE_DIR=os.path.join(tmp, "pocl"),
                    PYOPENCL_NO_CACHE="1")
         args = ", ".join(repr(x) for x in (scene, device, lanes, local_size, precision, kernel, nee))
-        code = f"import json; from clpt.bench import _cold_build_child; print(json.dumps(_cold_build_child({args})))"
+        code = f"import json; from clpt.tools.bench import _cold_build_child; print(json.dumps(_cold_build_child({args})))"
         p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
         if p.returncode != 0:
             print(f"clpt bench: cold build failed:\n{p.stderr.strip()}", file=sys.stderr)
@@ -138,8 +138,8 @@ class _Mitsuba:
 def measure(scenes, *, device=None, lanes=(None,), local_sizes=(None,), precisions=("float",),
             kernels=("specialized",), nee=True, width=256, height=256, max_depth=8, rounds=5,
             pass_seconds=0.3, cold=True, mitsuba=False, log=None) -> list[dict]:
-    from .device import select_devices
-    from .render import Renderer
+    from ..device import select_devices
+    from ..render import Renderer
 
     rows, runners = [], []
     combos = list(itertools.product(lanes, local_sizes, precisions, kernels))
@@ -319,7 +319,7 @@ def compare(rows, old_rows) -> str:
 
 
 def run_bench(a) -> int:
-    from .resources import shipped_scenes
+    from ..resources import shipped_scenes
 
     scenes = shipped_scenes() if a.scene == ["all"] else a.scene
     old = None
@@ -364,8 +364,8 @@ def run_bench(a) -> int:
 def measure_photon_builds(scene, counts, *, device=None, repeats=3) -> list[dict]:
     """Device times of the photon pass and of the grid build, per photon count
     (medians over `repeats` builds with different seeds)."""
-    from .photons import PhotonSettings
-    from .render import Renderer
+    from ..photons import PhotonSettings
+    from ..render import Renderer
 
     r = Renderer(scene, device=device)
     if not r.features.photons:
@@ -390,8 +390,8 @@ def _pass_rate(res) -> float:
 def measure_gather_cost(scene, *, device=None, width=128, height=128, spp=64, rounds=3) -> dict:
     """Per-sample time of path tracing alone and with the photon gather in
     every sample (online), in interleaved rounds; the difference is the gather."""
-    from .photons import PhotonSettings
-    from .render import Renderer
+    from ..photons import PhotonSettings
+    from ..render import Renderer
 
     pt = Renderer(scene, device=device, photons=False)
     pm = Renderer(scene, device=device)
@@ -414,21 +414,12 @@ def caustic_reference(scene, *, device=None, width=128, height=128, max_depth=64
     the caustics themselves (under the glass, off the mirror), not the other
     pixels path tracing finds noisy (a small light's jittered edge). The
     reference is read from / saved to `reference` (an EXR)."""
-    from pathlib import Path
+    from ..photons import PhotonSettings
+    from ..render import Renderer
+    from .reference import reference_image
 
-    from .image import load_image, save_image
-    from .photons import PhotonSettings
-    from .render import Renderer
-
-    ref_path = Path(reference) if reference else None
-    if ref_path is not None and ref_path.exists():
-        img = load_image(ref_path).astype(np.float64)[..., :3]
-    else:
-        res = Renderer(scene, device=device, photons=False).render(ref_spp, width=width, height=height, seed=12345,
-                                                                   max_depth=max_depth)
-        img = res.image.astype(np.float64)
-        if ref_path is not None:
-            save_image(ref_path, res.image, metadata={"clpt:reference_spp": ref_spp, "clpt:max_depth": max_depth})
+    img = reference_image(scene, width, height, ref_spp, reference or None, device, max_depth=max_depth,
+                          seed=12345)
     buf = Renderer(scene, device=device).render(
         16, width=width, height=height, max_depth=max_depth,
         photons=PhotonSettings(mode="offline", pilot=False, count=2_000_000, offline_spp=16)).caustic_image
@@ -446,8 +437,8 @@ def caustic_equal_time(scene, *, device=None, width=128, height=128, seconds=(2.
     that fills the budget): on a machine shared with other work, CPU time is
     what the methods' costs can still be compared in."""
     from . import metrics
-    from .photons import PhotonSettings
-    from .render import Renderer
+    from ..photons import PhotonSettings
+    from ..render import Renderer
 
     ref, region = caustic_reference(scene, device=device, width=width, height=height, max_depth=max_depth,
                                     reference=reference, ref_spp=ref_spp)
@@ -557,7 +548,8 @@ def sphere_mesh(n_triangles: int, center=(0.0, -0.45, 0.0), radius=0.5, bumps=0.
 
 def mesh_box_scene(n_triangles: int, material="white"):
     """The Cornell box with a bumpy sphere mesh of about n_triangles."""
-    from .scene import Mesh, load_scene
+    from ..loading import load_scene
+    from ..scene import Mesh
 
     s = load_scene("cornell_box")
     v, t, n = sphere_mesh(n_triangles)
@@ -568,7 +560,7 @@ def mesh_box_scene(n_triangles: int, material="white"):
 
 def _bvh_bytes(packed) -> int:
     """Device bytes (float build) of the BVH nodes, items and vertex normals."""
-    from .pack import LIGHT_STRIDE, PLANE_STRIDE, MAT_STRIDE
+    from ..pack import LIGHT_STRIDE, PLANE_STRIDE, MAT_STRIDE
     c = packed.counts
     head = MAT_STRIDE * c[0] + PLANE_STRIDE * c[4] + LIGHT_STRIDE * c[5] + c[6]
     return (len(packed.records) - head) * 16
@@ -579,8 +571,8 @@ def measure_bvh(counts, *, methods=("sah", "lbvh"), walks=("hybrid",), device=No
     """Per triangle count and builder: build time, memory, SAH cost, depth,
     and path-tracing throughput of the mesh in the Cornell box (rounds
     interleaved over all configurations)."""
-    from .features import Experimental
-    from .render import Renderer
+    from ..features import Experimental
+    from ..render import Renderer
 
     rows, runners = [], []
     for n in counts:
@@ -617,8 +609,9 @@ def measure_threshold(sizes=(0, 8, 24, 48, 96, 200), *, device=None, width=128, 
     """Samples/s of the Cornell box (18 primitives) plus a mesh of k
     triangles, with the plain loops and with the BVH (interleaved rounds):
     where the BVH starts to pay."""
-    from .render import Renderer
-    from .scene import Mesh, load_scene
+    from ..render import Renderer
+    from ..loading import load_scene
+    from ..scene import Mesh
 
     rows, runners = [], []
     for k in sizes:
@@ -643,8 +636,8 @@ def measure_threshold(sizes=(0, 8, 24, 48, 96, 200), *, device=None, width=128, 
 
 
 def _setup_child(path: str, device) -> dict:
-    from .render import Renderer
-    from .scene import load_scene
+    from ..render import Renderer
+    from ..loading import load_scene
 
     t0 = time.perf_counter()
     scene = load_scene(path)
@@ -673,14 +666,14 @@ def measure_setup(n_triangles=100_000, *, device=None) -> dict:
         body = np.concatenate([v, n], axis=1).astype("<f4").tobytes() + faces.tobytes()
         with open(os.path.join(tmp, "ball.ply"), "wb") as f:
             f.write(("\n".join(head) + "\n").encode() + body)
-        from .resources import scene_path
+        from ..resources import scene_path
         text = scene_path("cornell_box").read_text()
         text += '\n[[shapes]]\ntype = "mesh"\nfile = "ball.ply"\nmaterial = "white"\n'
         path = os.path.join(tmp, "scene.toml")
         with open(path, "w") as f:
             f.write(text)
         env = dict(os.environ, CLPT_CACHE_DIR=os.path.join(tmp, "clpt"), POCL_CACHE_DIR=os.path.join(tmp, "pocl"))
-        code = f"import json; from clpt.bench import _setup_child; print(json.dumps(_setup_child({path!r}, {device!r})))"
+        code = f"import json; from clpt.tools.bench import _setup_child; print(json.dumps(_setup_child({path!r}, {device!r})))"
         for key in ("cold", "warm"):
             p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
             if p.returncode != 0:
@@ -745,8 +738,9 @@ def bunny_box(path, *, mitsuba=False):
     """The Cornell box (Mitsuba's cornell_box()) with its two blocks replaced by
     the mesh at path (flat-shaded), scaled to 1.1 high and stood on the floor:
     a clpt Scene, or with mitsuba=True the same scene as a Mitsuba 3 dict."""
-    from .meshio import read_mesh
-    from .scene import Mesh, load_scene
+    from ..meshio import read_mesh
+    from ..loading import load_scene
+    from ..scene import Mesh
 
     v, _, _ = read_mesh(path)
     lo, hi = v.min(0), v.max(0)
@@ -773,7 +767,7 @@ def measure_vs_mitsuba(path, *, device=None, width=256, height=256, max_depth=8,
     rounds after a warm-up (kernel builds and Mitsuba's JIT left out)."""
     import mitsuba as mi
 
-    from .render import Renderer
+    from ..render import Renderer
 
     mi.set_variant("llvm_ad_rgb")
     d = bunny_box(path, mitsuba=True)
@@ -801,7 +795,7 @@ def measure_vs_mitsuba(path, *, device=None, width=256, height=256, max_depth=8,
 def _builds_child(scene: str, device) -> dict:
     import clpt  # noqa: F401 - the import (runtime registration) is part of what a user waits for
 
-    from .render import Renderer
+    from ..render import Renderer
 
     t0 = time.perf_counter()
     r = Renderer(scene, device=device)
@@ -857,7 +851,7 @@ def measure_builds(scenes, devices) -> list[dict]:
                 row = {"device": device, "scene": scene, "check_seconds": check["seconds"]}
                 with tempfile.TemporaryDirectory() as tmp:
                     env = _fresh_env(tmp, os.path.join(checks, "clpt"))
-                    code = (f"import json; from clpt.bench import _builds_child; "
+                    code = (f"import json; from clpt.tools.bench import _builds_child; "
                             f"print(json.dumps(_builds_child({scene!r}, {device!r})))")
                     try:
                         row["cold"] = _child_json(code, env)
@@ -869,7 +863,7 @@ def measure_builds(scenes, devices) -> list[dict]:
 
 
 def run_bench_builds(a) -> int:
-    from .resources import shipped_scenes
+    from ..resources import shipped_scenes
 
     scenes = shipped_scenes() if a.scene == ["all"] else a.scene
     devices = [None if d in ("default", "") else d for d in a.device.split(",")]

@@ -1,0 +1,70 @@
+"""Options that several subcommands share, each defined once: its flags,
+type, and the default and help most commands give it. A command may give
+another default or help text (`common.size(p, 128, 128)`,
+`common.device(p, help=...)`)."""
+
+from __future__ import annotations
+
+
+def _option(*flags, **base):
+    """add(parser, **overrides): the option added to parser (or a group)."""
+    def add(p, **override):
+        return p.add_argument(*flags, **{**base, **override})
+    return add
+
+
+DEVICE_HELP = ("device index, platform:device, name substring, 'all', or a comma list (default: PYOPENCL_CTX, a "
+               "GPU, else the CPU runtime measured fastest for the scene that renders here; see clpt devices -v)")
+
+device = _option("--device", "-d", default=None)
+width = _option("--width", type=int)
+height = _option("--height", type=int)
+spp = _option("--spp", type=int)
+seed = _option("--seed", type=int)
+max_depth = _option("--max-depth", type=int)
+rounds = _option("--rounds", type=int)
+output = _option("-o", "--output", help="image file: .png, .jpg (8-bit sRGB) or .exr (linear float); "
+                                        "default <scene>.png")
+json = _option("--json", action="store_true")
+reference = _option("--reference", default=None)
+ref_spp = _option("--ref-spp", type=int, default=16384)
+ref_dir = _option("--ref-dir", default=".clpt-references", help="where references are cached")
+no_nee = _option("--no-nee", action="store_true")
+
+
+def size(p, w=None, h=None):
+    """--width and --height, with their defaults (None: the scene's)."""
+    width(p, default=w)
+    height(p, default=h)
+
+
+def scene_params(p):
+    """-D NAME=VALUE and --strict: a Mitsuba XML scene's parameters."""
+    p.add_argument("-D", "--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="set a Mitsuba XML scene parameter ($NAME), overriding its <default> (repeatable)")
+    p.add_argument("--strict", action="store_true", help="Mitsuba XML: treat every import warning as an error")
+
+
+def scene_params_dict(a) -> dict:
+    from ..scene import SceneError
+
+    params = {}
+    for item in a.param:
+        name, eq, value = item.partition("=")
+        if not eq or not name.strip():
+            raise SceneError(f"-D {item}: expected NAME=VALUE")
+        params[name.strip()] = value
+    return params
+
+
+def load(a):
+    """The scene named by a.scene, with -D's parameters and --strict."""
+    from ..loading import load_scene
+
+    return load_scene(a.scene, scene_params_dict(a), strict=a.strict)
+
+
+def warn(msg):
+    import sys
+
+    print(f"clpt: warning: {msg}", file=sys.stderr)

@@ -1,0 +1,469 @@
+"""The device side of a render, as passes: each owns its kernels, the
+buffers only it uses, and the profiling events of its launches.
+
+    TracePass    trace_paths: its launch record, per-work-item statistics and adaptive pixel lists
+    PhotonPass   the photon map: trace_photons and the hash-grid build (radix sort, buckets, occupancy)
+    FilterPass   the cone filter (filter_firefly, filter_cone)
+
+A pass counts its launches and their device seconds in its Counters, which
+the worker takes after each item. The scene records and the pixel sums are
+the worker's (device.py): every pass reads the scene, and trace_paths adds
+into the sums.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, fields
+
+import numpy as np
+import pyopencl as cl
+
+from ..constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
+from ..denoise import FilterSettings, Planar, demodulate
+from ..errors import DeviceError
+from ..photons import (GRID_CELL_RADII, MAX_TABLE_BITS, PM_MERGE, PM_OFFLINE, PM_OWNED, PM_PREPASS, RADIX_BITS,
+                       PhotonSettings)
+from ..program import event_seconds
+from .launch import (AUX_ARGS, PHOTON_ARGS, PHOTON_PASS_ARGS, TRACE_ARGS, RecordBuffer, fill_pixel_filter, fill_scene_info,
+                     photon_record, trace_record)
+
+
+class Counters:
+    """Launches and device seconds of a pass's kernels, by kernel name, since last taken."""
+
+    def __init__(self):
+        self.launches: dict[str, int] = {}
+        self.seconds: dict[str, list[float]] = {}
+        self._pending: list = []
+
+    def launched(self, name: str, event):
+        """A launch queued; its time is read once it has finished (settle)."""
+        self.launches[name] = self.launches.get(name, 0) + 1
+        self._pending.append((name, event))
+
+    def settle(self):
+        """Note the device times of the launches queued so far (they must have finished)."""
+        for name, ev in self._pending:
+            self.seconds.setdefault(name, []).append(event_seconds(ev))
+        self._pending = []
+
+    def take(self) -> tuple[dict[str, int], dict[str, list[float]]]:
+        """(launches, seconds) since the last take, and start counting afresh."""
+        self.settle()
+        out = self.launches, self.seconds
+        self.launches, self.seconds = {}, {}
+        return out
+
+    def clear(self):
+        self.launches, self.seconds, self._pending = {}, {}, []
+
+
+def _ordered(args, names) -> list:
+    missing = [n for n in names if getattr(args, n) is None]
+    if missing:
+        raise ValueError(f"{type(args).__name__}: no {', '.join(missing)}")
+    return [getattr(args, n) for n in names]
+
+
+@dataclass
+class TraceArgs:
+    """trace_paths' buffers by parameter name (kernels/trace.cl); the aux and
+    photon ones only in builds with them."""
+
+    scene: cl.Buffer
+    launch: cl.Buffer
+    pix_sum: cl.Buffer
+    pix_sq: cl.Buffer
+    stats: cl.Buffer
+    pix_jobs: cl.Buffer
+    aux: cl.Buffer | None = None
+    ph_pos: cl.Buffer | None = None
+    ph_dir: cl.Buffer | None = None
+    ph_pow: cl.Buffer | None = None
+    bucket_start: cl.Buffer | None = None
+    ph_occ: cl.Buffer | None = None
+
+    def ordered(self, aux: bool, photons: bool) -> list:
+        """The kernel's arguments in order (ValueError if one the build takes is missing)."""
+        return _ordered(self, TRACE_ARGS + (AUX_ARGS if aux else ()) + (PHOTON_ARGS if photons else ()))
+
+
+@dataclass
+class PhotonPassArgs:
+    """trace_photons' buffers by parameter name (kernels/photons.cl)."""
+
+    scene: cl.Buffer
+    launch: cl.Buffer
+    ph_pos: cl.Buffer
+    ph_dir: cl.Buffer
+    ph_pow: cl.Buffer
+    n_stored: cl.Buffer
+
+    def ordered(self) -> list:
+        return _ordered(self, PHOTON_PASS_ARGS)
+
+
+# Checked once, here: the records' fields are the kernels' parameter lists
+# (which tests/test_engine.py checks against the kernel source).
+for _record, _names in ((TraceArgs, TRACE_ARGS + AUX_ARGS + PHOTON_ARGS), (PhotonPassArgs, PHOTON_PASS_ARGS)):
+    if tuple(f.name for f in fields(_record)) != _names:
+        raise TypeError(f"{_record.__name__}'s fields are not the kernel's parameters {', '.join(_names)}")
+
+# The TraceLaunch fields a launch sets for its item; start() sets the others.
+ITEM_FIELDS = ("seed", "sample_begin", "n_samples", "n_list", "photons")
+IMAGE_FIELDS = ("scene", "camera", "lum_scale", "width", "height", "group_offset", "max_depth", "rr_depth",
+                "aux_specular", "pixel_filter")
+
+
+FILTER_LOCAL_SIZE = 64  # the cone filter's work-groups (kernels/filter.cl)
+
+
+def local_size(dctx) -> int:
+    return LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
+
+
+def _groups(n: int, lanes: int, local: int) -> int:
+    """The global size of a launch over n lanes' work: whole work-groups."""
+    return -(-(-(-n // lanes)) // local) * local
+
+
+class TracePass:
+    """trace_paths on one device: the kernel, the launch record's buffer, each
+    work-item's ray counts and the pixel lists of adaptive rounds."""
+
+    def __init__(self, dctx, program, features):
+        self.dctx = dctx
+        self.features = features
+        self.kernel = cl.Kernel(program, "trace_paths")
+        self.launch_buf = RecordBuffer(dctx, trace_record(features.double))
+        self.local = local_size(dctx)
+        self.counters = Counters()
+        self.launched = False    # the first launch may include a lazy device compile
+        self.record = None
+        self.stats_buf = self.jobs_buf = None
+        self.stats_host = np.empty((0, 4), np.uint32)
+
+    def buffer_bytes_for(self, n_pix: int) -> int:
+        return _groups(n_pix, self.features.lanes, self.local) * 16
+
+    def allocate(self, n_pix: int):
+        """Buffers for launches over n_pix pixels (DeviceError if they do not fit)."""
+        self.global_size = _groups(n_pix, self.features.lanes, self.local)
+        ctx, rw = self.dctx.context, cl.mem_flags.READ_WRITE
+        try:
+            self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
+            self.jobs_buf = cl.Buffer(ctx, rw, 16)  # pixel lists replace it
+        except cl.Error as e:
+            raise DeviceError(f"cannot allocate the work-item statistics of {n_pix} pixels on {self.dctx.label} "
+                              f"({e}); render a smaller image") from None
+        self.stats_host = np.empty((self.global_size, 4), dtype=np.uint32)
+
+    def set_image(self, job, packed, frame, eps_abs: float):
+        """The launch record's image part: the scene, camera and job settings every launch shares."""
+        rec = trace_record(self.features.double)
+        fill_scene_info(rec["scene"], packed.counts, eps_abs)
+        for k in ("origin", "corner", "dx", "dy"):
+            rec["camera"][k] = (*getattr(frame, k), 0)
+        values = {"lum_scale": packed.lum_scale, "width": job.width, "height": job.height,
+                  "group_offset": 0,  # a launch covers the image from its first pixel
+                  "max_depth": min(job.max_depth, 2**31), "rr_depth": min(job.rr_depth, 2**31),
+                  "aux_specular": int(job.aux_specular == "surface")}
+        for k, v in values.items():
+            rec[k] = v
+        fill_pixel_filter(rec["pixel_filter"], job.scene.camera.pixel_filter)
+        self.record = rec
+
+    def item_record(self, seed: int, item, lookup=None) -> tuple[np.ndarray, int]:
+        """(the launch record of an item, its global size). lookup(rec) fills
+        the record's photon part (builds with photons)."""
+        rec = self.record.copy()
+        rec["seed"] = seed
+        if item.kind == "pixels":
+            n_list = len(item.pixels)
+            rec["sample_begin"], rec["n_samples"], rec["n_list"] = 0, 0, n_list
+            global_size = _groups(n_list, self.features.lanes, self.local)
+            self._pixel_list(item, global_size)
+        else:
+            rec["sample_begin"], rec["n_samples"], rec["n_list"] = item.s0, item.n, 0
+            global_size = self.global_size
+        if lookup is not None:
+            lookup(rec["photons"])
+        return rec, global_size
+
+    def _pixel_list(self, item, global_size: int):
+        if global_size > len(self.stats_host):
+            self.stats_buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_WRITE, global_size * 16)
+            self.stats_host = np.empty((global_size, 4), dtype=np.uint32)
+        mf = cl.mem_flags
+        jobs = np.array(item.jobs, dtype=np.uint32).reshape(-1, 4)
+        jobs[:, 3] = item.pixels  # (samples, max depth, first sample, pixel): kernels/film.h lane_jobs
+        self.jobs_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=jobs)
+
+    def run(self, rec: np.ndarray, global_size: int, args: TraceArgs) -> tuple[float, float, bool, np.ndarray]:
+        """Launch over global_size work-items and wait: (device seconds (the
+        host's where the queue has no profiling), host seconds, whether it
+        was the first launch, ray counts summed over the work-items)."""
+        args.launch = self.launch_buf.write(rec)
+        args.stats, args.pix_jobs = self.stats_buf, self.jobs_buf
+        self.kernel.set_args(*args.ordered(self.features.aux, self.features.photons))
+        q = self.dctx.queue
+        t0 = time.perf_counter()
+        ev = cl.enqueue_nd_range_kernel(q, self.kernel, (global_size,), (self.local,))
+        stats = self.stats_host[:global_size]
+        cl.enqueue_copy(q, stats, self.stats_buf)
+        wall = time.perf_counter() - t0
+        self.counters.launched("trace_paths", ev)
+        self.counters.settle()
+        seconds = self.counters.seconds["trace_paths"][-1]
+        if not seconds == seconds:  # no profiling information: the host's time
+            seconds = wall
+        first = not self.launched
+        self.launched = True
+        return seconds, wall, first, stats.sum(axis=0, dtype=np.uint64)
+
+    def buffer_bytes(self) -> dict[str, int]:
+        if self.stats_buf is None:
+            return {}
+        return {"work-item stats": self.stats_buf.size, "adaptive lists": self.jobs_buf.size}
+
+
+class PhotonPass:
+    """The photon buffers and grid of one device, rebuilt by build()."""
+
+    def __init__(self, dctx, program, real):
+        self.dctx = dctx
+        self.real = real
+        self.k_trace = cl.Kernel(program, "trace_photons")
+        self.k_keys = cl.Kernel(program, "photon_keys")
+        self.k_hist = cl.Kernel(program, "radix_histogram")
+        self.k_offsets = cl.Kernel(program, "radix_offsets")
+        self.k_scatter = cl.Kernel(program, "radix_scatter")
+        self.k_permute = cl.Kernel(program, "photon_permute")
+        self.k_starts = cl.Kernel(program, "bucket_starts")
+        self.k_occ = cl.Kernel(program, "photon_occupancy")
+        self.capacity = -1
+        self.launch = None  # the photon pass's launch record buffer
+        self.n_chunks = 64 if dctx.is_cpu else 1024  # a multiple of the local size: every chunk work-item exists
+        self.counters = Counters()
+        self.n_stored = 0
+        self.n_emitted = 0
+        self.radius = 0.0
+        self.inv_cell = 1.0
+        self.sorted_keys = None
+        self.held = None  # the key of the map built last (DeviceWorker: its iteration)
+
+    def _alloc(self, n: int):
+        ctx = self.dctx.context
+        rw = cl.mem_flags.READ_WRITE
+        m = max(n, 1)
+        self.table_bits = max(10, min(MAX_TABLE_BITS, (2 * m - 1).bit_length()))  # about 2 buckets a photon
+        self.mask = (1 << self.table_bits) - 1
+        try:
+            self.raw = [cl.Buffer(ctx, rw, 16 * m) for _ in range(3)]     # pos, dir, pow as traced
+            self.sorted = [cl.Buffer(ctx, rw, 16 * m) for _ in range(3)]  # in key order
+            self.keys = [cl.Buffer(ctx, rw, 4 * m) for _ in range(2)]
+            self.vals = [cl.Buffer(ctx, rw, 4 * m) for _ in range(2)]
+            self.bucket_start = cl.Buffer(ctx, rw, 4 * ((1 << self.table_bits) + 1))
+            self.hist = cl.Buffer(ctx, rw, 4 * 256 * self.n_chunks)
+            self.counter = cl.Buffer(ctx, rw, 4)
+            # Occupancy bits: about 128 a photon (27 set each), 2^16 to 2^26.
+            self.occ_bits = 1 << max(16, min(26, (128 * m - 1).bit_length()))
+            self.occ = cl.Buffer(ctx, rw, self.occ_bits // 8)
+        except cl.Error as e:
+            raise DeviceError(f"cannot allocate a photon map of {n} photons on {self.dctx.label} ({e}); "
+                              f"use fewer photons") from None
+        self.capacity = n
+
+    def buffer_bytes(self) -> dict[str, int]:
+        """Device memory per buffer of the photon map (none before the first build)."""
+        if self.capacity < 0:
+            return {}
+        return {"photons as traced": sum(b.size for b in self.raw), "photons sorted": sum(b.size for b in self.sorted),
+                "photon sort keys": sum(b.size for b in self.keys + self.vals),
+                "photon grid": self.bucket_start.size + self.hist.size + self.counter.size + self.occ.size}
+
+    def _launch(self, name, kernel, global_size, *args):
+        # A fixed local size (the kernels check their range): PoCL compiles a
+        # kernel anew for each local size, and its own choice for large global
+        # sizes overflowed the work-item stacks of the double-precision build.
+        local = local_size(self.dctx)
+        kernel.set_args(*args)
+        ev = cl.enqueue_nd_range_kernel(self.dctx.queue, kernel, (-(-max(1, global_size) // local) * local,), (local,))
+        self.counters.launched(name, ev)
+        return ev
+
+    def build(self, scene_buf, counts, eps_abs, lanes: int, seed: int, settings: PhotonSettings, radius: float):
+        """Trace settings.count photons and build the grid for `radius`
+        (counts: the packed scene's; eps_abs: the ray-origin offset's floor).
+        Returns {"stored", "trace_seconds", "grid_seconds", "host_seconds"}
+        (device times from profiling events)."""
+        n = int(settings.count)
+        if n != self.capacity:
+            self._alloc(n)
+        q = self.dctx.queue
+        t_host = time.perf_counter()
+        cl.enqueue_fill_buffer(q, self.counter, np.uint32(0), 0, 4)
+        events = []
+        if n > 0:
+            rec = photon_record(self.real == np.float64)
+            fill_scene_info(rec["scene"], counts, eps_abs)
+            rec["seed"], rec["n_emit"], rec["aim"] = seed, n, 0 if settings.aim == "solid_angle" else 1
+            if self.launch is None:
+                self.launch = RecordBuffer(self.dctx, rec)
+            args = PhotonPassArgs(scene_buf, self.launch.write(rec), *self.raw, self.counter)
+            events.append(self._launch("trace_photons", self.k_trace, -(-n // lanes), *args.ordered()))
+        stored = np.zeros(1, dtype=np.uint32)
+        cl.enqueue_copy(q, stored, self.counter)
+        grid_events = self.build_grid(n, radius)
+        self.n_stored = int(stored[0])
+        self.n_emitted = n
+        self.counters.settle()
+        return {"stored": self.n_stored, "trace_seconds": _device_seconds(events),
+                "grid_seconds": _device_seconds(grid_events), "host_seconds": time.perf_counter() - t_host}
+
+    def load(self, pos, dirs, power, radius: float):
+        """Use the given photons (arrays of n x 3) instead of traced ones, and
+        build the grid: for tests and for measuring the build alone."""
+        n = len(pos)
+        if n != self.capacity:
+            self._alloc(n)
+        if n:
+            for buf, a, w in ((self.raw[0], pos, 1.0), (self.raw[1], dirs, 0.0), (self.raw[2], power, 0.0)):
+                h = np.zeros((n, 4), dtype=np.float32)
+                h[:, :3] = a
+                h[:, 3] = w
+                cl.enqueue_copy(self.dctx.queue, buf, h)
+        self.n_stored = n
+        self.n_emitted = n
+        events = self.build_grid(n, radius)
+        self.counters.settle()
+        return {"stored": n, "grid_seconds": _device_seconds(events)}
+
+    def build_grid(self, n: int, radius: float):
+        """Sort the n photon slots by bucket and fill bucket_start; returns the events."""
+        q = self.dctx.queue
+        self.radius = radius
+        self.inv_cell = 1.0 / (GRID_CELL_RADII * radius)
+        table = 1 << self.table_bits
+        cl.enqueue_fill_buffer(q, self.bucket_start, np.uint32(0), 0, 4 * (table + 1))
+        cl.enqueue_fill_buffer(q, self.occ, np.uint32(0), 0, self.occ_bits // 8)
+        events = []
+        if n > 0:
+            events.append(self._launch("photon_keys", self.k_keys, n, self.raw[0], np.uint32(n),
+                                       self.real(self.inv_cell), np.uint32(self.mask), self.keys[0], self.vals[0]))
+            chunk = np.uint32(-(-n // self.n_chunks))
+            src = 0
+            for shift in range(0, self.table_bits + 1, RADIX_BITS):
+                events.append(self._launch("radix_histogram", self.k_hist, self.n_chunks, self.keys[src],
+                                           np.uint32(n), np.uint32(shift), chunk, self.hist))
+                events.append(self._launch("radix_offsets", self.k_offsets, 1, self.hist, np.uint32(self.n_chunks)))
+                events.append(self._launch("radix_scatter", self.k_scatter, self.n_chunks, self.keys[src],
+                                           self.vals[src], np.uint32(n), np.uint32(shift), chunk, self.hist,
+                                           self.keys[1 - src], self.vals[1 - src]))
+                src = 1 - src
+            events.append(self._launch("photon_permute", self.k_permute, n, self.vals[src], np.uint32(n),
+                                       *self.raw, *self.sorted))
+            events.append(self._launch("bucket_starts", self.k_starts, n + 1, self.keys[src], np.uint32(n),
+                                       np.uint32(self.mask), self.bucket_start))
+            self.sorted_keys = self.keys[src]
+            events.append(self._launch("photon_occupancy", self.k_occ, n, self.raw[0], np.uint32(n),
+                                       self.real(self.inv_cell), np.uint32(self.occ_bits - 1), self.occ))
+        q.finish()
+        return events
+
+    def stored_power(self) -> list[float]:
+        """The power the stored photons carry, per RGB channel (float64 sums)."""
+        n = self.capacity
+        power = np.zeros((max(n, 1), 4), np.float32)
+        if n > 0:
+            cl.enqueue_copy(self.dctx.queue, power, self.sorted[2])
+        return [float(x) for x in power[:, :3].sum(axis=0, dtype=np.float64)]
+
+    def lookup(self, rec, settings: PhotonSettings, mode: int):
+        """Fill rec, a PhotonLookup record (clpt/layout.py), for a trace_paths
+        launch over this map in mode PM_*: the map's grid, the gather's
+        settings, and what the launch does with them (kernels/path.h)."""
+        # The merge's pdf is pf cos pi r^2 N (kernels/path.h, photon merging).
+        p = float(settings.merge_probability)
+        rec["mask"], rec["occ_mask"] = self.mask, self.occ_bits - 1
+        rec["max_photons"] = settings.max_photons if settings.max_photons > 0 else 0xFFFFFFFF
+        # The offline pre-pass gathers only a few times per pixel: subsampling
+        # noise would not average out there, so it visits every photon.
+        rec["budget"] = 0xFFFFFFFF if mode == PM_PREPASS else settings.budget
+        rec["radius"], rec["inv_cell"], rec["cone_k"] = self.radius, self.inv_cell, settings.cone_k
+        rec["mis_k"] = math.pi * self.radius ** 2 * max(self.n_emitted, 1) * p
+        rec["merge_p"] = p
+        rec["merge_vertices"] = min(settings.merge_vertices, 2 ** 31)
+        rec["aim"] = 0 if settings.aim == "solid_angle" else 1
+        rec["merge"] = mode == PM_MERGE
+        rec["gather"] = mode in (PM_OWNED, PM_PREPASS)
+        rec["owns"] = mode in (PM_OWNED, PM_OFFLINE, PM_PREPASS)
+        rec["stop_at_x"] = mode == PM_PREPASS
+
+    def fill(self, args: TraceArgs):
+        """Put the map's buffers into trace_paths' arguments."""
+        args.ph_pos, args.ph_dir, args.ph_pow = self.sorted
+        args.bucket_start, args.ph_occ = self.bucket_start, self.occ
+
+
+def _device_seconds(events) -> float:
+    try:
+        return sum(e.profile.end - e.profile.start for e in events) * 1e-9
+    except cl.Error:
+        return float("nan")
+
+
+class FilterPass:
+    """The cone filter's kernels on one device (clpt/denoise.py: settings and
+    the numpy twin; kernels/filter.cl)."""
+
+    def __init__(self, dctx, program):
+        self.dctx = dctx
+        self.firefly = cl.Kernel(program, "filter_firefly")
+        self.kernel = cl.Kernel(program, "filter_cone")
+        self.counters = Counters()
+
+    def __call__(self, color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
+        """Filtered colour (H x W x 3 float32) from the guides (H x W arrays);
+        var is each pixel mean's luminance variance, emitter the fraction of
+        its samples that see a light."""
+        h, w = color.shape[:2]
+        if settings.width == 0:
+            return color.astype(np.float32).copy()
+        irr, v, alb = demodulate(color.astype(np.float64), var.astype(np.float64), albedo.astype(np.float64))
+        ctx, q = self.dctx.context, self.dctx.queue
+        mf = cl.mem_flags
+        passes = settings.passes(w, h)
+        radius = min(int(settings.width), max(w, h))
+        lay = Planar(w, h, radius, 1 << (passes - 1))
+        flag = np.zeros((h, w)) if emitter is None else (emitter > 0.5)
+        c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v])
+        g0 = lay.pack([normal[..., 0], normal[..., 1], normal[..., 2], flag,
+                       albedo[..., 0], albedo[..., 1], albedo[..., 2], depth])
+        c = [cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0),
+             cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0)]
+        gb = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g0)
+        dims = (np.uint32(w), np.uint32(h), np.uint32(lay.pitch), np.uint32(lay.plane), np.uint32(lay.margin))
+        src = 0
+        local = FILTER_LOCAL_SIZE
+        if settings.firefly_k > 0:
+            gsize = -(-(w * h) // local) * local
+            self.counters.launched("filter_firefly", self.firefly(q, (gsize,), (local,), c[0], *dims,
+                                                                  np.float32(settings.firefly_k),
+                                                                  np.float32(settings.confirm_k), c[1]))
+            src = 1
+        items = h * lay.pitch // 8
+        gsize = -(-items // local) * local
+        for it in range(passes):
+            self.counters.launched("filter_cone", self.kernel(
+                q, (gsize,), (local,), c[src], gb, *dims, np.int32(radius), np.int32(1 << it),
+                np.int32(settings.sigma_normal), np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
+                np.float32(settings.sigma_luminance), np.float32(settings.guide_floor), c[1 - src]))
+            src = 1 - src
+        out = np.empty_like(c0)
+        cl.enqueue_copy(q, out, c[src])
+        q.finish()
+        self.counters.settle()
+        return (lay.unpack(out, 4)[..., :3] * alb).astype(np.float32)

@@ -1,0 +1,167 @@
+// microfacet.h: the rough conductor's microfacet lobe, as Mitsuba 3 defines
+// its `roughconductor` (isotropic GGX or Beckmann, Smith shadowing-masking
+// with Mitsuba's rational approximation of Beckmann's G1, conductor Fresnel
+// with a complex index per channel, sampling of the distribution of visible
+// normals). Directions follow bsdf.h: d is the incoming ray direction (so
+// -d points to the viewer), wi the scattered one, n the unit shading normal
+// on the side of -d. Isotropic roughness makes D and G1 functions of cosines
+// alone, so eval and pdf need no tangent frame; sampling draws the half
+// vector in any frame around n.
+//
+//   f(d -> wi) = km F(-d.h) D(h) G1(-d, h) G1(wi, h) / (4 cos_o cos_i),  h = normalize(wi - d)
+//   pdf(wi)    = D(h) G1(-d, h) / (4 cos_o)                  (visible normals, reflected)
+//   f cos_i / pdf = km F(-d.h) G1(wi, h)
+// where cos_o = -d.n and cos_i = wi.n.
+
+// D(h) of a half vector with cos theta = c and sin^2 theta = s2; 0 where
+// c <= 0 (Mitsuba: D cos > 1e-20).
+inline vreal mf_D(vreal c, vreal s2, vreal alpha, vmask beckmann)
+{
+    vreal a2 = alpha * alpha;
+    vreal c2 = c * c;
+    vreal t = s2 / a2;
+    vreal ggx = R(1) / (R(M_PI) * a2 * (t + c2) * (t + c2));
+    vreal beck = exp(-t / c2) / (R(M_PI) * a2 * c2 * c2);
+    vreal r = VSEL(ggx, beck, beckmann);
+    return VSEL((vreal)R(0), r, r * c > R(1e-20));
+}
+
+// Smith's G1 for a direction with cos theta = cv and sin^2 theta = s2,
+// whose cosine with the half vector is vh: 0 where v sees the microfacet
+// from behind (vh cv <= 0), 1 at normal incidence.
+inline vreal mf_G1(vreal cv, vreal s2, vreal vh, vreal alpha, vmask beckmann)
+{
+    vreal xy = alpha * alpha * s2;
+    vreal tan2 = xy / (cv * cv);
+    vreal ggx = R(2) / (R(1) + sqrt(R(1) + tan2));
+    vreal a = rsqrt(tan2);
+    vreal beck = (R(3.535) * a + R(2.181) * a * a) / (R(1) + R(2.276) * a + R(2.577) * a * a);
+    beck = VSEL(beck, (vreal)R(1), a >= R(1.6));
+    vreal r = VSEL(ggx, beck, beckmann);
+    r = VSEL(r, (vreal)R(1), xy == R(0));
+    return VSEL(r, (vreal)R(0), vh * cv <= R(0));
+}
+
+// sin^2 of the angle between unit v and unit n, without the cancellation of 1 - (v.n)^2.
+inline vreal mf_sin2(V3 v, V3 n)
+{
+    V3 c = v3_cross(v, n);
+    return fmin(v3_dot(c, c), R(1));
+}
+
+// Unpolarized Fresnel reflectance of a conductor of complex index eta + i k
+// at cos_i (Mitsuba 3's fresnel_conductor, after Moeller, "Optics").
+inline vreal fresnel_conductor(vreal cos_i, vreal eta, vreal k)
+{
+    vreal c2 = cos_i * cos_i, s2 = R(1) - c2, s4 = s2 * s2;
+    vreal t1 = eta * eta - k * k - s2;
+    vreal a2pb2 = vsafe_sqrt(t1 * t1 + R(4) * k * k * eta * eta);
+    vreal a = vsafe_sqrt(R(0.5) * (a2pb2 + t1));
+    vreal term1 = a2pb2 + c2, term2 = R(2) * cos_i * a;
+    vreal rs = (term1 - term2) / (term1 + term2);
+    vreal term3 = a2pb2 * c2 + s4, term4 = term2 * s2;
+    vreal rp = rs * (term3 - term4) / (term3 + term4);
+    return R(0.5) * (rs + rp);
+}
+
+inline V3 fresnel_conductor3(vreal cos_i, V3 eta, V3 k)
+{
+    return v3(fresnel_conductor(cos_i, eta.x, k.x), fresnel_conductor(cos_i, eta.y, k.y),
+              fresnel_conductor(cos_i, eta.z, k.z));
+}
+
+// Inverse error function (Giles, "Approximating the erfinv function", GPU
+// Computing Gems; single precision), its argument clamped to +-0.99999.
+inline vreal mf_erfinv(vreal x)
+{
+    x = clamp(x, (vreal)R(-0.99999), (vreal)R(0.99999));
+    vreal w = -log((R(1) - x) * (R(1) + x));
+    vreal w1 = w - R(2.5);
+    vreal p1 = (vreal)R(2.81022636e-08);
+    p1 = mad(p1, w1, (vreal)R(3.43273939e-07));
+    p1 = mad(p1, w1, (vreal)R(-3.5233877e-06));
+    p1 = mad(p1, w1, (vreal)R(-4.39150654e-06));
+    p1 = mad(p1, w1, (vreal)R(0.00021858087));
+    p1 = mad(p1, w1, (vreal)R(-0.00125372503));
+    p1 = mad(p1, w1, (vreal)R(-0.00417768164));
+    p1 = mad(p1, w1, (vreal)R(0.246640727));
+    p1 = mad(p1, w1, (vreal)R(1.50140941));
+    vreal w2 = sqrt(w) - R(3);
+    vreal p2 = (vreal)R(-0.000200214257);
+    p2 = mad(p2, w2, (vreal)R(0.000100950558));
+    p2 = mad(p2, w2, (vreal)R(0.00134934322));
+    p2 = mad(p2, w2, (vreal)R(-0.00367342844));
+    p2 = mad(p2, w2, (vreal)R(0.00573950773));
+    p2 = mad(p2, w2, (vreal)R(-0.0076224613));
+    p2 = mad(p2, w2, (vreal)R(0.00943887047));
+    p2 = mad(p2, w2, (vreal)R(1.00167406));
+    p2 = mad(p2, w2, (vreal)R(2.83297682));
+    return VSEL(p2, p1, w < R(5)) * x;
+}
+
+// A slope (x, y) of the unit-roughness distribution's visible normals seen
+// from cos theta = ci (> 0) in the stretched space, whose azimuth is 0
+// (Heitz and d'Eon 2014; the Beckmann inversion as in Mitsuba and pbrt-v3:
+// Newton steps on the CDF, kept inside a bisection interval).
+inline void mf_sample_slopes(vreal ci, vreal u1, vreal u2, vmask beckmann, vreal *sx, vreal *sy)
+{
+    vreal si = vsafe_sqrt(R(1) - ci * ci);
+    // --- GGX: a uniform disk point projected onto the visible half ------------------
+    vreal r = sqrt(u1), cphi;
+    vreal sphi = sincos(R(2 * M_PI) * u2, &cphi);
+    vreal px = r * cphi, py = r * sphi;
+    vreal s = R(0.5) * (R(1) + ci);
+    py = mad(vsafe_sqrt(R(1) - px * px), R(1) - s, py * s);
+    vreal pz = vsafe_sqrt(R(1) - px * px - py * py);
+    vreal inv = R(1) / mad(si, py, ci * pz);
+    vreal gx = (ci * py - si * pz) * inv, gy = px * inv;
+    *sx = gx;
+    *sy = gy;
+    if (!VANY(beckmann))
+        return;
+    // --- Beckmann --------------------------------------------------------------------
+    vreal tan_i = si / ci, cot_i = ci / si;
+    vreal a = (vreal)R(-1), c = erf(cot_i);
+    vreal ux = fmax(u1, R(1e-6));
+    vreal th = acos(ci);
+    vreal fit = R(1) + th * (R(-0.876) + th * (R(0.4265) - R(0.0594) * th));
+    vreal b = c - (R(1) + c) * pow(R(1) - ux, fit);
+    const real sqrt_pi_inv = R(0.56418958354775628);
+    vreal norm = R(1) / (R(1) + c + sqrt_pi_inv * tan_i * exp(-cot_i * cot_i));
+    for (int it = 0; it < 10; it++) {
+        b = VSEL(R(0.5) * (a + c), b, b >= a && b <= c);
+        vreal ie = mf_erfinv(b);
+        vreal value = norm * (R(1) + b + sqrt_pi_inv * tan_i * exp(-ie * ie)) - ux;
+        vreal deriv = norm * (R(1) - ie * tan_i);
+        vmask pos = value > R(0);
+        c = VSEL(c, b, pos);
+        a = VSEL(b, a, pos);
+        b = b - value / deriv;
+    }
+    b = VSEL(R(0.5) * (a + c), b, b >= a && b <= c);
+    vreal bx = mf_erfinv(b);
+    vreal by = mf_erfinv(R(2) * fmax(u2, R(1e-6)) - R(1));
+    // Normal incidence: the distribution itself.
+    vreal rr = sqrt(-log(fmax(R(1) - u1, R(1e-30))));
+    vmask normal = ci > R(0.9999);
+    bx = VSEL(bx, rr * cphi, normal);
+    by = VSEL(by, rr * sphi, normal);
+    *sx = VSEL(gx, bx, beckmann);
+    *sy = VSEL(gy, by, beckmann);
+}
+
+// A half vector from the distribution of normals visible from wo (local,
+// z along the normal, wo.z > 0): stretch wo, draw a slope, rotate it to
+// wo's azimuth, unstretch (Mitsuba's sample_visible).
+inline V3 mf_sample_visible(V3 wo, vreal alpha, vmask beckmann, vreal u1, vreal u2)
+{
+    V3 ws = v3_normalize(v3(alpha * wo.x, alpha * wo.y, wo.z));
+    vreal sxy = sqrt(ws.x * ws.x + ws.y * ws.y);
+    vreal cphi = VSEL(ws.x / sxy, (vreal)R(1), sxy == R(0));
+    vreal sphi = VSEL(ws.y / sxy, (vreal)R(0), sxy == R(0));
+    vreal sx, sy;
+    mf_sample_slopes(ws.z, u1, u2, beckmann, &sx, &sy);
+    vreal mx = (cphi * sx - sphi * sy) * alpha;
+    vreal my = (sphi * sx + cphi * sy) * alpha;
+    return v3_normalize(v3(-mx, -my, (vreal)R(1)));
+}
