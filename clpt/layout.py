@@ -224,6 +224,9 @@ SCENE_INFO = Record("SceneInfo", tuple((n, "uint") for n in COUNT_NAMES) + (("ep
 CAMERA = Record("CameraRec", (("origin", "real4"), ("corner", "real4"), ("dx", "real4"), ("dy", "real4")),
                 "pinhole camera: origin; direction to the image's top-left corner (plane at distance 1); one "
                 "pixel right; one pixel down")
+FILTER = Record("FilterRec", (("radius", "real"), ("sample_border", "uint")),
+                "the pixel filter (kernels/camera.h; its kind is CLPT_PIXEL_FILTER): radius in pixels (a gaussian's "
+                "is 4 stddev); whether samples may leave the film")
 PHOTON_LOOKUP = Record("PhotonLookup", (
     ("mask", "uint"), ("max_photons", "uint"), ("budget", "uint"), ("occ_mask", "uint"),
     ("merge_vertices", "uint"), ("aim", "uint"),
@@ -236,7 +239,7 @@ TRACE_LAUNCH = Record("TraceLaunch", (
     ("scene", SCENE_INFO), ("camera", CAMERA), ("photons", PHOTON_LOOKUP), ("lum_scale", "real"),
     ("width", "uint"), ("height", "uint"), ("group_offset", "uint"), ("sample_begin", "uint"),
     ("n_samples", "uint"), ("max_depth", "uint"), ("rr_depth", "uint"), ("seed", "uint"), ("n_list", "uint"),
-    ("aux_specular", "uint")),
+    ("aux_specular", "uint"), ("pixel_filter", FILTER)),
     "one trace_paths launch (kernels/trace.cl)")
 PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"), ("n_emit", "uint"),
                                         ("aim", "uint")),
@@ -250,7 +253,7 @@ def scene_records() -> tuple:
 
 def launch_records() -> tuple:
     """The structs (Record), nested ones before those that hold them."""
-    return (SCENE_INFO, CAMERA, PHOTON_LOOKUP, TRACE_LAUNCH, PHOTON_LAUNCH)
+    return (SCENE_INFO, CAMERA, FILTER, PHOTON_LOOKUP, TRACE_LAUNCH, PHOTON_LAUNCH)
 
 
 def c_source() -> str:

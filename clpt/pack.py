@@ -63,6 +63,7 @@ class PackedScene:
     smooth: bool = False         # some triangles have vertex normals
     bvh: object = None           # the clpt.bvh.Tree, when the scene has one
     primitives: int = 0          # bounded primitives (spheres, quads, triangles)
+    pixel_filter: str = "box"    # the camera's pixel filter kind (its parameters go in each launch record)
 
     @property
     def lum_scale(self) -> float:
@@ -501,7 +502,8 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
                        light_kinds=frozenset(kinds[int(f["p_kind"][3])] for _, _, _, f, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,
                        max_radiance=max((max(m.emission) for _, _, m, *_ in lights), default=1.0),
-                       smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale)
+                       smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale,
+                       pixel_filter=scene.camera.pixel_filter.kind)
 
 
 @dataclass(frozen=True)

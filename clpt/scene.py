@@ -157,6 +157,64 @@ def _is_number(x) -> bool:
     return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
 
 
+PIXEL_FILTERS = ("box", "tent", "gaussian")
+FILTER_MAX_RADIUS = 256.0  # pixels
+
+
+@dataclass(frozen=True)
+class PixelFilter:
+    """How a camera sample's position is spread over the image: Mitsuba 3's
+    reconstruction filters, with its parameters and defaults.
+
+    - "box": a uniform position in the pixel (radius 0.5, no parameters).
+    - "tent": max(0, 1 - |x| / radius), radius 1 pixel by default.
+    - "gaussian": exp(-x^2 / (2 stddev^2)) minus its value at 4 stddev, cut
+      off there (radius = 4 stddev); stddev 0.5 pixels by default. Mitsuba's
+      default filter.
+
+    Filters are separable (w(x) w(y)) and importance sampled: each sample's
+    offset from its pixel's centre is drawn from the normalized filter, so a
+    pixel is a plain mean of its own samples whose expectation is the
+    filter-weighted mean Mitsuba's splatting gives (sum w L / sum w).
+    sample_border: as Mitsuba's film option, whether samples may land
+    outside the film (False: a pixel near the edge has its filter cut at the
+    edge, as Mitsuba does by default)."""
+
+    kind: str = "box"
+    radius: float | None = None   # tent only (default 1)
+    stddev: float | None = None   # gaussian only (default 0.5)
+    sample_border: bool = False
+
+    @property
+    def extent(self) -> float:
+        """The filter's radius in pixels."""
+        if self.kind == "tent":
+            return 1.0 if self.radius is None else float(self.radius)
+        if self.kind == "gaussian":
+            return 4.0 * self.sigma
+        return 0.5
+
+    @property
+    def sigma(self) -> float:
+        return 0.5 if self.stddev is None else float(self.stddev)
+
+    def check(self, src: str, path: str):
+        if self.kind not in PIXEL_FILTERS:
+            _fail(src, f"{path}.kind", f"must be one of {', '.join(PIXEL_FILTERS)} (got {self.kind!r})")
+        for key, owner in (("radius", "tent"), ("stddev", "gaussian")):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            if self.kind != owner:
+                _fail(src, f"{path}.{key}", f"only the {owner} filter has a {key} (this one is {self.kind!r})")
+            hi = FILTER_MAX_RADIUS / (4 if key == "stddev" else 1)
+            _finite(src, f"{path}.{key}", v, lo=0.0)
+            if not 1e-3 <= v <= hi:
+                _fail(src, f"{path}.{key}", f"must be from 0.001 to {hi:g} pixels (got {v:g})")
+        if not isinstance(self.sample_border, (bool, np.bool_)):
+            _fail(src, f"{path}.sample_border", f"must be true or false (got {self.sample_border!r})")
+
+
 @dataclass(frozen=True)
 class Camera:
     """Pinhole camera looking from origin towards target.
@@ -172,6 +230,7 @@ class Camera:
     fov_axis: str = "smaller"
     width: int = 256
     height: int = 256
+    pixel_filter: PixelFilter = PixelFilter()
 
 
 @dataclass(frozen=True)
@@ -706,6 +765,9 @@ def check_scene(scene: Scene):
         v = getattr(cam, key)
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 1 << 16:
             _fail(src, f"camera.{key}", f"must be an integer from 1 to 65536 (got {v!r})")
+    if not isinstance(cam.pixel_filter, PixelFilter):
+        _fail(src, "camera.pixel_filter", f"must be a PixelFilter (got {type(cam.pixel_filter).__name__})")
+    cam.pixel_filter.check(src, "camera.pixel_filter")
 
     for name, m in scene.materials.items():
         if not isinstance(m, Material):

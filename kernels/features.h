@@ -26,8 +26,8 @@
 #if !defined(CLPT_HAS_BVH) || !defined(CLPT_HAS_SMOOTH) || !defined(CLPT_BVH_PACKETS)
 #error "clpt: CLPT_HAS_BVH, CLPT_HAS_SMOOTH and CLPT_BVH_PACKETS must be defined"
 #endif
-#if !defined(CLPT_PHOTONS) || !defined(CLPT_AUX)
-#error "clpt: CLPT_PHOTONS and CLPT_AUX must be defined"
+#if !defined(CLPT_PHOTONS) || !defined(CLPT_AUX) || !defined(CLPT_PIXEL_FILTER)
+#error "clpt: CLPT_PHOTONS, CLPT_AUX and CLPT_PIXEL_FILTER must be defined"
 #endif
 #if !CLPT_GENERIC && (!defined(CLPT_NUM_MATERIALS) || !defined(CLPT_NUM_SPHERES) || !defined(CLPT_NUM_QUADS) \
     || !defined(CLPT_NUM_TRIANGLES) || !defined(CLPT_NUM_PLANES) || !defined(CLPT_NUM_LIGHTS) \

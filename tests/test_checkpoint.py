@@ -3,6 +3,7 @@ the uninterrupted render bit for bit (same device), checkpoints of another
 render are refused, signals leave an image and a checkpoint, and SIGKILL at
 random moments never leaves a checkpoint that cannot be read."""
 
+import dataclasses
 import json
 import os
 import random
@@ -32,8 +33,14 @@ def stop_after(spp):
     return ev, progress
 
 
+def _gaussian_box():
+    s = clpt.load_scene("cornell_box")
+    return dataclasses.replace(s, camera=dataclasses.replace(s.camera, pixel_filter=clpt.PixelFilter("gaussian")))
+
+
 CASES = {
     "plain": ("cornell_box", {}, {}),
+    "pixel_filter": (_gaussian_box(), {}, {}),  # the camera's filter travels in the checkpoint
     "kahan": ("cornell_box", {"accumulate": "kahan"}, {}),
     "progressive": ("cornell_box_caustics", {}, {"photons": PhotonSettings(count=20_000, progressive=True,
                                                                            spp_per_map=2)}),

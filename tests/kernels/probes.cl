@@ -275,6 +275,18 @@ __kernel void probe_light_pdf(__global const real4 *rec, __constant SceneInfo *i
     ST(VSEL((vreal)R(0), p, fabs(h.t - ls.dist) < R(1e-4) * ls.dist), pdf_hit, i);
 }
 
+// The pixel filter's offset (camera.h filter_sample_offset) for filter `kind`
+// (0 box, 1 tent, 2 gaussian), for samples u of pixel centres c of an image n
+// pixels wide.
+__kernel void probe_pixel_filter(int kind, real radius, uint sample_border, real n,
+                                 __global const real *u, __global const real *c, __global real *out)
+{
+    size_t i = get_global_id(0);
+    FilterRec f;
+    f.radius = radius; f.sample_border = sample_border;
+    ST(filter_sample_offset(&f, kind, LD(u, i), LD(c, i), n), out, i);
+}
+
 // The rough conductor's lobe (bsdf.h, microfacet.h) at a vertex with normal
 // +z, alone in its material: for each incoming direction d, a sample from
 // (u1, u2) (its direction, weight f cos / pdf, mixture pdf and whether a lobe
