@@ -7,6 +7,8 @@ disagree and a change reaches the build cache key.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 # Rec. 709 luminance weights of linear RGB.
@@ -28,6 +30,42 @@ OFFSET_FLOOR = {"float": float(np.finfo(np.float32).tiny) * 2.0 ** 20,
                 "double": float(np.finfo(np.float64).tiny) * 2.0 ** 20}
 
 
+# Mitsuba's gaussian pixel filter, exp(-x^2 / (2 stddev^2)) minus its value
+# at its radius r = 4 stddev, has one shape in units of r: g(s) = exp(-8 s^2)
+# - exp(-8) on [-1, 1]. The kernels sample it (kernels/camera.h) through its
+# inverse CDF tabulated at GAUSSIAN_TABLE_BINS + 1 equally likely nodes of
+# its half [0, 1] (node k: the s where the half's CDF is k / BINS), the
+# density within a bin linear between g at its nodes, scaled to the bin's
+# 1 / BINS of the mass: within 2e-5 of g's peak everywhere (tests/test_camera.py).
+GAUSSIAN_TABLE_BINS = 256
+GAUSSIAN_HALF_MASS = float(np.sqrt(np.pi / 32) * math.erf(np.sqrt(8.0)) - np.exp(-8.0))  # g over [0, 1]
+
+
+def gaussian_half_cdf(s):
+    """The CDF of g over [0, 1] (exact, double)."""
+    s = np.asarray(s, dtype=np.float64)
+    erf = np.vectorize(math.erf)
+    return (math.sqrt(math.pi / 32) * erf(math.sqrt(8.0) * s) - math.exp(-8.0) * s) / GAUSSIAN_HALF_MASS
+
+
+def gaussian_table_cdf(k):
+    """The half CDF at node k (of 0..GAUSSIAN_TABLE_BINS)."""
+    return 1.0 - (1.0 - np.asarray(k, dtype=np.float64) / GAUSSIAN_TABLE_BINS) ** 2
+
+
+def gaussian_filter_table() -> np.ndarray:
+    """The nodes s_k (k = 0..GAUSSIAN_TABLE_BINS) where g's half CDF is gaussian_table_cdf(k), float64."""
+    q = gaussian_table_cdf(np.arange(GAUSSIAN_TABLE_BINS + 1))
+    lo, hi = np.zeros_like(q), np.ones_like(q)
+    for _ in range(64):
+        mid = 0.5 * (lo + hi)
+        below = gaussian_half_cdf(mid) < q
+        lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+    s = 0.5 * (lo + hi)
+    s[0], s[-1] = 0.0, 1.0
+    return s
+
+
 def luminance(rgb) -> np.ndarray:
     """Luminance of an array of linear RGB triples (last axis)."""
     return np.asarray(rgb, dtype=np.float64) @ LUMA
@@ -43,5 +81,9 @@ def kernel_defines() -> str:
         f"#define CLPT_LUMA_B {b!r}",
         f"#define CLPT_OFFSET_REL_FLOAT {OFFSET_REL['float']!r}",
         f"#define CLPT_OFFSET_REL_DOUBLE {OFFSET_REL['double']!r}",
+        f"#define CLPT_GAUSSIAN_TABLE_BINS {GAUSSIAN_TABLE_BINS}",
+        f"#define CLPT_GAUSSIAN_HALF_MASS {GAUSSIAN_HALF_MASS!r}",
     ]
+    lines.append("#define CLPT_GAUSSIAN_TABLE_S {" + ", ".join(repr(float(x)) for x in gaussian_filter_table())
+                 + "}")
     return "\n".join(lines) + "\n"

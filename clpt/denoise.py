@@ -234,13 +234,18 @@ def kept_emission(aux, count, k: float):
     f = np.clip(aux["emitter"], 0.0, 1.0)
     confirmed = (f > 0) & (f * np.maximum(count, 1.0) >= k * k * (1.0 - f))
     # The edge of a confirmed image (a lamp's, or its reflection's) is kept too.
-    pad = np.pad(confirmed, 1)
-    h, w = confirmed.shape
-    near = np.zeros_like(confirmed)
-    for dy in range(3):
-        for dx in range(3):
-            near |= pad[dy:dy + h, dx:dx + w]
-    return np.where(near[..., None], emission, 0.0).astype(np.float32)
+    return np.where(dilate(confirmed, 1)[..., None], emission, 0.0).astype(np.float32)
+
+
+def dilate(mask, r: int):
+    """mask (H x W bool) grown by r pixels in each direction (a square)."""
+    pad = np.pad(mask, r)
+    h, w = mask.shape
+    out = np.zeros_like(mask)
+    for dy in range(2 * r + 1):
+        for dx in range(2 * r + 1):
+            out |= pad[dy:dy + h, dx:dx + w]
+    return out
 
 
 def apply_denoiser(cone, image, lum_var, count, aux, settings):

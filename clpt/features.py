@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass
 from .pack import PackedScene
 
 KERNEL_MODES = ("specialized", "generic")
+PIXEL_FILTERS = ("box", "tent", "gaussian")  # CLPT_PIXEL_FILTER 0, 1, 2 (kernels/camera.h)
 BVH_WALKS = ("hybrid", "lane")
 
 
@@ -55,6 +56,7 @@ class Features:
     mirror: bool = True
     glass: bool = True
     microfacet: bool = True    # the rough conductor's microfacet lobe
+    plastic: bool = True       # Mitsuba's plastic and roughplastic (a coated diffuse base)
     triangle_lights: bool = True
     sphere_lights: bool = True
     mesh_lights: bool = True
@@ -63,6 +65,7 @@ class Features:
     bvh: bool = True           # the scene's primitives are in a BVH
     bvh_walk: str = "hybrid"   # BVH traversal (Experimental): "hybrid" (packets for coherent rays) or "lane"
     smooth: bool = True        # some triangles have vertex normals
+    pixel_filter: str = "box"  # the camera's pixel filter (PIXEL_FILTERS); the box compiles no filter code
     counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights, casters, BVH nodes (not generic)
 
     def defines(self) -> dict[str, int]:
@@ -74,6 +77,7 @@ class Features:
             "CLPT_NEE": int(self.nee),
             "CLPT_PHOTONS": int(self.photons),
             "CLPT_AUX": int(self.aux),
+            "CLPT_PIXEL_FILTER": PIXEL_FILTERS.index(self.pixel_filter),
             "CLPT_HAS_SPHERES": int(self.spheres),
             "CLPT_HAS_QUADS": int(self.quads),
             "CLPT_HAS_TRIANGLES": int(self.triangles),
@@ -82,6 +86,7 @@ class Features:
             "CLPT_HAS_MIRROR": int(self.mirror),
             "CLPT_HAS_GLASS": int(self.glass),
             "CLPT_HAS_MICROFACET": int(self.microfacet),
+            "CLPT_HAS_PLASTIC": int(self.plastic),
             "CLPT_HAS_TRIANGLE_LIGHTS": int(self.triangle_lights),
             "CLPT_HAS_SPHERE_LIGHTS": int(self.sphere_lights),
             "CLPT_HAS_MESH_LIGHTS": int(self.mesh_lights),
@@ -106,6 +111,8 @@ class Features:
         counts = ""
         if self.counts:
             counts = " counts=" + ",".join(str(c) for c in self.counts)
+        if self.pixel_filter != "box":
+            counts += f" pixel-filter={self.pixel_filter}"
         if self.bvh and self.bvh_walk != "hybrid":
             counts += f" bvh-walk={self.bvh_walk}"
         return (f"{self.mode} lanes={self.lanes} {'double' if self.double else 'float'} "
@@ -122,11 +129,13 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
     if bvh_walk not in BVH_WALKS:
         raise ValueError(f"bvh_walk must be one of {', '.join(BVH_WALKS)} (got {bvh_walk!r})")
     use_photons = packed.has_caustics if photons is None else bool(photons) and packed.has_caustics
+    # The pixel filter is compiled in (or out) in both modes, as the photons and feature buffers are.
     if mode == "generic":
         return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
-                        photons=use_photons, aux=aux, bvh_walk=bvh_walk)
+                        photons=use_photons, aux=aux, bvh_walk=bvh_walk, pixel_filter=packed.pixel_filter)
     return Features(
         lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
+        pixel_filter=packed.pixel_filter,
         spheres=packed.count("spheres") > 0,
         quads=packed.count("quads") > 0,
         triangles=packed.count("triangles") > 0,
@@ -135,6 +144,7 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         mirror=packed.has_mirror,
         glass=packed.has_glass,
         microfacet=packed.has_microfacet,
+        plastic=packed.has_plastic,
         triangle_lights="triangle" in packed.light_kinds,
         sphere_lights="sphere" in packed.light_kinds,
         mesh_lights="mesh" in packed.light_kinds,

@@ -168,10 +168,13 @@ def _r4(*names):
 
 
 MATERIAL = Rows("material", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_sides", "params", "km_pm",
-                                      "eta_alpha", "k_dist"),
+                                      "eta_alpha", "k_dist", "kp_pp", "kps_w", "coat", "coat_tab"),
                 "material: kd.rgb, p_diffuse | ks.rgb, p_phong | kr.rgb, p_mirror | kt.rgb, p_refract | "
                 "Le.rgb, two_sided | shininess, ior, nondelta, one_sided | km.rgb, p_microfacet | "
-                "eta.rgb, alpha | k.rgb, distribution (0 GGX, 1 Beckmann)")
+                "eta.rgb, alpha | k.rgb, distribution (0 GGX, 1 Beckmann) | plastic (a coated diffuse base): "
+                "diffuse_reflectance.rgb, p_plastic | specular_reflectance.rgb, specular sampling weight | "
+                "eta, internal reflectance, alpha (0: smooth), distribution | record index of its "
+                "transmittance table (COAT_TABLE_ROWS rows after the triangles' records), nonlinear, 0, 0")
 SPHERE = Rows("sphere", "SPHERE", _r4("center_radius", "mat"),
               "sphere: center.xyz, radius | material, light + 1 (0: not a light), prim id, 0")
 PLANAR = Rows("planar", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "wv_kind"),
@@ -204,6 +207,9 @@ NORMALS = Rows("vertex normals", "NORMALS", _r4("n0", "n1", "n2"), "vertex norma
 LIGHT_TRI = Rows("mesh-light triangle", "LTRI", _r4("p_alias", "u_prob", "v"),
                  "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
 
+# A rough plastic's transmittance table: clpt/coating.py TABLE_RES reals, COAT_TABLE_ROWS rows of 4.
+COAT_TABLE_ROWS = 16
+
 # Light kinds in LIGHT.p_kind.w.
 KIND_QUAD, KIND_TRIANGLE, KIND_SPHERE, KIND_MESH = 0, 1, 2, 3
 # Delta lights (no surface: sampled by next event estimation only, never hit):
@@ -224,6 +230,9 @@ SCENE_INFO = Record("SceneInfo", tuple((n, "uint") for n in COUNT_NAMES) + (("ep
 CAMERA = Record("CameraRec", (("origin", "real4"), ("corner", "real4"), ("dx", "real4"), ("dy", "real4")),
                 "pinhole camera: origin; direction to the image's top-left corner (plane at distance 1); one "
                 "pixel right; one pixel down")
+FILTER = Record("FilterRec", (("radius", "real"), ("sample_border", "uint")),
+                "the pixel filter (kernels/camera.h; its kind is CLPT_PIXEL_FILTER): radius in pixels (a gaussian's "
+                "is 4 stddev); whether samples may leave the film")
 PHOTON_LOOKUP = Record("PhotonLookup", (
     ("mask", "uint"), ("max_photons", "uint"), ("budget", "uint"), ("occ_mask", "uint"),
     ("merge_vertices", "uint"), ("aim", "uint"),
@@ -236,7 +245,7 @@ TRACE_LAUNCH = Record("TraceLaunch", (
     ("scene", SCENE_INFO), ("camera", CAMERA), ("photons", PHOTON_LOOKUP), ("lum_scale", "real"),
     ("width", "uint"), ("height", "uint"), ("group_offset", "uint"), ("sample_begin", "uint"),
     ("n_samples", "uint"), ("max_depth", "uint"), ("rr_depth", "uint"), ("seed", "uint"), ("n_list", "uint"),
-    ("aux_specular", "uint")),
+    ("aux_specular", "uint"), ("pixel_filter", FILTER)),
     "one trace_paths launch (kernels/trace.cl)")
 PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"), ("n_emit", "uint"),
                                         ("aim", "uint")),
@@ -250,7 +259,7 @@ def scene_records() -> tuple:
 
 def launch_records() -> tuple:
     """The structs (Record), nested ones before those that hold them."""
-    return (SCENE_INFO, CAMERA, PHOTON_LOOKUP, TRACE_LAUNCH, PHOTON_LAUNCH)
+    return (SCENE_INFO, CAMERA, FILTER, PHOTON_LOOKUP, TRACE_LAUNCH, PHOTON_LAUNCH)
 
 
 def c_source() -> str:
@@ -262,5 +271,5 @@ def c_source() -> str:
               f"#define KIND_POINT {KIND_POINT}", f"#define KIND_SPOT {KIND_SPOT}",
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
               f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define ITEM_EMPTY {ITEM_EMPTY}",
-              f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}"]
+              f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}", f"#define COAT_TABLE_ROWS {COAT_TABLE_ROWS}"]
     return "\n".join(parts) + "\n"

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .scene import (ALPHA_RANGE, DISTRIBUTIONS, Camera, Material, Mesh, PointLight, Quad, RenderSettings, Scene,
-                    SceneError, SceneWarning, Sphere, SpotLight, _suggest, read_file_bytes)
+from .scene import (ALPHA_RANGE, DISTRIBUTIONS, FILTER_MAX_RADIUS, Camera, Material, Mesh, PixelFilter, PointLight, Quad,
+                    RenderSettings, Scene, SceneError, SceneWarning, Sphere, SpotLight, _suggest, read_file_bytes)
 from .errors import ImageError
 from .image import load_image
 from .meshio import read_mesh, transform_mesh, vertex_normals
@@ -42,6 +42,10 @@ UNLIMITED_DEPTH = 1024
 # for one of them (17 of the 78 real scenes in shared/REAL_SCENES.md use sppm)
 # keeps its depth; clpt renders it with its own path tracer and photon merging.
 LEGACY_INTEGRATORS = ("sppm", "ppm", "photonmapper", "bdpt", "pssmlt", "mlt", "erpt", "volpath_simple")
+
+# Mitsuba 3's reconstruction filters with negative lobes: importance sampling
+# cannot draw them, so they are rendered with the box (with a warning).
+NEGATIVE_LOBED_FILTERS = ("mitchell", "catmullrom", "lanczos")
 
 # Segments of the triangle fan a disk becomes (its radius is scaled so that the
 # fan keeps the disk's area, and so a light's power).
@@ -308,6 +312,27 @@ def conductor_albedo(eta, k) -> tuple:
     mu = (np.arange(2048) + 0.5) / 2048
     return tuple(float(2.0 * np.mean(fresnel_conductor(mu, e, kk) * mu))
                  for e, kk in zip(np.broadcast_to(eta, 3), np.broadcast_to(k, 3)))
+
+
+def plastic_approximation(m: Material) -> Material:
+    """A plastic as diffuse + Phong (rough) or diffuse + mirror (smooth)
+    lobes of the energy Mitsuba's reflects, for mixing with the paper's
+    lobes (blendbsdf); other materials as they are."""
+    if not m.plastic:
+        return m
+    eta = m.plastic_eta
+    kd, spec = np.array(m.kp), np.array(m.kps)
+    fdr_ext = fresnel_diffuse_reflectance(eta)
+    fdr_int = fresnel_diffuse_reflectance(1.0 / eta)
+    if m.nonlinear:
+        kd_eff = kd / (1 - kd * fdr_int) * (1 - fdr_ext) ** 2 / (eta * eta)
+    else:
+        kd_eff = kd * (1 - fdr_ext) ** 2 / ((1 - fdr_int) * eta * eta)
+    ks = spec * fdr_ext
+    kd_eff = np.minimum(kd_eff, 1.0 - ks)
+    if m.alpha == 0:
+        return Material(kd=tuple(kd_eff), kr=tuple(ks), one_sided=m.one_sided)
+    return Material(kd=tuple(kd_eff), ks=tuple(ks), shininess=phong_exponent(m.alpha), one_sided=m.one_sided)
 
 
 def phong_exponent(alpha: float) -> float:
@@ -754,23 +779,26 @@ class _Loader:
                               key=("dielectric_colors",))
                 m = Material(kt=tuple(trans), ior=eta)
         elif t in ("plastic", "roughplastic"):
+            # The coated diffuse lobe itself (kernels/bsdf.h plastic_*, clpt/coating.py).
             eta = p.ior("int_ior", "polypropylene") / p.ior("ext_ior", "air")
-            kd = np.array(p.color("diffuse_reflectance", 0.5))
-            spec = np.array(p.color("specular_reflectance", 1.0))
-            fdr_ext = fresnel_diffuse_reflectance(eta)
-            fdr_int = fresnel_diffuse_reflectance(1.0 / eta)
-            if p.boolean("nonlinear", False):
-                kd_eff = kd / (1 - kd * fdr_int) * (1 - fdr_ext) ** 2 / (eta * eta)
+            kd = p.color("diffuse_reflectance", 0.5)
+            spec = p.color("specular_reflectance", 1.0)
+            nonlinear = p.boolean("nonlinear", False)
+            if abs(eta - 1.0) < 1e-6:
+                node.fail(f"int_ior and ext_ior must differ (got eta {eta:g})")
+            alpha, dist = 0.0, "beckmann"
+            if t == "roughplastic":
+                dist = p.string("distribution", "beckmann")  # Mitsuba 3's default
+                if dist not in DISTRIBUTIONS:
+                    p.props["distribution"].fail(f"unknown distribution {dist!r}{_suggest(dist, DISTRIBUTIONS)}; "
+                                                 f"known: {', '.join(DISTRIBUTIONS)}")
+                alpha = min(self._alpha(p), ALPHA_RANGE[1])
+                p.boolean("sample_visible", True)  # the same expectation either way; clpt samples visible normals
+            if max(kd) + max(spec) == 0:
+                m = Material(one_sided=True)  # black
             else:
-                kd_eff = kd * (1 - fdr_ext) ** 2 / ((1 - fdr_int) * eta * eta)
-            ks = spec * fdr_ext
-            kd_eff = np.minimum(kd_eff, 1.0 - ks)
-            if t == "plastic":
-                m = Material(kd=tuple(kd_eff), kr=tuple(ks), one_sided=True)
-            else:
-                p.string("distribution")
-                m = Material(kd=tuple(kd_eff), ks=tuple(ks), shininess=phong_exponent(self._alpha(p)),
-                             one_sided=True)
+                m = Material(plastic=True, kp=tuple(kd), kps=tuple(spec), alpha=alpha, distribution=dist,
+                             plastic_eta=eta, nonlinear=nonlinear, one_sided=True)
         elif t in ("bumpmap", "normalmap", "mask"):
             inner = p.nested("bsdf")
             if not inner:
@@ -787,6 +815,10 @@ class _Loader:
             if not 0 <= w <= 1:
                 node.fail(f"weight must be in [0, 1] (got {w})")
             a, b = self.bsdf(inner[0]), self.bsdf(inner[1])
+            if a.plastic or b.plastic:
+                self.warn(node, "blending a plastic: its diffuse + Phong approximation is blended",
+                          key=("blend_plastic",))
+                a, b = plastic_approximation(a), plastic_approximation(b)
             if (a.shininess and b.shininess and a.shininess != b.shininess) or (
                     max(a.kt) > 0 and max(b.kt) > 0 and a.ior != b.ior):
                 self.warn(node, "blending lobes of different shininess or ior: the weighted mean is used",
@@ -1016,6 +1048,7 @@ class _Loader:
                             "orientation are used", key=("cam_scale",))
         films = p.nested("film")
         width, height = 768, 576
+        pixel_filter = PixelFilter("gaussian")  # Mitsuba's default film has its default filter
         for f in films:
             fp = self.props(f)
             if fp.type not in ("hdrfilm", "specfilm"):
@@ -1028,17 +1061,14 @@ class _Loader:
             if any(fp.has(k) for k in ("crop_offset_x", "crop_offset_y", "crop_width", "crop_height")):
                 self.warn(f, "crop windows are not supported: the whole image is rendered", key=("crop",))
                 fp.used.update(("crop_offset_x", "crop_offset_y", "crop_width", "crop_height"))
+            pixel_filter = PixelFilter("gaussian")  # Mitsuba's default
             for rf in fp.nested("rfilter"):
-                rp = self.props(rf)
-                if rp.type != "box":
-                    self.warn(rf, f"reconstruction filter '{rp.type}' is not supported: clpt averages "
-                                  "samples uniformly over each pixel (a box filter)", key=("rfilter",))
-                rp.used.update(rp.props)
-                rp.finish()
+                pixel_filter = self.rfilter(rf)
+            pixel_filter = replace(pixel_filter, sample_border=fp.boolean("sample_border", False))
             # Output settings, which do not change the radiance clpt renders (and for Mitsuba
             # 0.6's ldrfilm, its tone mapping, which the film warning above covers).
             fp.finish(quiet=("pixel_format", "component_format", "file_format", "banner", "high_quality_edges",
-                             "sample_border", "compensate", "srgb_primaries", "attach_log")
+                             "compensate", "srgb_primaries", "attach_log")
                       + (("tonemap_method", "gamma", "exposure", "key", "burn") if fp.type == "ldrfilm" else ()))
         for s in p.nested("sampler"):
             sp = self.props(s)
@@ -1079,7 +1109,35 @@ class _Loader:
                 self.warn(node, "principal point offsets are not supported", key=("ppo",))
         p.finish(quiet=("near_clip", "far_clip", "focus_distance", "shutter_open", "shutter_close", "srf"))
         return Camera(origin=_floats3(origin), target=_floats3(origin + fwd / np.linalg.norm(fwd)),
-                      up=_floats3(up / np.linalg.norm(up)), fov=fov, fov_axis=fov_axis, width=width, height=height)
+                      up=_floats3(up / np.linalg.norm(up)), fov=fov, fov_axis=fov_axis, width=width, height=height,
+                      pixel_filter=pixel_filter)
+
+    def rfilter(self, node: _Node) -> PixelFilter:
+        """An <rfilter>: Mitsuba 3's box, tent (radius) and gaussian (stddev);
+        the filters with negative lobes are rendered with the box."""
+        p = self.props(node)
+        if p.type == "box":
+            pf = PixelFilter("box")
+        elif p.type == "tent":
+            radius = p.float("radius", 1.0)
+            if not 1e-3 <= radius <= FILTER_MAX_RADIUS:
+                p.props["radius"].fail(f"must be from 0.001 to {FILTER_MAX_RADIUS:g} pixels (got {radius:g})")
+            pf = PixelFilter("tent", radius=radius)
+        elif p.type == "gaussian":
+            stddev = p.float("stddev", 0.5)
+            if not 1e-3 <= stddev <= FILTER_MAX_RADIUS / 4:
+                p.props["stddev"].fail(f"must be from 0.001 to {FILTER_MAX_RADIUS / 4:g} pixels (got {stddev:g})")
+            pf = PixelFilter("gaussian", stddev=stddev)
+        elif p.type in NEGATIVE_LOBED_FILTERS:
+            self.warn(node, f"reconstruction filter '{p.type}' has negative lobes, which clpt does not sample: "
+                            "rendered with a box filter (box, tent and gaussian are supported)", key=("rfilter",))
+            p.used.update(p.props)
+            pf = PixelFilter("box")
+        else:
+            node.fail(f"unknown reconstruction filter '{p.type}' (Mitsuba 3 has box, tent, gaussian, mitchell, "
+                      "catmullrom, lanczos)")
+        p.finish()
+        return pf
 
     def integrator(self, node: _Node, settings: dict):
         p = self.props(node)
@@ -1166,7 +1224,7 @@ class _Loader:
             self.warn(root, "no sensor: Mitsuba's default camera is used (at the origin, looking along +z, "
                             "fov 39.3 along x)", key=("nosensor",))
             camera = Camera(origin=(0.0, 0.0, 0.0), target=(0.0, 0.0, 1.0), fov=39.3077, fov_axis="x",
-                            width=768, height=576)
+                            width=768, height=576, pixel_filter=PixelFilter("gaussian"))
         if "max_depth" not in settings:
             settings["max_depth"] = UNLIMITED_DEPTH  # Mitsuba's default path integrator
         defaults = RenderSettings()

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import bvh as bvh_mod
-from . import layout
+from . import coating, layout
 from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_POINT, KIND_QUAD,
                      KIND_SPHERE, KIND_SPOT, KIND_TRIANGLE, Rows)
 from .meshio import cross_rows
@@ -63,6 +63,7 @@ class PackedScene:
     smooth: bool = False         # some triangles have vertex normals
     bvh: object = None           # the clpt.bvh.Tree, when the scene has one
     primitives: int = 0          # bounded primitives (spheres, quads, triangles)
+    pixel_filter: str = "box"    # the camera's pixel filter kind (its parameters go in each launch record)
 
     @property
     def lum_scale(self) -> float:
@@ -97,6 +98,10 @@ class PackedScene:
         return any(max(m.km) > 0 for m in self.materials)
 
     @property
+    def has_plastic(self) -> bool:
+        return any(m.plastic for m in self.materials)
+
+    @property
     def has_mirror(self) -> bool:
         return any(max(m.kr) > 0 for m in self.materials)
 
@@ -122,6 +127,34 @@ def lobe_probabilities(m: Material):
     return p / max(1.0, p.sum())
 
 
+def plastic_probability(m: Material) -> float:
+    """Russian-roulette probability of a plastic's lobe (it is the material's
+    only one): its largest channel of the average albedo, specular
+    Fdr_e kps plus diffuse (1 - Fdr_e)^2 / eta^2 kp / (1 - Fdr_i [kp])
+    (Mitsuba's fitted diffuse Fresnel reflectances from outside and inside),
+    so a path's weight stays near 1 where the plastic reflects little."""
+    if not m.plastic:
+        return 0.0
+    eta = float(m.plastic_eta)
+    fe, fi = coating.fresnel_diffuse_reflectance(eta), coating.fresnel_diffuse_reflectance(1.0 / eta)
+    kp = np.asarray(m.kp, dtype=np.float64)
+    diffuse = kp * (1 - fe) ** 2 / (eta * eta) / (1 - fi * (kp if m.nonlinear else 1.0))
+    albedo = fe * np.asarray(m.kps, dtype=np.float64) + diffuse
+    return float(np.clip(albedo.max(), 0.05, 1.0))
+
+
+def _coat_tables(mat_recs, materials, base: int) -> np.ndarray:
+    """COAT_TABLE_ROWS rows per rough plastic (its transmittance table), from
+    record index base; each material record's coat_tab.x points to its own."""
+    rows = []
+    for rec, m in zip(mat_recs, materials):
+        if m.plastic and m.alpha > 0:
+            t, _ = coating.rough_tables(float(m.alpha), m.distribution, float(m.plastic_eta))
+            rec["coat_tab"][0] = base + layout.COAT_TABLE_ROWS * len(rows)
+            rows.append(np.asarray(t, dtype=np.float64).reshape(layout.COAT_TABLE_ROWS, 4))
+    return np.concatenate(rows) if rows else np.zeros((0, 4))
+
+
 def _material_records(materials) -> np.ndarray:
     """MATERIAL records of the materials, in order."""
     out = layout.MATERIAL.zeros(len(materials))
@@ -134,6 +167,19 @@ def _material_records(materials) -> np.ndarray:
         rec["le_sides"] = (*m.emission, 1.0 if m.two_sided else 0.0)
         rec["params"] = (m.shininess, m.ior, 1.0 if p_d > 0 or p_s > 0 or p_m > 0 else 0.0,
                          1.0 if m.one_sided else 0.0)
+        if m.plastic:
+            eta = float(m.plastic_eta)
+            if m.alpha > 0:
+                _, fdr = coating.rough_tables(float(m.alpha), m.distribution, eta)
+            else:
+                fdr = coating.fresnel_diffuse_reflectance(1.0 / eta)
+            d_mean, s_mean = float(np.mean(m.kp)), float(np.mean(m.kps))
+            w = s_mean / (d_mean + s_mean) if d_mean + s_mean > 0 else 0.5
+            rec["kp_pp"] = (*m.kp, plastic_probability(m))
+            rec["kps_w"] = (*m.kps, w)
+            rec["coat"] = (eta, fdr, m.alpha, 1.0 if m.distribution == "beckmann" else 0.0)
+            rec["coat_tab"] = (0.0, 1.0 if m.nonlinear else 0.0, 0.0, 0.0)
+            rec["params"][2] = 1.0
         if p_m > 0:
             rec["km_pm"] = (*m.km, p_m)
             rec["eta_alpha"] = (*m.eta, m.alpha)
@@ -184,7 +230,8 @@ def is_caustic_caster(m: Material) -> bool:
     """Purely specular (mirror and/or refraction, no diffuse, Phong or microfacet part):
     the surfaces photons pass through on their way to a caustic. Surfaces
     that mix in a diffuse or Phong part are left to the path tracer."""
-    return (max(m.kr) > 0 or max(m.kt) > 0) and max(m.kd) == 0 and max(m.ks) == 0 and max(m.km) == 0
+    return (max(m.kr) > 0 or max(m.kt) > 0) and max(m.kd) == 0 and max(m.ks) == 0 and max(m.km) == 0 and \
+        not m.plastic
 
 
 def _caustic_objects(scene: Scene):
@@ -458,7 +505,12 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
         rec["info"] = (area, pr, kp, mid)
     ltri_recs = np.concatenate(ltri_recs) if ltri_recs else np.zeros((0, 4))
 
-    records = np.concatenate([Rows.rows(x) for x in sections] + [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs])
+    # Rough plastics' transmittance tables (clpt/coating.py), pointed to by their material records.
+    coat_base = ltri_base + len(ltri_recs)
+    coat_recs = _coat_tables(mat_recs, list(surfaces), coat_base)
+
+    records = np.concatenate([Rows.rows(x) for x in sections] +
+                             [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs, coat_recs])
     n_nodes = wide.n_nodes if use_bvh else 0
     counts = (n_mat, len(sphere_plain), len(quads), len(tris), len(planes), len(lights), len(caustics), n_nodes)
     kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere",
@@ -470,7 +522,8 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
                        light_kinds=frozenset(kinds[int(f["p_kind"][3])] for _, _, _, f, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,
                        max_radiance=max((max(m.emission) for _, _, m, *_ in lights), default=1.0),
-                       smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale)
+                       smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale,
+                       pixel_filter=scene.camera.pixel_filter.kind)
 
 
 @dataclass(frozen=True)

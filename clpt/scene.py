@@ -52,6 +52,12 @@ class Material:
     cos_i)): roughness alpha, distribution "beckmann" (Mitsuba's default) or "ggx",
     conductor Fresnel of the complex index eta + i k per channel (eta 0, k 1:
     F = 1); `Material.rough_conductor` fills them from a named conductor.
+    plastic, kp, kps, plastic_eta, nonlinear (with alpha and distribution):
+    Mitsuba 3's `roughplastic` (alpha > 0) or smooth `plastic` (alpha 0), a
+    dielectric coating of relative index plastic_eta (inside over outside)
+    with specular_reflectance kps over a diffuse base of diffuse_reflectance
+    kp, with its internal scattering (clpt/coating.py); the material's only
+    lobe (`Material.rough_plastic`, `Material.smooth_plastic`).
     emission is radiance leaving the surface (on the side its normal points
     to, or both sides if two_sided). one_sided makes the surface black from
     behind (the side its normal points away from): no reflection, no
@@ -72,10 +78,15 @@ class Material:
     distribution: str = "beckmann"
     eta: Vec3 = (0.0, 0.0, 0.0)
     k: Vec3 = (1.0, 1.0, 1.0)
+    plastic: bool = False
+    kp: Vec3 = (0.5, 0.5, 0.5)
+    kps: Vec3 = (1.0, 1.0, 1.0)
+    plastic_eta: float = 1.49 / 1.000277
+    nonlinear: bool = False
 
     def __post_init__(self):
         # Types now (a clear TypeError at the mistake); ranges in check_material.
-        for key in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k"):
+        for key in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k", "kp", "kps"):
             v = getattr(self, key)
             if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 3 or \
                     not all(_is_number(c) for c in v):
@@ -83,11 +94,12 @@ class Material:
         if not isinstance(self.distribution, str):
             raise TypeError(f"Material.distribution must be a string, one of {', '.join(DISTRIBUTIONS)} "
                             f"(got {self.distribution!r})")
-        for key in ("shininess", "ior", "alpha"):
+        for key in ("shininess", "ior", "alpha", "plastic_eta"):
             if not _is_number(getattr(self, key)):
                 raise TypeError(f"Material.{key} must be a number (got {getattr(self, key)!r})")
-        if not isinstance(self.two_sided, (bool, np.bool_)):
-            raise TypeError(f"Material.two_sided must be True or False (got {self.two_sided!r})")
+        for key in ("two_sided", "plastic", "nonlinear"):
+            if not isinstance(getattr(self, key), (bool, np.bool_)):
+                raise TypeError(f"Material.{key} must be True or False (got {getattr(self, key)!r})")
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "Material":
@@ -107,6 +119,27 @@ class Material:
                     eta=eta, k=k, one_sided=True)
         return cls(**{**base, **overrides})
 
+    @classmethod
+    def rough_plastic(cls, diffuse_reflectance: Vec3 = (0.5, 0.5, 0.5), alpha: float = 0.1,
+                      distribution: str = "beckmann", int_ior: float = 1.49, ext_ior: float = 1.000277,
+                      specular_reflectance: Vec3 = (1.0, 1.0, 1.0), nonlinear: bool = False,
+                      **overrides) -> "Material":
+        """Mitsuba 3's `roughplastic` (one-sided; its defaults: Beckmann,
+        alpha 0.1, polypropylene in air). alpha=0 is the smooth `plastic`."""
+        for name, v in (("int_ior", int_ior), ("ext_ior", ext_ior)):
+            if not _is_number(v) or not IOR_RANGE[0] <= v <= IOR_RANGE[1]:
+                raise SceneError(f"rough_plastic: {name} must be a number in [{IOR_RANGE[0]:g}, "
+                                 f"{IOR_RANGE[1]:g}] (got {v!r})")
+        base = dict(plastic=True, kp=tuple(float(c) for c in diffuse_reflectance),
+                    kps=tuple(float(c) for c in specular_reflectance), alpha=alpha, distribution=distribution,
+                    plastic_eta=int_ior / ext_ior, nonlinear=nonlinear, one_sided=True)
+        return cls(**{**base, **overrides})
+
+    @classmethod
+    def smooth_plastic(cls, diffuse_reflectance: Vec3 = (0.5, 0.5, 0.5), **kw) -> "Material":
+        """Mitsuba 3's smooth `plastic` (the keywords of rough_plastic but alpha)."""
+        return cls.rough_plastic(diffuse_reflectance, alpha=0.0, **kw)
+
     @property
     def is_emissive(self) -> bool:
         return max(self.emission) > 0.0
@@ -124,6 +157,64 @@ def _is_number(x) -> bool:
     return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
 
 
+PIXEL_FILTERS = ("box", "tent", "gaussian")
+FILTER_MAX_RADIUS = 256.0  # pixels
+
+
+@dataclass(frozen=True)
+class PixelFilter:
+    """How a camera sample's position is spread over the image: Mitsuba 3's
+    reconstruction filters, with its parameters and defaults.
+
+    - "box": a uniform position in the pixel (radius 0.5, no parameters).
+    - "tent": max(0, 1 - |x| / radius), radius 1 pixel by default.
+    - "gaussian": exp(-x^2 / (2 stddev^2)) minus its value at 4 stddev, cut
+      off there (radius = 4 stddev); stddev 0.5 pixels by default. Mitsuba's
+      default filter.
+
+    Filters are separable (w(x) w(y)) and importance sampled: each sample's
+    offset from its pixel's centre is drawn from the normalized filter, so a
+    pixel is a plain mean of its own samples whose expectation is the
+    filter-weighted mean Mitsuba's splatting gives (sum w L / sum w).
+    sample_border: as Mitsuba's film option, whether samples may land
+    outside the film (False: a pixel near the edge has its filter cut at the
+    edge, as Mitsuba does by default)."""
+
+    kind: str = "box"
+    radius: float | None = None   # tent only (default 1)
+    stddev: float | None = None   # gaussian only (default 0.5)
+    sample_border: bool = False
+
+    @property
+    def extent(self) -> float:
+        """The filter's radius in pixels."""
+        if self.kind == "tent":
+            return 1.0 if self.radius is None else float(self.radius)
+        if self.kind == "gaussian":
+            return 4.0 * self.sigma
+        return 0.5
+
+    @property
+    def sigma(self) -> float:
+        return 0.5 if self.stddev is None else float(self.stddev)
+
+    def check(self, src: str, path: str):
+        if self.kind not in PIXEL_FILTERS:
+            _fail(src, f"{path}.kind", f"must be one of {', '.join(PIXEL_FILTERS)} (got {self.kind!r})")
+        for key, owner in (("radius", "tent"), ("stddev", "gaussian")):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            if self.kind != owner:
+                _fail(src, f"{path}.{key}", f"only the {owner} filter has a {key} (this one is {self.kind!r})")
+            hi = FILTER_MAX_RADIUS / (4 if key == "stddev" else 1)
+            _finite(src, f"{path}.{key}", v, lo=0.0)
+            if not 1e-3 <= v <= hi:
+                _fail(src, f"{path}.{key}", f"must be from 0.001 to {hi:g} pixels (got {v:g})")
+        if not isinstance(self.sample_border, (bool, np.bool_)):
+            _fail(src, f"{path}.sample_border", f"must be true or false (got {self.sample_border!r})")
+
+
 @dataclass(frozen=True)
 class Camera:
     """Pinhole camera looking from origin towards target.
@@ -139,6 +230,7 @@ class Camera:
     fov_axis: str = "smaller"
     width: int = 256
     height: int = 256
+    pixel_filter: PixelFilter = PixelFilter()
 
 
 @dataclass(frozen=True)
@@ -716,6 +808,24 @@ def check_material(source, path, m: Material):
                                                    f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
         _finite_vec(source, f"{path}.eta", m.eta, nonneg=True)
         _finite_vec(source, f"{path}.k", m.k, nonneg=True)
+    if m.plastic:
+        if total.max() > 0:
+            _fail(source, path, "a plastic is the material's only lobe (kd, ks, km, kr and kt must be 0)")
+        _finite_vec(source, f"{path}.kp", m.kp, nonneg=True)
+        _finite_vec(source, f"{path}.kps", m.kps, nonneg=True)
+        if max(m.kp) > 1 or max(m.kps) > 1:
+            _fail(source, path, f"plastic reflectances must be at most 1 (kp {tuple(m.kp)}, kps {tuple(m.kps)})")
+        if max(m.kp) + max(m.kps) == 0:
+            _fail(source, path, "a plastic needs kp or kps above 0")
+        if m.alpha != 0:
+            _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
+                    hi_open=False)
+        if m.distribution not in DISTRIBUTIONS:
+            _fail(source, f"{path}.distribution", f"must be one of {', '.join(DISTRIBUTIONS)} "
+                                                   f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
+        _finite(source, f"{path}.plastic_eta", m.plastic_eta, lo=1.0 / 1e3, lo_open=False, hi=1e3, hi_open=False)
+        if abs(m.plastic_eta - 1.0) < 1e-6:
+            _fail(source, f"{path}.plastic_eta", "must differ from 1 (a coating of the index around it)")
     _emission(source, f"{path}.emission", m.emission)
     _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False, hi=MAX_SHININESS, hi_open=False)
     _finite(source, f"{path}.ior", m.ior, lo=IOR_RANGE[0], lo_open=False, hi=IOR_RANGE[1], hi_open=False)
@@ -751,6 +861,9 @@ def check_scene(scene: Scene):
         v = getattr(cam, key)
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 1 << 16:
             _fail(src, f"camera.{key}", f"must be an integer from 1 to 65536 (got {v!r})")
+    if not isinstance(cam.pixel_filter, PixelFilter):
+        _fail(src, "camera.pixel_filter", f"must be a PixelFilter (got {type(cam.pixel_filter).__name__})")
+    cam.pixel_filter.check(src, "camera.pixel_filter")
 
     for name, m in scene.materials.items():
         if not isinstance(m, Material):

@@ -3,7 +3,9 @@
 // A material is the paper's mix of lobes, chosen per scattering event by
 // Russian roulette: diffuse (kd), modified Phong (ks, shininess), the rough
 // conductor's microfacet lobe (km, alpha, eta + i k; microfacet.h), mirror
-// (kr) and refraction (kt); absorption takes the rest. Before rr_depth the
+// (kr) and refraction (kt), or Mitsuba's plastic (a dielectric coating over a
+// diffuse base, smooth or rough; plastic_* below), the material's only lobe
+// then; absorption takes the rest. Before rr_depth the
 // absorption branch is left out (the lobe probabilities renormalized).
 // Directions follow pbrt: d is the incoming ray direction, wi points away
 // from the surface, n is the shading normal on the side of -d.
@@ -13,7 +15,7 @@
 // record and material_fetch (scene.h), and a CLPT_HAS_<lobe> flag.
 
 // Lobe probabilities of m at this depth (absorption allowed or not).
-typedef struct { vreal d, s, m, r, t; } LobeProbs;
+typedef struct { vreal d, s, m, r, t, p; } LobeProbs;
 
 inline LobeProbs lobe_probs(const Material *m, vmask no_absorb)
 {
@@ -23,9 +25,17 @@ inline LobeProbs lobe_probs(const Material *m, vmask no_absorb)
 #else
     vreal sum = m->p_d + m->p_s + m->p_r + m->p_t;
 #endif
+#if CLPT_HAS_PLASTIC
+    sum += m->p_p;
+#endif
     vreal k = VSEL((vreal)R(1), R(1) / sum, no_absorb && sum > R(0));
     p.d = m->p_d * k; p.s = m->p_s * k; p.r = m->p_r * k; p.t = m->p_t * k;
     p.m = m->p_m * k;
+#if CLPT_HAS_PLASTIC
+    p.p = m->p_p * k;
+#else
+    p.p = (vreal)R(0);
+#endif
     return p;
 }
 
@@ -41,6 +51,102 @@ inline vreal microfacet_pdf(const Material *m, V3 d, V3 n, V3 wi)
     vreal D = mf_D(hn, mf_sin2(h, n), m->alpha, m->beckmann != R(0));
     vreal pdf = D * mf_G1(co, mf_sin2(d, n), oh, m->alpha, m->beckmann != R(0)) / (R(4) * co);
     return VSEL((vreal)R(0), pdf, co > R(0) && ci > R(0) && oh > R(0) && v3_dot(wi, h) > R(0) && D > R(0));
+}
+#endif
+
+#if CLPT_HAS_PLASTIC
+// --- plastic ---------------------------------------------------------------------
+// Mitsuba 3's `roughplastic` (c_alpha > 0) and `plastic` (c_alpha 0): a
+// dielectric coating of index c_eta (a microfacet one of roughness c_alpha,
+// or smooth) over a diffuse base kp, light scattered inside reflected back
+// with the internal reflectance c_fdr. With t(mu) the coating's
+// transmittance from outside at cos mu (rough: the material's table, from
+// clpt/coating.py; smooth: 1 - F(mu)) and cos_o = -d.n, cos_i = wi.n:
+//   f = kps D F(-d.h) G / (4 cos_o cos_i)                           (rough only)
+//     + kp / (1 - c_fdr [kp if nonlinear]) t(cos_o) t(cos_i) / (pi c_eta^2)
+// and, smooth, a delta reflection of weight kps F(cos_o). Sampling picks the
+// specular part with Mitsuba's probability q = (1 - t_o) w / ((1 - t_o) w +
+// t_o (1 - w)), w its specular sampling weight (mean kps over mean kp +
+// mean kps); the diffuse part cosine-weighted.
+#define COAT_TABLE_RES (4 * COAT_TABLE_ROWS)
+
+// t(mu) of the rough coating, interpolated in its table as Mitsuba's lerp_gather.
+inline vreal plastic_table(const Material *m, vreal mu)
+{
+    vreal x = clamp(mu, (vreal)R(0), (vreal)R(1)) * R(COAT_TABLE_RES - 1);
+    vreal r = (vreal)R(0);
+    vreal tab = m->c_tab;
+    for (int l = 0; l < CLPT_LANES; l++) {
+        real xl = VLANE_R(x, l);
+        uint i = min((uint)xl, (uint)(COAT_TABLE_RES - 2));
+        __global const real *t = (__global const real *)(m->rec + (uint)VLANE_R(tab, l));
+        VLANE_R(r, l) = t[i] + (t[i + 1] - t[i]) * (xl - (real)i);
+    }
+    return r;
+}
+
+// The coating's transmittance from outside at cos mu > 0 (both kinds).
+inline vreal plastic_transmittance(const Material *m, vreal mu)
+{
+    vreal ct;
+    vreal smooth = R(1) - fresnel_dielectric(mu, m->c_eta, &ct);
+    vmask rough = m->c_alpha > R(0);
+    if (!VANY(rough))
+        return smooth;
+    return VSEL(smooth, plastic_table(m, mu), rough);
+}
+
+// Probability of the specular part when sampling from cos_o (Mitsuba's).
+inline vreal plastic_spec_prob(const Material *m, vreal t_o)
+{
+    vreal ps = (R(1) - t_o) * m->spec_w, pd = t_o * (R(1) - m->spec_w);
+    return VSEL(ps / (ps + pd), (vreal)R(0), !(ps + pd > R(0)));
+}
+
+// f of the plastic's non-delta parts (rough specular and diffuse).
+inline V3 plastic_eval(const Material *m, V3 d, V3 n, V3 wi)
+{
+    vreal co = -v3_dot(d, n), ci = v3_dot(wi, n);
+    vmask ok = co > R(0) && ci > R(0);
+    vreal t_o = plastic_transmittance(m, co), t_i = plastic_transmittance(m, ci);
+    vreal k = t_o * t_i * R(M_1_PI) / (m->c_eta * m->c_eta);
+    vmask nl = m->c_nonlinear != R(0);
+    vreal fl = R(1) - m->c_fdr;
+    V3 f = v3(m->kp.x / VSEL(fl, R(1) - m->kp.x * m->c_fdr, nl), m->kp.y / VSEL(fl, R(1) - m->kp.y * m->c_fdr, nl),
+              m->kp.z / VSEL(fl, R(1) - m->kp.z * m->c_fdr, nl));
+    f = v3_scale(f, k);
+    vmask rough = m->c_alpha > R(0);
+    if (VANY(rough)) {
+        vmask bk = m->c_beckmann != R(0);
+        vreal a = VSEL((vreal)R(1), m->c_alpha, rough);
+        V3 h = v3_normalize(v3_sub(wi, d));
+        vreal hn = v3_dot(h, n), oh = -v3_dot(d, h), ct;
+        vreal D = mf_D(hn, mf_sin2(h, n), a, bk);
+        vreal G = mf_G1(co, mf_sin2(d, n), oh, a, bk) * mf_G1(ci, mf_sin2(wi, n), v3_dot(wi, h), a, bk);
+        vreal F = fresnel_dielectric(oh, m->c_eta, &ct);
+        vreal s = D * F * G / (R(4) * co * ci);
+        f = v3_sel(f, v3_fma(m->kps, s, f), rough && D > R(0));
+    }
+    return v3_sel(v3_zero(), f, ok && m->p_p > R(0));
+}
+
+// Solid-angle pdf of wi under the plastic's sampling (its non-delta parts).
+inline vreal plastic_pdf(const Material *m, V3 d, V3 n, V3 wi)
+{
+    vreal co = -v3_dot(d, n), ci = v3_dot(wi, n);
+    vreal q = plastic_spec_prob(m, plastic_transmittance(m, co));
+    vreal pdf = (R(1) - q) * ci * R(M_1_PI);
+    vmask rough = m->c_alpha > R(0);
+    if (VANY(rough)) {
+        vmask bk = m->c_beckmann != R(0);
+        vreal a = VSEL((vreal)R(1), m->c_alpha, rough);
+        V3 h = v3_normalize(v3_sub(wi, d));
+        vreal oh = -v3_dot(d, h);
+        vreal D = mf_D(v3_dot(h, n), mf_sin2(h, n), a, bk);
+        vreal ps = D * mf_G1(co, mf_sin2(d, n), oh, a, bk) / (R(4) * co);
+        pdf = VSEL(pdf, pdf + q * ps, rough && D > R(0));
+    }
+    return VSEL((vreal)R(0), pdf, co > R(0) && ci > R(0) && m->p_p > R(0));
 }
 #endif
 
@@ -68,6 +174,10 @@ inline V3 bsdf_eval(const Material *m, V3 d, V3 n, V3 wi)
         f = v3_sel(f, v3_fma(v3_mul(m->km, F), k, f), mf);
     }
 #endif
+#if CLPT_HAS_PLASTIC
+    if (VANY(m->p_p > R(0)))
+        f = v3_add(f, plastic_eval(m, d, n, wi));
+#endif
     return f;
 }
 
@@ -86,6 +196,11 @@ inline vreal bsdf_pdf(const Material *m, LobeProbs p, V3 d, V3 n, V3 wi)
     if (VANY(mf)) {
         pdf = VSEL(pdf, pdf + p.m * microfacet_pdf(m, d, n, wi), mf);
     }
+#endif
+#if CLPT_HAS_PLASTIC
+    vmask pp = p.p > R(0);
+    if (VANY(pp))
+        pdf = VSEL(pdf, pdf + p.p * plastic_pdf(m, d, n, wi), pp);
 #endif
     return VSEL(pdf, (vreal)R(0), c <= R(0));
 }
@@ -147,13 +262,19 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
 #if CLPT_HAS_MICROFACET
     vreal c_m = pr.d + pr.s + pr.m;
     vmask is_m = !is_d && !is_s && c < c_m;
-    vmask is_r = !is_d && !is_s && !is_m && c < c_m + pr.r;
-    vmask is_t = !is_d && !is_s && !is_m && !is_r && c < c_m + pr.r + pr.t;
 #else
+    vreal c_m = pr.d + pr.s;
     vmask is_m = is_d && !is_d;
-    vmask is_r = !is_d && !is_s && c < pr.d + pr.s + pr.r;
-    vmask is_t = !is_d && !is_s && !is_r && c < pr.d + pr.s + pr.r + pr.t;
 #endif
+#if CLPT_HAS_PLASTIC
+    vmask is_p = !is_d && !is_s && !is_m && c < c_m + pr.p;
+    c_m += pr.p;
+#else
+    vmask is_p = is_d && !is_d;
+#endif
+    vmask is_r = !is_d && !is_s && !is_m && !is_p && c < c_m + pr.r;
+    vmask is_t = !is_d && !is_s && !is_m && !is_p && !is_r && c < c_m + pr.r + pr.t;
+    vmask p_delta = is_p && !is_p;  // the smooth plastic's specular reflection
     V3 wi = v3_reflect(d, n);
     V3 w = v3_scale(m->kr, R(1) / pr.r);
     bs.up = alive;
@@ -200,8 +321,43 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
             is_m = is_m && oz > R(0) && oh > R(0) && cos_i > R(0) && g1 > R(0);
         }
 #endif
+#if CLPT_HAS_PLASTIC
+        // --- plastic: the coating's specular part with Mitsuba's probability q,
+        // else the diffuse base (cosine-weighted); weight f cos / (pdf p_p),
+        // the smooth coating's reflection kps F / (q p_p) -------------------------
+        if (VANY(is_p)) {
+            vreal co = -v3_dot(d, n), ct;
+            vreal q = plastic_spec_prob(m, plastic_transmittance(m, co));
+            vmask spec = u.fresnel < q;
+            vmask rough = m->c_alpha > R(0);
+            V3 wp = frame_to_world(n, lc.x, lc.y, lc.z);
+            vmask rs = spec && rough;
+            if (VANY(rs && is_p)) {
+                V3 t, b;
+                frame_from_z(n, &t, &b);
+                V3 o = v3_neg(d);
+                vmask bk = m->c_beckmann != R(0);
+                V3 hl = mf_sample_visible(v3(v3_dot(o, t), v3_dot(o, b), co), VSEL((vreal)R(1), m->c_alpha, rough),
+                                          bk, u.u1, u.u2);
+                V3 h = v3_normalize(v3(hl.x * t.x + hl.y * b.x + hl.z * n.x, hl.x * t.y + hl.y * b.y + hl.z * n.y,
+                                       hl.x * t.z + hl.y * b.z + hl.z * n.z));
+                wp = v3_sel(wp, v3_reflect(d, h), rs);
+            }
+            vmask sd = spec && !rough;  // smooth: the mirror direction, a delta lobe
+            wp = v3_sel(wp, v3_reflect(d, n), sd);
+            V3 wpn = v3_normalize(wp);
+            vreal pdf = plastic_pdf(m, d, n, wpn);
+            V3 wnd = v3_scale(plastic_eval(m, d, n, wpn), v3_dot(wpn, n) / (pdf * pr.p));
+            V3 wd = v3_scale(m->kps, fresnel_dielectric(co, m->c_eta, &ct) / (q * pr.p));
+            wi = v3_sel(wi, wpn, is_p);
+            w = v3_sel(w, v3_sel(wnd, wd, sd), is_p);
+            p_delta = is_p && sd && co > R(0);
+            is_p = is_p && co > R(0) && (sd || (pdf > R(0) && v3_dot(wpn, n) > R(0)));
+        }
+#endif
     } else {
         is_m = is_m && !is_m;
+        is_p = is_p && !is_p;
     }
 #if CLPT_HAS_MIRROR
     // --- perfect mirror ------------------------------------------------------------
@@ -221,12 +377,13 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
         bs.up = bs.up && !(is_t && !refl);
     }
 #endif
-    bs.chosen = is_d || is_s || is_m || is_r || is_t;
-    bs.delta = is_r || is_t;
+    bs.chosen = is_d || is_s || is_m || is_p || is_r || is_t;
+    bs.delta = is_r || is_t || p_delta;
     bs.wi = v3_normalize(wi);
     bs.weight = w;
     // The pdf of the direction under the whole non-delta mixture (what light
     // sampling's weight is measured against), not only the chosen lobe's.
-    bs.pdf = nondelta ? VSEL((vreal)R(0), bsdf_pdf(m, pr, d, n, bs.wi), is_d || is_s || is_m) : (vreal)R(0);
+    bs.pdf = nondelta ? VSEL((vreal)R(0), bsdf_pdf(m, pr, d, n, bs.wi), is_d || is_s || is_m || (is_p && !p_delta))
+                      : (vreal)R(0);
     *out = bs;
 }

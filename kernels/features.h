@@ -14,7 +14,7 @@
 #error "clpt: every CLPT_HAS_<shape> flag must be defined"
 #endif
 #if !defined(CLPT_HAS_PHONG) || !defined(CLPT_HAS_MIRROR) || !defined(CLPT_HAS_GLASS) \
-    || !defined(CLPT_HAS_MICROFACET)
+    || !defined(CLPT_HAS_MICROFACET) || !defined(CLPT_HAS_PLASTIC)
 #error "clpt: every CLPT_HAS_<lobe> flag must be defined"
 #endif
 #if !defined(CLPT_HAS_TRIANGLE_LIGHTS) || !defined(CLPT_HAS_SPHERE_LIGHTS) || !defined(CLPT_HAS_MESH_LIGHTS) \
@@ -29,8 +29,8 @@
 #if !defined(CLPT_HAS_BVH) || !defined(CLPT_HAS_SMOOTH) || !defined(CLPT_BVH_PACKETS)
 #error "clpt: CLPT_HAS_BVH, CLPT_HAS_SMOOTH and CLPT_BVH_PACKETS must be defined"
 #endif
-#if !defined(CLPT_PHOTONS) || !defined(CLPT_AUX)
-#error "clpt: CLPT_PHOTONS and CLPT_AUX must be defined"
+#if !defined(CLPT_PHOTONS) || !defined(CLPT_AUX) || !defined(CLPT_PIXEL_FILTER)
+#error "clpt: CLPT_PHOTONS, CLPT_AUX and CLPT_PIXEL_FILTER must be defined"
 #endif
 #if !CLPT_GENERIC && (!defined(CLPT_NUM_MATERIALS) || !defined(CLPT_NUM_SPHERES) || !defined(CLPT_NUM_QUADS) \
     || !defined(CLPT_NUM_TRIANGLES) || !defined(CLPT_NUM_PLANES) || !defined(CLPT_NUM_LIGHTS) \

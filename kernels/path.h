@@ -257,9 +257,9 @@ inline void path_class_update(PathState *ps, const Vertex *v, vmask cont, real m
     vmask pure_delta = v->m.nondelta == R(0);
     vreal own = ps->own;
     own = VSEL(own, VSEL((vreal)R(OWN_NOT), (vreal)R(OWN_AFTER_D), !ps->specular), v->at_x);
-#if CLPT_HAS_MICROFACET
+#if CLPT_HAS_MICROFACET || CLPT_HAS_PLASTIC
     // A first non-delta vertex the photon map cannot estimate (a microfacet
-    // lobe): the path is path tracing's alone.
+    // lobe or a plastic): the path is path tracing's alone.
     own = VSEL(own, (vreal)R(OWN_NOT), v->hit && ps->own == (real)OWN_BEFORE_X && v->nondelta &&
                                            !material_mergeable(&v->m));
 #endif

@@ -8,7 +8,8 @@
 // new group here, and nowhere else.
 //
 // Camera paths (trace_paths), per (seed, pixel, sample index):
-//   group 0            camera   .a .b  position in the pixel
+//   group 0            camera   .a .b  position in the pixel (through the pixel
+//                                      filter's inverse CDF: camera.h)
 //   per vertex at depth k (the camera's first hit is depth 0):
 //   group 2k + 1       light    .a     which light (by power)
 //                               .b .c  the point on it

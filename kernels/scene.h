@@ -392,6 +392,14 @@ typedef struct {
     V3 km, eta, k;             // rough conductor: reflectance, complex index eta + i k
     vreal p_m, alpha;          // ... its lobe probability, roughness
     vreal beckmann;            // ... 1: Beckmann, 0: GGX
+#if CLPT_HAS_PLASTIC
+    V3 kp, kps;                // plastic: diffuse base and coating's specular reflectance
+    vreal p_p, spec_w;         // ... its lobe probability, Mitsuba's specular sampling weight
+    vreal c_eta, c_fdr;        // ... coating index (inside over outside), internal reflectance
+    vreal c_alpha, c_beckmann; // ... roughness (0: smooth), 1: Beckmann, 0: GGX
+    vreal c_tab, c_nonlinear;  // ... record index of its transmittance table; nonlinear
+    __global const real4 *rec; // the scene's records (the tables)
+#endif
 } Material;
 
 // A vertex whose non-delta part photon merging and the photon map can
@@ -399,11 +407,14 @@ typedef struct {
 // microfacet lobe, so a material with one is left to path tracing).
 inline vmask material_mergeable(const Material *m)
 {
+    vmask r = m->nondelta != R(0);
 #if CLPT_HAS_MICROFACET
-    return m->nondelta != R(0) && m->p_m == R(0);
-#else
-    return m->nondelta != R(0);
+    r = r && m->p_m == R(0);
 #endif
+#if CLPT_HAS_PLASTIC
+    r = r && m->p_p == R(0);  // a plastic too (its lobe is not in the gathers)
+#endif
+    return r;
 }
 
 // Per-lane material by selecting over the (few) materials: cheaper on a CPU
@@ -417,6 +428,12 @@ inline Material material_fetch(const Scene *sc, vreal id)
     m.km = m.eta = m.k = v3_zero();
     m.p_m = m.beckmann = (vreal)R(0);
     m.alpha = (vreal)R(1);
+#if CLPT_HAS_PLASTIC
+    m.kp = m.kps = v3_zero();
+    m.p_p = m.spec_w = m.c_fdr = m.c_alpha = m.c_beckmann = m.c_tab = m.c_nonlinear = (vreal)R(0);
+    m.c_eta = (vreal)R(1.5);
+    m.rec = sc->rec;
+#endif
     for (uint i = 0; i < NUM_MATERIALS; i++) {
         uint r = MAT_STRIDE * i;
         vmask is = id == (real)i;
@@ -443,6 +460,15 @@ inline Material material_fetch(const Scene *sc, vreal id)
         m.km = v3_sel4(m.km, mk, is); m.p_m = VSEL(m.p_m, (vreal)mk.w, is);
         m.eta = v3_sel4(m.eta, me, is); m.alpha = VSEL(m.alpha, (vreal)me.w, is);
         m.k = v3_sel4(m.k, mq, is); m.beckmann = VSEL(m.beckmann, (vreal)mq.w, is);
+#endif
+#if CLPT_HAS_PLASTIC
+        real4 pa = scene_rec(sc, r + MAT_KP_PP), pb = scene_rec(sc, r + MAT_KPS_W),
+              pc = scene_rec(sc, r + MAT_COAT), pt = scene_rec(sc, r + MAT_COAT_TAB);
+        m.kp = v3_sel4(m.kp, pa, is); m.p_p = VSEL(m.p_p, (vreal)pa.w, is);
+        m.kps = v3_sel4(m.kps, pb, is); m.spec_w = VSEL(m.spec_w, (vreal)pb.w, is);
+        m.c_eta = VSEL(m.c_eta, (vreal)pc.x, is); m.c_fdr = VSEL(m.c_fdr, (vreal)pc.y, is);
+        m.c_alpha = VSEL(m.c_alpha, (vreal)pc.z, is); m.c_beckmann = VSEL(m.c_beckmann, (vreal)pc.w, is);
+        m.c_tab = VSEL(m.c_tab, (vreal)pt.x, is); m.c_nonlinear = VSEL(m.c_nonlinear, (vreal)pt.y, is);
 #endif
         m.Le = v3_sel4(m.Le, f, is); m.two_sided = VSEL(m.two_sided, (vreal)f.w, is);
         m.nondelta = VSEL(m.nondelta, (vreal)g.z, is);

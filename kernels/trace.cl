@@ -27,7 +27,7 @@
 //                     photon map and its grid (photon_grid.h)
 //
 // Flags: CLPT_LANES, CLPT_DOUBLE, CLPT_ACCUM_DOUBLE, CLPT_GENERIC, CLPT_NEE,
-//   CLPT_PHOTONS, CLPT_AUX, CLPT_HAS_{SPHERES,QUADS,TRIANGLES,PLANES}, CLPT_HAS_{PHONG,MIRROR,GLASS},
+//   CLPT_PHOTONS, CLPT_AUX, CLPT_PIXEL_FILTER, CLPT_HAS_{SPHERES,QUADS,TRIANGLES,PLANES}, CLPT_HAS_{PHONG,MIRROR,GLASS},
 //   CLPT_HAS_{TRIANGLE,SPHERE,MESH}_LIGHTS, CLPT_HAS_{BVH,SMOOTH}, CLPT_BVH_PACKETS, CLPT_NUM_* (when not generic).
 
 __kernel void trace_paths(__global const real4 *scene, __constant TraceLaunch *launch,
@@ -74,7 +74,12 @@ __kernel void trace_paths(__global const real4 *scene, __constant TraceLaunch *l
 
         // --- start new paths in lanes whose previous path ended ----------------------------
         if (VANY(restart)) {
-            path_start(&ps, &L.camera, px, py, sample_camera(&sp), restart);
+#if CLPT_PIXEL_FILTER
+            CameraU cu = camera_filter_sample(&L.pixel_filter, sample_camera(&sp), px, py, L.width, L.height);
+#else
+            CameraU cu = sample_camera(&sp);  // the box: a uniform point of the pixel
+#endif
+            path_start(&ps, &L.camera, px, py, cu, restart);
 #if CLPT_AUX
             visible_start(&vis, restart);
 #endif

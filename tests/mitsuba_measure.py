@@ -11,6 +11,8 @@ in the tests (and clpt/data/mitsuba_ior.json) were produced:
     python tests/mitsuba_measure.py --normals tests/data/mitsuba_normals.json  # computed vertex normals
     MI_VARIANT=llvm_ad_rgb python tests/mitsuba_measure.py --reference tests/data/cbox_blob.xml \
         tests/data/cbox_blob_mitsuba.json spp=16384                         # a render's block means
+    MI_VARIANT=llvm_ad_rgb python tests/mitsuba_measure.py --reference tests/data/cbox_lamp_gaussian.xml \
+        tests/data/cbox_lamp_gaussian_mitsuba.json spp=16384
 """
 
 import json
@@ -170,7 +172,9 @@ def reference(xml, out, spp=16384, block=16, per_pass=512, params=None):
     and the block x block-pixel block means of luminance, with each block's
     variance estimated from the halves' pixel differences ((a - b)^2 / 4 per
     pixel of the average, summed over the block's pixels: a few hundred
-    degrees of freedom, where the two block means alone would give one)."""
+    degrees of freedom, where the two block means alone would give one), and
+    the same for the image's outermost ring of pixels (where a filter meets
+    the film's edge)."""
     import time
 
     import numpy as np
@@ -189,13 +193,17 @@ def reference(xml, out, spp=16384, block=16, per_pass=512, params=None):
     h, w = img.shape[:2]
     blocks = lambda x: x.reshape(h // block, block, w // block, block).sum(axis=(1, 3)) / block ** 2  # noqa: E731
     var = blocks((lum(a) - lum(b)) ** 2 / 4) / block ** 2
+    ring = np.ones((h, w), dtype=bool)
+    ring[1:-1, 1:-1] = False
+    ring_var = float(((lum(a) - lum(b)) ** 2 / 4)[ring].sum() / ring.sum() ** 2)
     doc = {"_source": f"Mitsuba {mi.__version__} {mi.variant()}: python tests/mitsuba_measure.py --reference {xml} "
                       f"{out} spp={spp} (two halves of {spp} spp, {time.perf_counter() - t0:.0f} s)",
            "scene": os.path.basename(xml), "params": params or {}, "width": w, "height": h, "spp_per_half": spp,
            "block": block, "mean_rgb": [round(float(c), 7) for c in img.reshape(-1, 3).mean(axis=0)],
            "mean_rgb_halves": [[round(float(c), 7) for c in x.reshape(-1, 3).mean(axis=0)] for x in halves],
            "block_luminance": np.round(blocks(lum(img)), 7).tolist(),
-           "block_luminance_var": [[float(f"{x:.4g}") for x in row] for row in var]}
+           "block_luminance_var": [[float(f"{x:.4g}") for x in row] for row in var],
+           "ring_luminance": round(float(lum(img)[ring].mean()), 7), "ring_luminance_var": float(f"{ring_var:.4g}")}
     with open(out, "w") as f:
         f.write(json.dumps(doc, indent=1) + "\n")
     print(json.dumps({k: v for k, v in doc.items() if not k.startswith("block")}, indent=1))

@@ -79,3 +79,33 @@ def assert_mean_within(samples_mean, expected, sigma_of_mean, k=5.0, what="mean"
     assert err <= k * float(sigma_of_mean), (
         f"{what}: {samples_mean:.6g} differs from {expected:.6g} by {err:.3g} "
         f"= {err / max(sigma_of_mean, 1e-300):.1f} sigma (allowed {k})")
+
+
+LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+
+def compare_to_reference(res, ref):
+    """A render (a clpt RenderResult) against a Mitsuba reference stored by
+    tests/mitsuba_measure.py --reference: (largest relative error of the
+    image's mean colour, z-scores of the reference's luminance blocks against
+    the render's, from both renders' noise)."""
+    mean_err = np.abs(res.image.reshape(-1, 3).mean(axis=0) / np.array(ref["mean_rgb"]) - 1).max()
+    b, (h, w) = ref["block"], res.image.shape[:2]
+
+    def blocks(x):
+        return x.reshape(h // b, b, w // b, b).sum(axis=(1, 3)) / b ** 2
+
+    lum, var = blocks(res.image @ LUMINANCE), blocks(res.lum_var / res.sample_count) / b ** 2
+    z = (lum - np.array(ref["block_luminance"])) / np.sqrt(var + np.array(ref["block_luminance_var"]))
+    return mean_err, z
+
+
+def ring_z(res, ref):
+    """The z-score of the image's outermost ring of pixels (mean luminance)
+    against the reference's ("ring_luminance")."""
+    h, w = res.image.shape[:2]
+    ring = np.ones((h, w), dtype=bool)
+    ring[1:-1, 1:-1] = False
+    lum = (res.image @ LUMINANCE)[ring].mean()
+    var = (res.lum_var / res.sample_count)[ring].sum() / ring.sum() ** 2
+    return (lum - ref["ring_luminance"]) / math.sqrt(var + ref["ring_luminance_var"])

@@ -3,6 +3,7 @@ the uninterrupted render bit for bit (same device), checkpoints of another
 render are refused, signals leave an image and a checkpoint, and SIGKILL at
 random moments never leaves a checkpoint that cannot be read."""
 
+import dataclasses
 import json
 import os
 import random
@@ -32,8 +33,23 @@ def stop_after(spp):
     return ev, progress
 
 
+def _gaussian_box():
+    s = clpt.load_scene("cornell_box")
+    return dataclasses.replace(s, camera=dataclasses.replace(s.camera, pixel_filter=clpt.PixelFilter("gaussian")))
+
+
+def _lit_box():
+    s = _gaussian_box()
+    lights = [clpt.PointLight(position=(0.2, 1.5, 0.1), intensity=(0.5, 0.4, 0.3)),
+              clpt.SpotLight(position=(-0.3, 1.5, 0.2), intensity=(1.0, 1.0, 1.0), direction=(0, -1, 0),
+                             cutoff_angle=30)]
+    return dataclasses.replace(s, shapes=list(s.shapes) + lights)
+
+
 CASES = {
     "plain": ("cornell_box", {}, {}),
+    "delta_lights": (_lit_box(), {}, {}),  # point and spot lights travel in the checkpoint
+    "pixel_filter": (_gaussian_box(), {}, {}),  # the camera's filter travels in the checkpoint
     "kahan": ("cornell_box", {"accumulate": "kahan"}, {}),
     "progressive": ("cornell_box_caustics", {}, {"photons": PhotonSettings(count=20_000, progressive=True,
                                                                            spp_per_map=2)}),

@@ -14,7 +14,7 @@ import clpt
 from clpt.mitsuba import conductor_ior
 from clpt.scene import check_scene
 
-from stats import ALPHA, chi2_test, sidak
+from stats import ALPHA, chi2_test, compare_to_reference, sidak
 
 pytestmark = pytest.mark.portability
 
@@ -200,23 +200,6 @@ def test_furnace_render(device_spec, dist):
 # --- Veach's plates against Mitsuba 3 -------------------------------------------------------------
 
 PLATES = Path(__file__).parent / "data" / "plates.xml"
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
-
-
-def compare_plates(res, ref):
-    """(largest relative error of the mean colour, z-scores of the 16x16
-    blocks' luminance against the reference's, from both renders' noise)."""
-    mean_err = np.abs(res.image.reshape(-1, 3).mean(axis=0) / np.array(ref["mean_rgb"]) - 1).max()
-    b, (h, w) = ref["block"], res.image.shape[:2]
-
-    def blocks(x):
-        return x.reshape(h // b, b, w // b, b).sum(axis=(1, 3)) / b ** 2
-
-    lum, var = blocks(res.image @ LUMINANCE), blocks(res.lum_var / res.sample_count) / b ** 2
-    z = (lum - np.array(ref["block_luminance"])) / np.sqrt(var + np.array(ref["block_luminance_var"]))
-    return mean_err, z
-
-
 def test_plates_render_as_in_mitsuba(device_spec):
     """tests/data/plates.xml (four GGX plates from alpha 0.02 to 0.35, four
     sphere lights of equal power from radius 0.03 to 0.9) path traced at 4096
@@ -228,7 +211,7 @@ def test_plates_render_as_in_mitsuba(device_spec):
     scene = clpt.load_scene(PLATES)
     res = clpt.Renderer(scene, device=device_spec, photons=False).render(spp=4096, seed=1)
     assert res.stats.nonfinite == 0
-    mean_err, z = compare_plates(res, ref)
+    mean_err, z = compare_to_reference(res, ref)
     assert mean_err < 0.005, f"image mean off by {mean_err:.2%}"
     assert np.abs(z).max() < 4, f"a block is {np.abs(z).max():.1f} sigma off:\n{z.round(1)}"
 

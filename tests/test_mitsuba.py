@@ -4,6 +4,8 @@ includes and references, one-line errors, reported approximations, one-sided
 surfaces in the kernels, and the Cornell box written as Mitsuba XML rendering
 like the native scene within noise."""
 
+import dataclasses
+import json
 import math
 import warnings
 from pathlib import Path
@@ -15,11 +17,11 @@ import clpt
 from clpt.cli import main
 from clpt.mitsuba import (DISK_SEGMENTS, UNLIMITED_DEPTH, conductor_albedo, fresnel_conductor, fresnel_dielectric,
                           fresnel_diffuse_reflectance, load_mitsuba, look_at_matrix, phong_exponent,
-                          rotation_matrix)
-from clpt.scene import Material, Quad, SceneError, SceneWarning, Sphere
+                          plastic_approximation, rotation_matrix)
+from clpt.scene import Material, PixelFilter, Quad, SceneError, SceneWarning, Sphere
 from clpt.spectrum import constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb
 
-from stats import ALPHA, sidak
+from stats import ALPHA, compare_to_reference, ring_z, sidak
 
 DATA = Path(__file__).resolve().parent / "data"
 
@@ -163,6 +165,125 @@ def test_camera_fov_axes(tmp_path):
     assert np.allclose(c.origin, (0, 1, 5)) and np.allclose(c.target, (0, 1, 4)) and np.allclose(c.up, (0, 1, 0))
 
 
+# --- pixel filters (<rfilter>) ----------------------------------------------------------------
+
+
+def film_scene(tmp_path, film_body="", film=True, sensor=True):
+    film_xml = (f'<film type="hdrfilm"><integer name="width" value="16"/><integer name="height" value="16"/>'
+                f'{film_body}</film>') if film else ""
+    cam = f'<sensor type="perspective"><float name="fov" value="45"/>{film_xml}</sensor>' if sensor else ""
+    p = tmp_path / "f.xml"
+    p.write_text(scene_xml(cam, camera=False))
+    return p
+
+
+@pytest.mark.parametrize("body, expected", [
+    ('<rfilter type="box"/>', PixelFilter("box")),
+    ('<rfilter type="tent"/>', PixelFilter("tent", radius=1.0)),
+    ('<rfilter type="tent"><float name="radius" value="2.5"/></rfilter>', PixelFilter("tent", radius=2.5)),
+    ('<rfilter type="gaussian"/>', PixelFilter("gaussian", stddev=0.5)),
+    ('<rfilter type="gaussian"><float name="stddev" value="0.25"/></rfilter>', PixelFilter("gaussian", stddev=0.25)),
+    ('<rfilter type="gaussian"/><boolean name="sample_border" value="true"/>',
+     PixelFilter("gaussian", stddev=0.5, sample_border=True)),
+    ("", PixelFilter("gaussian")),  # Mitsuba's default filter
+])
+def test_rfilter_is_read(tmp_path, body, expected):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pf = load_mitsuba(film_scene(tmp_path, body)).camera.pixel_filter
+    assert pf == expected
+    assert pf.extent == {"box": 0.5, "tent": expected.radius, "gaussian": 4 * (expected.stddev or 0.5)}[pf.kind]
+
+
+def test_default_film_and_sensor_have_the_gaussian(tmp_path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert load_mitsuba(film_scene(tmp_path, film=False)).camera.pixel_filter == PixelFilter("gaussian")
+    with pytest.warns(SceneWarning, match="no sensor"):
+        assert load_mitsuba(film_scene(tmp_path, sensor=False)).camera.pixel_filter == PixelFilter("gaussian")
+
+
+@pytest.mark.parametrize("body, message", [
+    ('<rfilter type="gaussian"><float name="stddev" value="-1"/></rfilter>',
+     r'f.xml:\d+: <float name="stddev">: must be from 0.001 to 64 pixels \(got -1\)$'),
+    ('<rfilter type="gaussian"><float name="stddev" value="nan"/></rfilter>', r'<float name="stddev">: .*finite'),
+    ('<rfilter type="tent"><float name="radius" value="0"/></rfilter>',
+     r'<float name="radius">: must be from 0.001 to 256 pixels \(got 0\)$'),
+    ('<rfilter type="tent"><string name="radius" value="1"/></rfilter>', r"'radius' must be float or integer"),
+    ('<rfilter type="sinc"/>', r'<rfilter type="sinc">: unknown reconstruction filter \'sinc\''),
+    ('<rfilter type="gaussian"/><boolean name="sample_border" value="maybe"/>', "must be true or false"),
+])
+def test_bad_rfilter_is_one_line(tmp_path, body, message):
+    with pytest.raises(SceneError, match=message) as e:
+        load_mitsuba(film_scene(tmp_path, body))
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("kind", ["mitchell", "catmullrom", "lanczos"])
+def test_negative_lobed_rfilter_is_rendered_with_the_box(tmp_path, kind):
+    body = f'<rfilter type="{kind}"><float name="B" value="0.3"/></rfilter>' if kind == "mitchell" else \
+        f'<rfilter type="{kind}"/>'
+    with pytest.warns(SceneWarning, match=rf"<rfilter type=\"{kind}\">: reconstruction filter '{kind}' has negative "
+                                          "lobes, which clpt does not sample: rendered with a box filter") as w:
+        assert load_mitsuba(film_scene(tmp_path, body)).camera.pixel_filter == PixelFilter("box")
+    assert len([x for x in w if issubclass(x.category, SceneWarning)]) == 1
+    with pytest.raises(SceneError, match="strict mode"):
+        load_mitsuba(film_scene(tmp_path, body), strict=True)
+
+
+def test_unknown_rfilter_property_warns(tmp_path):
+    """A box has no radius in Mitsuba 3 (it refuses the property); clpt warns and ignores it."""
+    with pytest.warns(SceneWarning, match="property 'radius' of rfilter 'box' is not supported; ignored"):
+        pf = load_mitsuba(film_scene(tmp_path, '<rfilter type="box"><float name="radius" value="1"/></rfilter>'))
+    assert pf.camera.pixel_filter == PixelFilter("box")
+
+
+def test_pixel_filter_settings_are_checked():
+    bad = [(PixelFilter("cone"), "camera.pixel_filter.kind: must be one of box, tent, gaussian"),
+           (PixelFilter("box", radius=1.0), "camera.pixel_filter.radius: only the tent filter has a radius"),
+           (PixelFilter("tent", stddev=1.0), "camera.pixel_filter.stddev: only the gaussian filter has a stddev"),
+           (PixelFilter("gaussian", stddev=0.0), "camera.pixel_filter.stddev: must be > 0"),
+           (PixelFilter("tent", radius=1e9), "camera.pixel_filter.radius: must be from 0.001 to 256 pixels"),
+           (PixelFilter("tent", sample_border="yes"), "camera.pixel_filter.sample_border: must be true or false")]
+    for pf, msg in bad:
+        scene = clpt.Scene(camera=clpt.Camera(pixel_filter=pf), shapes=[Sphere(emission=(1, 1, 1))])
+        with pytest.raises(SceneError, match=msg.replace(".", r"\.")):
+            scene.check()
+
+
+LAMP_REF = json.loads((DATA / "cbox_lamp_gaussian_mitsuba.json").read_text())
+
+
+def render_lamp(device, spp, seed=1, **filter_kw):
+    """cbox_lamp_gaussian.xml path traced (photons=False: independent samples,
+    so the per-pixel variances are the estimate's own), its pixel filter
+    changed by filter_kw (dataclasses.replace's fields of PixelFilter)."""
+    scene = clpt.load_scene(DATA / "cbox_lamp_gaussian.xml", params={"res": LAMP_REF["width"]})
+    pf = dataclasses.replace(scene.camera.pixel_filter, **filter_kw)
+    scene = dataclasses.replace(scene, camera=dataclasses.replace(scene.camera, pixel_filter=pf))
+    return clpt.Renderer(scene, device=device, photons=False).render(spp=spp, seed=seed)
+
+
+def test_gaussian_filter_renders_as_in_mitsuba(device_spec):
+    """A small bright lamp seen through the gaussian filter: the image mean
+    within 0.5% of Mitsuba's, no 16x16-pixel block beyond 4 sigma of both
+    renders' noise, nor the outermost ring of pixels (where Mitsuba's filter
+    is cut at the film's edge)."""
+    res = render_lamp(device_spec, spp=1024)
+    mean_err, z = compare_to_reference(res, LAMP_REF)
+    assert mean_err < 0.005, f"image mean off by {mean_err:.2%}"
+    assert np.abs(z).max() < 4, f"a block is {np.abs(z).max():.1f} sigma off:\n{np.round(z, 1)}"
+    assert abs(ring_z(res, LAMP_REF)) < 4
+
+
+def test_box_filter_fails_the_gaussian_reference_near_the_lamp(device_spec):
+    """The comparison has the power to see the filter: the same scene through
+    the box keeps the lamp's light in its own block, far outside the noise
+    there and in the blocks across its edges."""
+    _, z = compare_to_reference(render_lamp(device_spec, spp=1024, kind="box", stddev=None), LAMP_REF)
+    assert z[1, 1] > 8 and z[1, 2] < -8 and z[2, 1] < -8, np.round(z, 1)
+
+
 # --- scene structure: parameters, includes, references, the integrator -----------------------
 
 
@@ -252,12 +373,18 @@ def test_bsdf_mappings(tmp_path):
     assert material(s, "water").ior == pytest.approx(1.333)
     t = material(s, "thin")
     assert t.ior == 1.0 and np.allclose(np.add(t.kr, t.kt), 1.0) and 0.08 < t.kr[0] < 0.2
-    p = material(s, "plastic")
-    fdr = fresnel_diffuse_reflectance(1.49 / 1.000277)
-    assert np.allclose(p.kr, fdr) and p.one_sided and p.ks == (0, 0, 0)
-    assert np.allclose(p.kd, np.array([0.8, 0.4, 0.2]) * (1 - fdr), rtol=2e-3)  # reciprocity: (1-Fdr_e)/eta^2 = 1-Fdr_i
+    p = material(s, "plastic")  # Mitsuba's plastic itself (kernels/bsdf.h plastic_*)
+    assert p.plastic and p.alpha == 0 and p.kp == (0.8, 0.4, 0.2) and p.kps == (1, 1, 1) and p.one_sided
+    assert p.plastic_eta == pytest.approx(1.49 / 1.000277) and not p.nonlinear and p.kd == p.kr == (0, 0, 0)
     r = material(s, "rough")
-    assert r.shininess == pytest.approx(49.5) and np.allclose(r.ks, fdr) and r.kr == (0, 0, 0)
+    assert r.plastic and (r.alpha, r.distribution, r.kp) == (0.1, "beckmann", (0.5, 0.5, 0.5))
+    # Its diffuse + Phong approximation (for blendbsdf).
+    fdr = fresnel_diffuse_reflectance(1.49 / 1.000277)
+    pa = plastic_approximation(p)
+    assert np.allclose(pa.kr, fdr) and pa.one_sided and pa.ks == (0, 0, 0)
+    assert np.allclose(pa.kd, np.array([0.8, 0.4, 0.2]) * (1 - fdr), rtol=2e-3)  # reciprocity: (1-Fdr_e)/eta^2 = 1-Fdr_i
+    ra = plastic_approximation(r)
+    assert ra.shininess == pytest.approx(49.5) and np.allclose(ra.ks, fdr) and ra.kr == (0, 0, 0)
     assert material(s, "two") == Material(kr=(1.0, 1.0, 1.0), one_sided=False)
 
 
@@ -421,6 +548,10 @@ def _z_bound(trials):
 def test_cornell_box_xml_renders_like_native(xml, device_spec):
     xml_scene = clpt.load_scene(DATA / xml)
     native = clpt.load_scene("cornell_box")
+    # The files leave Mitsuba's default pixel filter, the gaussian: the native scene gets it too.
+    assert xml_scene.camera.pixel_filter == PixelFilter("gaussian")
+    native = dataclasses.replace(native, camera=dataclasses.replace(native.camera,
+                                                                    pixel_filter=xml_scene.camera.pixel_filter))
     assert xml_scene.render.max_depth == 7  # Mitsuba's max_depth 8
     size, block, spp = 24, 4, 64
     kw = dict(spp=spp, width=size, height=size, max_depth=7, device=device_spec)
@@ -538,6 +669,7 @@ def test_mapped_albedos_match_mitsuba(tmp_path, kind, rtol):
              "conductor": '<string name="material" value="Au"/>'}
     body = extra.get(kind.removeprefix("rough"), "")
     m = material(load(tmp_path, f'<shape type="rectangle" id="a"><bsdf type="{kind}">{body}</bsdf></shape>'), "a")
+    m = plastic_approximation(m)  # (plastics are Mitsuba's lobe itself, tests/test_plastic.py; this is for blends)
     diffuse, specular = MITSUBA_ALBEDOS[kind]
     assert np.allclose(m.kd, diffuse, rtol=rtol, atol=1e-9)
     assert np.allclose(np.add(m.ks, m.kr), specular, rtol=rtol)

@@ -28,6 +28,8 @@ from clpt.meshio import MeshError, read_mesh, vertex_normals
 from clpt.mitsuba import camel_to_snake, load_mitsuba
 from clpt.scene import Mesh, SceneError, SceneWarning
 
+import stats
+
 import meshgen
 
 DATA = Path(__file__).resolve().parent / "data"
@@ -335,21 +337,10 @@ def test_unknown_06_plugins_are_reported_once_with_element_and_line(tmp_path):
 # --- the scene against Mitsuba -------------------------------------------------------------------
 
 REFERENCE = json.loads((DATA / "cbox_blob_mitsuba.json").read_text())
-LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
 def compare_to_reference(res, ref=REFERENCE):
-    """(largest relative error of the image's mean colour, z-scores of the
-    reference's luminance blocks against the render's, from both renders' noise)."""
-    mean_err = np.abs(res.image.reshape(-1, 3).mean(axis=0) / np.array(ref["mean_rgb"]) - 1).max()
-    b, (h, w) = ref["block"], res.image.shape[:2]
-
-    def blocks(x):
-        return x.reshape(h // b, b, w // b, b).sum(axis=(1, 3)) / b ** 2
-
-    lum, var = blocks(res.image @ LUMINANCE), blocks(res.lum_var / res.sample_count) / b ** 2
-    z = (lum - np.array(ref["block_luminance"])) / np.sqrt(var + np.array(ref["block_luminance_var"]))
-    return mean_err, z
+    return stats.compare_to_reference(res, ref)
 
 
 def render_blob(device, spp, seed=1, flat=False):

@@ -36,7 +36,8 @@ from ..denoise import FilterSettings, OidnSettings
 from ..errors import CheckpointError, SceneError
 from ..hostio import open_regular_file
 from ..photons import PhotonSettings
-from ..scene import Box, Camera, Material, Mesh, Plane, Quad, RenderSettings, Scene, Sphere, Triangle
+from ..scene import (Box, Camera, Material, Mesh, PixelFilter, Plane, PointLight, Quad, RenderSettings, Scene, Sphere,
+                     SpotLight, Triangle)
 from ..version import __version__
 from .accum import WIDTHS, Accumulator
 from .job import FORMAT, DeviceOptions, RenderJob
@@ -88,8 +89,8 @@ def write_checkpoint(path, job: RenderJob, sums: Accumulator, schedule_state: di
 def _job_types() -> dict:
     """The classes a job is made of, by name: the only ones reading builds."""
     return {c.__name__: c for c in (RenderJob, DeviceOptions, PhotonSettings, AdaptiveSettings, FilterSettings,
-                                    OidnSettings, Scene, Camera, RenderSettings, Material, Sphere, Triangle, Quad,
-                                    Plane, Box, Mesh)}
+                                    OidnSettings, Scene, Camera, PixelFilter, RenderSettings, Material, Sphere,
+                                    Triangle, Quad, Plane, Box, Mesh, PointLight, SpotLight)}
 
 
 def _encode(obj, arrays: list):

@@ -32,6 +32,14 @@ def fill_scene_info(rec, counts, eps_abs: float):
     return rec
 
 
+def fill_pixel_filter(rec, pf):
+    """Fill rec, a FilterRec (a launch record's "pixel_filter" field), from a
+    clpt.scene.PixelFilter; its kind is the build's (CLPT_PIXEL_FILTER)."""
+    rec["radius"] = pf.extent
+    rec["sample_border"] = int(pf.sample_border)
+    return rec
+
+
 def scene_info(counts, eps_abs: float, double: bool) -> np.ndarray:
     """A SceneInfo record of its own (the probes' scene argument)."""
     return fill_scene_info(layout.SCENE_INFO.zeros(double), counts, eps_abs)

@@ -26,7 +26,7 @@ from ..errors import DeviceError
 from ..photons import (GRID_CELL_RADII, MAX_TABLE_BITS, PM_MERGE, PM_OFFLINE, PM_OWNED, PM_PREPASS, RADIX_BITS,
                        PhotonSettings)
 from ..program import event_seconds
-from .launch import (AUX_ARGS, PHOTON_ARGS, PHOTON_PASS_ARGS, TRACE_ARGS, RecordBuffer, fill_scene_info,
+from .launch import (AUX_ARGS, PHOTON_ARGS, PHOTON_PASS_ARGS, TRACE_ARGS, RecordBuffer, fill_pixel_filter, fill_scene_info,
                      photon_record, trace_record)
 
 
@@ -114,7 +114,7 @@ for _record, _names in ((TraceArgs, TRACE_ARGS + AUX_ARGS + PHOTON_ARGS), (Photo
 # The TraceLaunch fields a launch sets for its item; start() sets the others.
 ITEM_FIELDS = ("seed", "sample_begin", "n_samples", "n_list", "photons")
 IMAGE_FIELDS = ("scene", "camera", "lum_scale", "width", "height", "group_offset", "max_depth", "rr_depth",
-                "aux_specular")
+                "aux_specular", "pixel_filter")
 
 
 FILTER_LOCAL_SIZE = 64  # the cone filter's work-groups (kernels/filter.cl)
@@ -172,6 +172,7 @@ class TracePass:
                   "aux_specular": int(job.aux_specular == "surface")}
         for k, v in values.items():
             rec[k] = v
+        fill_pixel_filter(rec["pixel_filter"], job.scene.camera.pixel_filter)
         self.record = rec
 
     def item_record(self, seed: int, item, lookup=None) -> tuple[np.ndarray, int]:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..denoise import LUMA, FilterSettings, OidnSettings, apply_denoiser
+from ..denoise import LUMA, FilterSettings, OidnSettings, apply_denoiser, dilate
 from ..image import save_image
 from .metrics import relmse
 from ..render import Renderer
@@ -54,13 +54,7 @@ def _oidn_available() -> bool:
 
 def _ring(emitter):
     light = emitter > 0
-    pad = np.pad(light, 2)
-    h, w = light.shape
-    near = np.zeros_like(light)
-    for dy in range(5):
-        for dx in range(5):
-            near |= pad[dy:dy + h, dx:dx + w]
-    return near & ~light
+    return dilate(light, 2) & ~light
 
 
 def shape_coverage(scene, index, width, height, spp=64, device=None):

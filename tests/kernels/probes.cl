@@ -275,6 +275,18 @@ __kernel void probe_light_pdf(__global const real4 *rec, __constant SceneInfo *i
     ST(VSEL((vreal)R(0), p, fabs(h.t - ls.dist) < R(1e-4) * ls.dist), pdf_hit, i);
 }
 
+// The pixel filter's offset (camera.h filter_sample_offset) for filter `kind`
+// (0 box, 1 tent, 2 gaussian), for samples u of pixel centres c of an image n
+// pixels wide.
+__kernel void probe_pixel_filter(int kind, real radius, uint sample_border, real n,
+                                 __global const real *u, __global const real *c, __global real *out)
+{
+    size_t i = get_global_id(0);
+    FilterRec f;
+    f.radius = radius; f.sample_border = sample_border;
+    ST(filter_sample_offset(&f, kind, LD(u, i), LD(c, i), n), out, i);
+}
+
 // The rough conductor's lobe (bsdf.h, microfacet.h) at a vertex with normal
 // +z, alone in its material: for each incoming direction d, a sample from
 // (u1, u2) (its direction, weight f cos / pdf, mixture pdf and whether a lobe
@@ -297,6 +309,12 @@ __kernel void probe_microfacet(real4 par, real4 eta, real4 k, real4 km,
     m.nondelta = (vreal)R(1);
     m.km = v3_splat(km); m.eta = v3_splat(eta); m.k = v3_splat(k);
     m.p_m = (vreal)R(1); m.alpha = (vreal)par.x; m.beckmann = (vreal)par.y;
+#if CLPT_HAS_PLASTIC
+    m.kp = m.kps = v3_zero();
+    m.p_p = m.spec_w = m.c_fdr = m.c_alpha = m.c_beckmann = m.c_tab = m.c_nonlinear = (vreal)R(0);
+    m.c_eta = (vreal)R(1.5);
+    m.rec = 0;
+#endif
     LobeProbs pr = lobe_probs(&m, (vmask)0);
     V3 n = v3((vreal)R(0), (vreal)R(0), (vreal)R(1));
     V3 d = LD3(dx, dy, dz, i);
@@ -314,3 +332,52 @@ __kernel void probe_microfacet(real4 par, real4 eta, real4 k, real4 km,
     ST3(f, er, eg, eb, i);
     ST(bsdf_pdf(&m, pr, d, n, w), epdf, i);
 }
+
+#if CLPT_HAS_PLASTIC
+// The plastic's lobe (bsdf.h) at a vertex with normal +z, alone in its
+// material, as probe_microfacet: a sample per incoming direction d from
+// (u1, u2, uf: the specular/diffuse choice), and f and pdf of w.
+// tab: the transmittance table (COAT_TABLE_ROWS rows); par: the record's
+// coat row (eta, internal reflectance, alpha (0: smooth), 1 for Beckmann); kp: diffuse
+// reflectance, nonlinear; kps: specular reflectance, specular sampling weight.
+__kernel void probe_plastic(__global const real4 *tab, real4 par, real4 kp, real4 kps,
+                            __global const real *dx, __global const real *dy, __global const real *dz,
+                            __global const real *u1, __global const real *u2, __global const real *uf,
+                            __global const real *wx, __global const real *wy, __global const real *wz,
+                            __global real *sx, __global real *sy, __global real *sz,
+                            __global real *fr, __global real *fg, __global real *fb,
+                            __global real *spdf, __global real *chosen, __global real *delta,
+                            __global real *er, __global real *eg, __global real *eb, __global real *epdf)
+{
+    size_t i = get_global_id(0);
+    Material m;
+    m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
+    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.one_sided = (vreal)R(0);
+    m.ior = (vreal)R(1);
+    m.nondelta = (vreal)R(1);
+    m.km = m.eta = m.k = v3_zero();
+    m.p_m = m.beckmann = (vreal)R(0); m.alpha = (vreal)R(1);
+    m.kp = v3_splat(kp); m.kps = v3_splat(kps);
+    m.p_p = (vreal)R(1); m.spec_w = (vreal)kps.w;
+    m.c_eta = (vreal)par.x; m.c_fdr = (vreal)par.y; m.c_alpha = (vreal)par.z; m.c_beckmann = (vreal)par.w;
+    m.c_tab = (vreal)R(0); m.c_nonlinear = (vreal)kp.w;
+    m.rec = tab;
+    LobeProbs pr = lobe_probs(&m, (vmask)0);
+    V3 n = v3((vreal)R(0), (vreal)R(0), (vreal)R(1));
+    V3 d = LD3(dx, dy, dz, i);
+    BsdfU u;
+    u.lobe = (vreal)R(0.5); u.u1 = LD(u1, i); u.u2 = LD(u2, i); u.fresnel = LD(uf, i);
+    vmask all = (vmask)(-1);
+    BsdfSample bs;
+    bsdf_sample(&m, pr, d, n, all, all, u, TRANSPORT_RADIANCE, 1, &bs);
+    ST3(bs.wi, sx, sy, sz, i);
+    ST3(bs.weight, fr, fg, fb, i);
+    ST(bs.pdf, spdf, i);
+    ST(VSEL((vreal)R(0), (vreal)R(1), bs.chosen), chosen, i);
+    ST(VSEL((vreal)R(0), (vreal)R(1), bs.delta), delta, i);
+    V3 w = LD3(wx, wy, wz, i);
+    V3 f = bsdf_eval(&m, d, n, w);
+    ST3(f, er, eg, eb, i);
+    ST(bsdf_pdf(&m, pr, d, n, w), epdf, i);
+}
+#endif
