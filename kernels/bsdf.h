@@ -246,6 +246,70 @@ typedef struct {
     vmask up;       // wi leaves on the side of n (not refracted through)
 } BsdfSample;
 
+#if CLPT_HAS_MICROFACET || CLPT_HAS_PLASTIC
+// A half vector (world space) from the distribution of normals visible
+// from -d about the shading normal n (microfacet.h mf_sample_visible).
+inline V3 sample_half_vector(V3 d, V3 n, vreal alpha, vmask beckmann, vreal u1, vreal u2)
+{
+    V3 t, b;
+    frame_from_z(n, &t, &b);
+    V3 o = v3_neg(d);
+    V3 hl = mf_sample_visible(v3(v3_dot(o, t), v3_dot(o, b), v3_dot(o, n)), alpha, beckmann, u1, u2);
+    return v3_normalize(v3(hl.x * t.x + hl.y * b.x + hl.z * n.x, hl.x * t.y + hl.y * b.y + hl.z * n.y,
+                           hl.x * t.z + hl.y * b.z + hl.z * n.z));
+}
+#endif
+
+#if CLPT_HAS_MICROFACET
+// --- rough conductor: a visible normal h, reflected about ------------------------
+// f cos_i / pdf = km F(-d.h) G1(wi, h) (microfacet.h); lost (*is_m cleared)
+// where -d is below the shading normal or wi leaves below it.
+inline void sample_rough_conductor(const Material *m, LobeProbs pr, V3 d, V3 n, BsdfU u, V3 *wi, V3 *w, vmask *is_m)
+{
+    vreal oz = -v3_dot(d, n);
+    vmask bk = m->beckmann != R(0);
+    V3 h = sample_half_vector(d, n, m->alpha, bk, u.u1, u.u2);
+    vreal oh = -v3_dot(d, h);
+    V3 wm = v3_reflect(d, h);
+    vreal cos_i = v3_dot(wm, n);
+    vreal g1 = mf_G1(cos_i, mf_sin2(wm, n), v3_dot(wm, h), m->alpha, bk);
+    V3 F = fresnel_conductor3(oh, m->eta, m->k);
+    *wi = v3_sel(*wi, wm, *is_m);
+    *w = v3_sel(*w, v3_scale(v3_mul(m->km, F), g1 / pr.m), *is_m);
+    *is_m = *is_m && oz > R(0) && oh > R(0) && cos_i > R(0) && g1 > R(0);
+}
+#endif
+
+#if CLPT_HAS_PLASTIC
+// --- plastic: the coating's specular part with Mitsuba's probability q, else
+// the diffuse base (cosine-weighted: lc, local); weight f cos / (pdf p_p), the
+// smooth coating's reflection kps F / (q p_p), a delta lobe (*p_delta) ---------
+inline void sample_plastic(const Material *m, LobeProbs pr, V3 d, V3 n, BsdfU u, V3 lc, V3 *wi, V3 *w,
+                           vmask *is_p, vmask *p_delta)
+{
+    vreal co = -v3_dot(d, n), ct;
+    vreal q = plastic_spec_prob(m, plastic_transmittance(m, co));
+    vmask spec = u.fresnel < q;
+    vmask rough = m->c_alpha > R(0);
+    V3 wp = frame_to_world(n, lc.x, lc.y, lc.z);
+    vmask rs = spec && rough;
+    if (VANY(rs && *is_p)) {
+        V3 h = sample_half_vector(d, n, VSEL((vreal)R(1), m->c_alpha, rough), m->c_beckmann != R(0), u.u1, u.u2);
+        wp = v3_sel(wp, v3_reflect(d, h), rs);
+    }
+    vmask sd = spec && !rough;  // smooth: the mirror direction, a delta lobe
+    wp = v3_sel(wp, v3_reflect(d, n), sd);
+    V3 wpn = v3_normalize(wp);
+    vreal pdf = plastic_pdf(m, d, n, wpn);
+    V3 wnd = v3_scale(plastic_eval(m, d, n, wpn), v3_dot(wpn, n) / (pdf * pr.p));
+    V3 wd = v3_scale(m->kps, fresnel_dielectric(co, m->c_eta, &ct) / (q * pr.p));
+    *wi = v3_sel(*wi, wpn, *is_p);
+    *w = v3_sel(*w, v3_sel(wnd, wd, sd), *is_p);
+    *p_delta = *is_p && sd && co > R(0);
+    *is_p = *is_p && co > R(0) && (sd || (pdf > R(0) && v3_dot(wpn, n) > R(0)));
+}
+#endif
+
 // A lobe of m chosen by Russian roulette over pr (u.lobe), and a direction
 // in it, at a vertex with shading normal n facing -d (front: d arrives from
 // outside), into *out. `alive` masks the lanes sampled. With nondelta 0 (a
@@ -299,61 +363,12 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
         }
 #endif
 #if CLPT_HAS_MICROFACET
-        // --- rough conductor: a visible normal h, reflected about ------------------------
-        // f cos_i / pdf = km F(-d.h) G1(wi, h) (microfacet.h); lost where -d is
-        // below the shading normal or wi leaves below it.
-        if (VANY(is_m)) {
-            V3 t, b;
-            frame_from_z(n, &t, &b);
-            V3 o = v3_neg(d);
-            vreal oz = v3_dot(o, n);
-            vmask bk = m->beckmann != R(0);
-            V3 hl = mf_sample_visible(v3(v3_dot(o, t), v3_dot(o, b), oz), m->alpha, bk, u.u1, u.u2);
-            V3 h = v3_normalize(v3(hl.x * t.x + hl.y * b.x + hl.z * n.x, hl.x * t.y + hl.y * b.y + hl.z * n.y,
-                                   hl.x * t.z + hl.y * b.z + hl.z * n.z));
-            vreal oh = v3_dot(o, h);
-            V3 wm = v3_reflect(d, h);
-            vreal cos_i = v3_dot(wm, n);
-            vreal g1 = mf_G1(cos_i, mf_sin2(wm, n), v3_dot(wm, h), m->alpha, bk);
-            V3 F = fresnel_conductor3(oh, m->eta, m->k);
-            wi = v3_sel(wi, wm, is_m);
-            w = v3_sel(w, v3_scale(v3_mul(m->km, F), g1 / pr.m), is_m);
-            is_m = is_m && oz > R(0) && oh > R(0) && cos_i > R(0) && g1 > R(0);
-        }
+        if (VANY(is_m))
+            sample_rough_conductor(m, pr, d, n, u, &wi, &w, &is_m);
 #endif
 #if CLPT_HAS_PLASTIC
-        // --- plastic: the coating's specular part with Mitsuba's probability q,
-        // else the diffuse base (cosine-weighted); weight f cos / (pdf p_p),
-        // the smooth coating's reflection kps F / (q p_p) -------------------------
-        if (VANY(is_p)) {
-            vreal co = -v3_dot(d, n), ct;
-            vreal q = plastic_spec_prob(m, plastic_transmittance(m, co));
-            vmask spec = u.fresnel < q;
-            vmask rough = m->c_alpha > R(0);
-            V3 wp = frame_to_world(n, lc.x, lc.y, lc.z);
-            vmask rs = spec && rough;
-            if (VANY(rs && is_p)) {
-                V3 t, b;
-                frame_from_z(n, &t, &b);
-                V3 o = v3_neg(d);
-                vmask bk = m->c_beckmann != R(0);
-                V3 hl = mf_sample_visible(v3(v3_dot(o, t), v3_dot(o, b), co), VSEL((vreal)R(1), m->c_alpha, rough),
-                                          bk, u.u1, u.u2);
-                V3 h = v3_normalize(v3(hl.x * t.x + hl.y * b.x + hl.z * n.x, hl.x * t.y + hl.y * b.y + hl.z * n.y,
-                                       hl.x * t.z + hl.y * b.z + hl.z * n.z));
-                wp = v3_sel(wp, v3_reflect(d, h), rs);
-            }
-            vmask sd = spec && !rough;  // smooth: the mirror direction, a delta lobe
-            wp = v3_sel(wp, v3_reflect(d, n), sd);
-            V3 wpn = v3_normalize(wp);
-            vreal pdf = plastic_pdf(m, d, n, wpn);
-            V3 wnd = v3_scale(plastic_eval(m, d, n, wpn), v3_dot(wpn, n) / (pdf * pr.p));
-            V3 wd = v3_scale(m->kps, fresnel_dielectric(co, m->c_eta, &ct) / (q * pr.p));
-            wi = v3_sel(wi, wpn, is_p);
-            w = v3_sel(w, v3_sel(wnd, wd, sd), is_p);
-            p_delta = is_p && sd && co > R(0);
-            is_p = is_p && co > R(0) && (sd || (pdf > R(0) && v3_dot(wpn, n) > R(0)));
-        }
+        if (VANY(is_p))
+            sample_plastic(m, pr, d, n, u, lc, &wi, &w, &is_p, &p_delta);
 #endif
     } else {
         is_m = is_m && !is_m;
