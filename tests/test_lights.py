@@ -28,7 +28,7 @@ import clpt
 from clpt.photons import PhotonSettings
 from clpt.scene import Material, PointLight, Quad, SceneError, Sphere, SpotLight
 
-from stats import ALPHA, sidak
+from stats import ALPHA, compare_to_reference, sidak
 
 DATA = Path(__file__).resolve().parent / "data"
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
@@ -292,14 +292,7 @@ def test_spot_box_renders_as_in_mitsuba(device_spec):
     ref = json.loads((DATA / "spot_box_mitsuba.json").read_text())
     scene = clpt.load_scene(DATA / "spot_box.xml", params={"res": ref["width"]})
     res = clpt.Renderer(scene, device=device_spec, photons=False).render(spp=512, seed=1)
-    mean_err = np.abs(res.image.reshape(-1, 3).mean(axis=0) / np.array(ref["mean_rgb"]) - 1).max()
-    b, (h, w) = ref["block"], res.image.shape[:2]
-
-    def blocks(x):
-        return x.reshape(h // b, b, w // b, b).sum(axis=(1, 3)) / b ** 2
-
-    lum, var = blocks(res.image @ LUMINANCE), blocks(res.lum_var / res.sample_count) / b ** 2
-    z = (lum - np.array(ref["block_luminance"])) / np.sqrt(var + np.array(ref["block_luminance_var"]))
+    mean_err, z = compare_to_reference(res, ref)
     assert mean_err < 0.005, f"image mean off by {mean_err:.2%}"
     assert np.abs(z).max() < 4, f"a block is {np.abs(z).max():.1f} sigma off"
 
