@@ -65,6 +65,7 @@ class Features:
     bvh: bool = True           # the scene's primitives are in a BVH
     bvh_walk: str = "hybrid"   # BVH traversal (Experimental): "hybrid" (packets for coherent rays) or "lane"
     smooth: bool = True        # some triangles have vertex normals
+    textures: bool = True      # some materials have textures (kernels/texture.h)
     pixel_filter: str = "box"  # the camera's pixel filter (PIXEL_FILTERS); the box compiles no filter code
     counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights, casters, BVH nodes (not generic)
 
@@ -95,6 +96,7 @@ class Features:
             "CLPT_HAS_BVH": int(self.bvh),
             "CLPT_BVH_PACKETS": int(self.bvh_walk == "hybrid"),
             "CLPT_HAS_SMOOTH": int(self.smooth),
+            "CLPT_HAS_TEXTURES": int(self.textures),
         }
         if self.mode != "generic":
             for name, n in zip(("MATERIALS", "SPHERES", "QUADS", "TRIANGLES", "PLANES", "LIGHTS", "CAUSTICS",
@@ -152,6 +154,7 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         spot_lights="spot" in packed.light_kinds,
         bvh=packed.count("nodes") > 0,
         smooth=packed.smooth,
+        textures=bool(packed.textures),
         bvh_walk=bvh_walk,
         counts=tuple(packed.counts),
     )

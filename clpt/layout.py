@@ -174,7 +174,9 @@ MATERIAL = Rows("material", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_s
                 "eta.rgb, alpha | k.rgb, distribution (0 GGX, 1 Beckmann) | plastic (a coated diffuse base): "
                 "diffuse_reflectance.rgb, p_plastic | specular_reflectance.rgb, specular sampling weight | "
                 "eta, internal reflectance, alpha (0: smooth), distribution | record index of its "
-                "transmittance table (COAT_TABLE_ROWS rows after the triangles' records), nonlinear, 0, 0")
+                "transmittance table (COAT_TABLE_ROWS rows after the triangles' records), nonlinear, record "
+                "index of the TEXTURE of its reflectance (kd, or kp of a plastic; 0: none), of its specular "
+                "reflectance (km, or kr; 0: none)")
 SPHERE = Rows("sphere", "SPHERE", _r4("center_radius", "mat"),
               "sphere: center.xyz, radius | material, light + 1 (0: not a light), prim id, 0")
 PLANAR = Rows("planar", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "wv_kind"),
@@ -204,8 +206,26 @@ BVH_LEAF = Rows("BVH leaf block", "BVHL", _r4("px", "py", "pz", "nx", "ny", "nz"
                 "p.xyz | normal n.xyz | dual wu.xyz | dual wv.xyz (a sphere: centre in p, radius in n.x) | kind "
                 "(PlanarRec wv.w; ITEM_EMPTY for an empty slot) | material | light + 1 | primitive id")
 NORMALS = Rows("vertex normals", "NORMALS", _r4("n0", "n1", "n2"), "vertex normals of a smooth triangle")
+TEXTURE = Rows("texture", "TEX", _r4("kind_size", "data", "uv_u", "uv_v", "color0", "color1"),
+               "texture (clpt/texture.py): kind (TEX_BITMAP, TEX_CHECKERBOARD), width, height, wrap (TEX_REPEAT, "
+               "TEX_MIRROR, TEX_CLAMP) | the record of its first texel as hi, lo (hi * TEX_ROW_SPLIT + lo; "
+               "3 reals a texel, row by row, from there), filter (TEX_BILINEAR, TEX_NEAREST), record index "
+               "of the UV section | to_uv: a, b, c, 0 (u' = a u + b v + c) | d, e, f, 0 (v') | color0.rgb, 0 | "
+               "color1.rgb, 0")
+UV = Rows("surface coordinates", "UV", _r4("a", "b"),
+          "a primitive's (u, v), one record per primitive id (scenes with textures): a quad or triangle: "
+          "u, v at its corner, their change along edge u | their change along edge v, 0, UV_PLANAR; a sphere: "
+          "the x row of its frame (world to its own), the frame's determinant | the y row, UV_SPHERE")
 LIGHT_TRI = Rows("mesh-light triangle", "LTRI", _r4("p_alias", "u_prob", "v"),
                  "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
+
+# TEXTURE kinds, wrap modes and filters (clpt/texture.py KINDS, WRAP_MODES, FILTERS, in order);
+# texel record indices split in two reals (exact in float builds up to 2^24 * TEX_ROW_SPLIT).
+TEX_BITMAP, TEX_CHECKERBOARD = 0, 1
+TEX_REPEAT, TEX_MIRROR, TEX_CLAMP = 0, 1, 2
+TEX_BILINEAR, TEX_NEAREST = 0, 1
+TEX_ROW_SPLIT = 4096
+UV_PLANAR, UV_SPHERE = 0, 1
 
 # A rough plastic's transmittance table: clpt/coating.py TABLE_RES reals, COAT_TABLE_ROWS rows of 4.
 COAT_TABLE_ROWS = 16
@@ -254,7 +274,7 @@ PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"),
 
 def scene_records() -> tuple:
     """The scene's records (Rows), as this module holds them now."""
-    return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI)
+    return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI, TEXTURE, UV)
 
 
 def launch_records() -> tuple:
@@ -272,4 +292,9 @@ def c_source() -> str:
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
               f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define ITEM_EMPTY {ITEM_EMPTY}",
               f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}", f"#define COAT_TABLE_ROWS {COAT_TABLE_ROWS}"]
+    parts += [f"#define {k} {v}" for k, v in (("TEX_BITMAP", TEX_BITMAP), ("TEX_CHECKERBOARD", TEX_CHECKERBOARD),
+                                              ("TEX_REPEAT", TEX_REPEAT), ("TEX_MIRROR", TEX_MIRROR),
+                                              ("TEX_CLAMP", TEX_CLAMP), ("TEX_BILINEAR", TEX_BILINEAR),
+                                              ("TEX_NEAREST", TEX_NEAREST), ("TEX_ROW_SPLIT", TEX_ROW_SPLIT),
+                                              ("UV_PLANAR", UV_PLANAR), ("UV_SPHERE", UV_SPHERE))]
     return "\n".join(parts) + "\n"

@@ -78,6 +78,15 @@ def read_mesh(path, shape_index=0):
     Normals are the file's per-vertex normals, normalized, or None when it
     has none (or only some of its faces have them, in an OBJ file).
     shape_index picks one of the meshes of a Mitsuba .serialized file."""
+    return read_mesh_uv(path, shape_index)[:3]
+
+
+def read_mesh_uv(path, shape_index=0):
+    """read_mesh's arrays and the file's texture coordinates, float64 (N, 2)
+    per vertex as the file gives them, or None when it has none: OBJ `vt`
+    (a corner without one gets (0, 0) when others have one), PLY vertex
+    properties u, v (or s, t, texture_u, texture_v, texture_s, texture_t),
+    a serialized mesh's when its flags say so."""
     p = Path(path)
     fmt = p.suffix.lower().lstrip(".")
     if fmt not in FORMATS:
@@ -87,10 +96,10 @@ def read_mesh(path, shape_index=0):
         raise MeshError(f"{path}: shape_index {shape_index}: only a .serialized file holds several meshes")
     data = _read_bytes(p, path, fmt)
     if fmt == "serialized":
-        v, t, n = _read_serialized(data, path, shape_index)
-        return check_mesh(v, t, n, source=f"{path}: shape {shape_index}")
-    v, t, n = (_read_obj if fmt == "obj" else _read_ply)(data, path)
-    return check_mesh(v, t, n, source=str(path))
+        v, t, n, uv = _read_serialized(data, path, shape_index)
+        return (*check_mesh(v, t, n, source=f"{path}: shape {shape_index}"), uv)
+    v, t, n, uv = (_read_obj if fmt == "obj" else _read_ply)(data, path)
+    return (*check_mesh(v, t, n, source=str(path)), uv)
 
 
 def _read_bytes(p: Path, name, fmt) -> bytes:
@@ -139,19 +148,23 @@ def _read_obj(data: bytes, path):
     which names the line of the first problem."""
     avail = hostio.available_host_bytes()
     whole = avail is None or len(data) * OBJ_WHOLE_FILE_BYTES_PER_FILE_BYTE <= avail
-    v, vn, c, ct, cn, sizes = (whole and _obj_arrays(data)) or _obj_lines(data, path)
+    v, vn, vt, c, ct, cn, sizes = (whole and _obj_arrays(data)) or _obj_lines(data, path)
     # Only the vertices faces use, each once per (position, texture coordinate,
     # normal) triple it is used with, as Mitsuba keys them: an OBJ corner pairs a
     # position with the others, clpt's vertices have one of each. Texture
-    # coordinates are not kept, but they split vertices (at a UV seam), which
-    # matters to the normals computed for a mesh without them (vertex_normals).
+    # coordinates are kept per vertex, and split vertices (at a UV seam), which
+    # also matters to the normals computed for a mesh without them (vertex_normals).
     cols = [c] + [x + 1 for x in (ct, cn) if x is not None]  # -1 (none) -> 0
     keys = _row_keys(cols)
     uniq, inverse = np.unique(keys, return_inverse=True, axis=0 if keys.ndim == 2 else None)
     first = np.zeros(len(uniq), dtype=np.int64)
     first[inverse.reshape(-1)] = np.arange(len(c))  # a corner of each unique vertex
     tris = fan_polygons(inverse.reshape(-1), sizes)
-    return v[c[first]], tris, (None if cn is None else vn[cn[first]])
+    uv = None
+    if ct is not None:
+        k = ct[first]
+        uv = np.where((k >= 0)[:, None], vt[np.maximum(k, 0)] if len(vt) else 0.0, 0.0)
+    return v[c[first]], tris, (None if cn is None else vn[cn[first]]), uv
 
 
 def _row_keys(cols):
@@ -182,6 +195,7 @@ def _obj_arrays(data: bytes):
         return None
     v = [ln for ln in lines if ln[:2] == b"v "]
     vn = [ln for ln in lines if ln[:3] == b"vn "]
+    vt = [ln for ln in lines if ln[:3] == b"vt "]
     f = b" ".join(ln for ln in lines if ln[:2] == b"f ").split()
     if not v or not f:
         return None
@@ -208,11 +222,24 @@ def _obj_arrays(data: bytes):
     cn = idx[:, -1] if slashes == 2 else None
     ct = idx[:, 1] if slashes == 1 or (slashes == 2 and not double) else None
     n_vt = sum(1 for ln in lines if ln[:2] == b"vt" and ln[2:3] in b" \r")
+    tex = _obj_uvs(vt)
+    if tex is None or len(tex) != n_vt:
+        return None
     if pos is None or (vn and nrm is None) or (c < 0).any() or (c >= len(pos)).any() or \
             (cn is not None and (nrm is None or (cn < 0).any() or (cn >= len(nrm)).any())) or \
             (ct is not None and ((ct < 0).any() or (ct >= n_vt).any())):
         return None
-    return pos, np.zeros((0, 3)) if nrm is None else nrm, c, ct, cn, sizes
+    return pos, np.zeros((0, 3)) if nrm is None else nrm, tex, c, ct, cn, sizes
+
+
+def _obj_uvs(rows):
+    """(N, 2) finite u, v of `vt` rows of 1 to 3 numbers (a missing v is 0), or None."""
+    try:
+        out = np.array([(lambda t: (float(t[1]), float(t[2]) if len(t) > 2 else 0.0))(ln.split())
+                        for ln in rows if 2 <= len(ln.split()) <= 4], dtype=np.float64).reshape(-1, 2)
+    except ValueError:
+        return None
+    return out if len(out) == len(rows) and np.isfinite(out).all() else None
 
 
 def _obj_numbers(rows):
@@ -230,7 +257,7 @@ def _obj_lines(data: bytes, path):
     """What _obj_arrays gives, for any OBJ file, line by line; a MeshError at
     the first line that is wrong. A corner without a texture coordinate has
     index -1 (when others have one)."""
-    verts, norms = array("d"), array("d")
+    verts, norms, texs = array("d"), array("d"), array("d")
     corners, corner_normals, sizes, face_lines = array("q"), array("q"), array("q"), array("q")
     corner_uvs = array("q")
     all_normals, any_uv, n_vt = True, False, 0
@@ -249,7 +276,10 @@ def _obj_lines(data: bytes, path):
             what = "a vertex" if kw == b"v" else "a normal"
             (verts if kw == b"v" else norms).extend(_finite_number(x, fail, what) for x in tok[1:4])
         elif kw == b"vt":
-            n_vt += 1  # counted (for relative indices and the range), never read
+            if not 2 <= len(tok) <= 4:
+                fail(f"'vt' needs 1 to 3 numbers (got {len(tok) - 1})")
+            texs.extend(_finite_number(x, fail, "a texture coordinate") for x in (tok[1:3] + [b"0"])[:2])
+            n_vt += 1
         elif kw == b"f":
             if len(tok) < 4:
                 fail(f"a face needs at least 3 vertices (got {len(tok) - 1})")
@@ -287,7 +317,8 @@ def _obj_lines(data: bytes, path):
                             f"(the file has {count} {plural})")
     v = np.frombuffer(verts, dtype=np.float64).reshape(-1, 3)
     vn = np.frombuffer(norms, dtype=np.float64).reshape(-1, 3)
-    return v, vn, c, (ct if any_uv else None), (cn if all_normals else None), sizes
+    vt = np.frombuffer(texs, dtype=np.float64).reshape(-1, 2)
+    return v, vn, vt, c, (ct if any_uv else None), (cn if all_normals else None), sizes
 
 
 def _obj_index(tok: bytes, count: int, fail, what, corner) -> int:
@@ -406,7 +437,9 @@ def _read_ply(data: bytes, path):
         if out_e is not None:
             out[e.name] = out_e
     pos = out["vertex"]
-    normals = pos[:, 3:6] if pos.shape[1] == 6 else None
+    has_n, uv_cols = _vertex_layout(ve)
+    normals = pos[:, 3:6] if has_n else None
+    uv = pos[:, 3 + 3 * has_n:] if uv_cols else None
     corners, sizes, where = out["face"]
     nv = len(pos)
     bad = np.flatnonzero((corners < 0) | (corners >= nv))
@@ -414,12 +447,25 @@ def _read_ply(data: bytes, path):
         face = int(np.searchsorted(np.cumsum(sizes), bad[0], side="right"))
         raise MeshError(f"{path}{where(face)}: face {face} has vertex index {corners[bad[0]]}, "
                         f"out of range (the file has {nv} vertices)")
-    return pos[:, :3], fan_polygons(corners, sizes), normals
+    return pos[:, :3], fan_polygons(corners, sizes), normals, uv
+
+
+# A PLY vertex's texture coordinates: the first of these pairs it has (Mitsuba's names).
+PLY_UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
+
+
+def _vertex_layout(e: _Element):
+    """(whether the vertices have normals, the names of their texture coordinates or ())."""
+    names = [p[0] for p in e.props]
+    has_n = all(k in names for k in ("nx", "ny", "nz"))
+    return has_n, next((pair for pair in PLY_UV_NAMES if all(k in names for k in pair)), ())
 
 
 def _vertex_columns(e: _Element):
+    """The vertex properties read, in order: x y z [nx ny nz] [u v]."""
     names = [p[0] for p in e.props]
-    cols = ["x", "y", "z"] + (["nx", "ny", "nz"] if all(k in names for k in ("nx", "ny", "nz")) else [])
+    has_n, uv = _vertex_layout(e)
+    cols = ["x", "y", "z"] + (["nx", "ny", "nz"] if has_n else []) + list(uv)
     return [names.index(c) for c in cols]
 
 
@@ -626,7 +672,7 @@ SERIALIZED_READ_BYTES_PER_BYTE = 5
 
 
 def _read_serialized(data: bytes, path, shape_index: int):
-    """(vertices, triangles, normals or None) of one shape of a .serialized
+    """(vertices, triangles, normals or None, texture coordinates or None) of one shape of a .serialized
     file. Every fault is a one-line MeshError naming the shape and the byte
     (of the file, or of the shape's decompressed stream)."""
     def fail(at, reason, inner=False):
@@ -724,11 +770,19 @@ def _read_serialized(data: bytes, path, shape_index: int):
     if flags & SERIALIZED_HAS_NORMALS:
         n = take(n_vert, ft, (lambda a: not_finite(a) | ~(np.abs(a).max(axis=1, initial=0) > 0), "normal",
                               lambda r: f"is zero or not finite ({listed(r)})"))
-    at += n_vert * real * (2 * bool(flags & SERIALIZED_HAS_UVS) + 3 * bool(flags & SERIALIZED_HAS_COLORS))
+    uv = None
+    if flags & SERIALIZED_HAS_UVS:
+        uv = np.frombuffer(out, ft, n_vert * 2, at).reshape(n_vert, 2).astype(np.float64)
+        bad = np.flatnonzero(~np.isfinite(uv).all(axis=1))
+        if len(bad):
+            fail(at + int(bad[0]) * 2 * real, f"texture coordinate {int(bad[0])} is not finite "
+                                              f"({listed(uv[bad[0]])})", inner=True)
+        at += n_vert * 2 * real
+    at += n_vert * real * 3 * bool(flags & SERIALIZED_HAS_COLORS)
     t = take(n_tri, np.dtype("<u8" if index == 8 else "<u4"),
              (lambda a: (a >= n_vert).any(axis=1), "triangle",
               lambda r: f"has vertex index {int(r.max())}, out of range (the shape has {n_vert} vertices)"))
-    return v, t, n
+    return v, t, n, uv
 
 
 def _serialized_extent(data: bytes, path, version: int, shape_index: int):

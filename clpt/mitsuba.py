@@ -28,7 +28,8 @@ from .scene import (ALPHA_RANGE, DISTRIBUTIONS, FILTER_MAX_RADIUS, Camera, Mater
                     RenderSettings, Scene, SceneError, SceneWarning, Sphere, SpotLight, _suggest, read_file_bytes)
 from .errors import ImageError
 from .image import load_image
-from .meshio import read_mesh, transform_mesh, vertex_normals
+from .meshio import read_mesh_uv, transform_mesh, vertex_normals
+from .texture import FILTERS, WRAP_MODES, Texture, load_bitmap
 from .spectrum import conductor_ior, ior_data as _ior_data, constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb_checked
 
 
@@ -260,6 +261,44 @@ def _transform(node: _Node) -> np.ndarray:
     return m
 
 
+def _cube_face_uv(axis: int, side: float, c, u, v) -> tuple:
+    """(u, v) at corner c of a face of Mitsuba's cube and their changes along
+    its edges u and v (local coordinates): Mitsuba maps each face onto
+    [0, 1]^2, its four vertices (in its table's order) at (0, 1), (1, 1),
+    (1, 0), (0, 0); as an affine map, uv(x) = ((x - p3).e_u, (x - p3).e_v) / 4
+    with p3 the (0, 0) vertex, e_u = p2 - p3, e_v = p0 - p3."""
+    p3, e_u, e_v = _CUBE_FACES[(axis, side)]
+    f = lambda x: (float(np.dot(x - p3, e_u)) / 4, float(np.dot(x - p3, e_v)) / 4)  # noqa: E731
+    c = np.asarray(c, dtype=np.float64)
+    a, b, o = f(c + u), f(c + v), f(c)
+    return (o, (a[0] - o[0], a[1] - o[1]), (b[0] - o[0], b[1] - o[1]))
+
+
+def _cube_faces():
+    """{(axis, side): (p3, p2 - p3, p0 - p3)} of Mitsuba 3's cube (src/shapes/cube.cpp): per face
+    its vertices at uv (0, 1), (1, 1), (1, 0), (0, 0), in that order."""
+    quads = (((1, -1, -1), (1, -1, 1), (-1, -1, 1), (-1, -1, -1)), ((1, 1, -1), (-1, 1, -1), (-1, 1, 1), (1, 1, 1)),
+             ((1, -1, -1), (1, 1, -1), (1, 1, 1), (1, -1, 1)), ((1, -1, 1), (1, 1, 1), (-1, 1, 1), (-1, -1, 1)),
+             ((-1, -1, 1), (-1, 1, 1), (-1, 1, -1), (-1, -1, -1)), ((1, 1, -1), (1, -1, -1), (-1, -1, -1), (-1, 1, -1)))
+    out = {}
+    for q in quads:
+        p0, _, p2, p3 = (np.array(x, dtype=np.float64) for x in q)
+        axis = int(np.flatnonzero((p0 == p2) & (p2 == p3))[0])
+        out[(axis, float(p0[axis]))] = (p3, p2 - p3, p0 - p3)
+    return out
+
+
+_CUBE_FACES = _cube_faces()
+
+# The textures clpt evaluates (clpt/texture.py); others are replaced by a constant.
+TEXTURE_KINDS = ("bitmap", "checkerboard")
+
+
+def _slots(**textures) -> tuple:
+    """Material.textures from slot=Texture-or-None keywords."""
+    return tuple((k, t) for k, t in textures.items() if t is not None)
+
+
 def _floats3(v) -> tuple:
     return tuple(float(c) for c in v)
 
@@ -464,6 +503,24 @@ class _Props:
         if bounded and not emitter and max(rgb) > 1:
             n.fail(f"a reflectance must be at most 1 (got {list(rgb)})")
         return tuple(float(c) for c in rgb)
+
+    def textured(self, name, default):
+        """A reflectance that may be a texture: (its RGB, None), or, for a
+        bitmap or checkerboard, (the texture's largest value per channel,
+        the clpt.texture.Texture)."""
+        obj = None
+        if name not in self.props:
+            obj = next((o for nm, o in self.objects if nm == name), None)
+        elif self.props[name].tag == "ref":
+            obj = self.props[name]
+        tex = self.loader.deref(obj) if obj is not None else None
+        if tex is None or tex.tag != "texture" or tex.attrs.get("type") not in TEXTURE_KINDS:
+            return self.color(name, default), None
+        self.used.add(name)
+        t = self.loader.texture(tex)
+        if max(t.max()) > 1:
+            tex.fail(f"a reflectance texture must be at most 1 (its largest value is {max(t.max()):g})")
+        return t.max(), t
 
     def nested(self, tag):
         """The nested objects (or refs resolving to them) of the given tag."""
@@ -692,31 +749,62 @@ class _Loader:
             c1 = np.array(tp.color("color1", 0.2, emitter=emitter))
             tp.transform("to_uv")
             tp.finish()
-            self.warn(tex, "textures are not supported: the checkerboard's mean colour is used",
-                      key=("texture", "checkerboard"))
+            self.warn(tex, f"a texture as '{name}' is not supported: the checkerboard's mean colour is used",
+                      key=("texture", "checkerboard", name))
             return tuple(float(c) for c in 0.5 * (c0 + c1))
         if tp.type == "bitmap":
             rgb = self._bitmap_mean(tex, tp)
             tp.finish(quiet=("filter_type", "wrap_mode", "raw", "to_uv", "format"))
-            self.warn(tex, "textures are not supported: the bitmap's mean colour is used",
-                      key=("texture", "bitmap"))
+            self.warn(tex, f"a texture as '{name}' is not supported: the bitmap's mean colour is used",
+                      key=("texture", "bitmap", name))
             return rgb
         self.warn(tex, f"texture '{tp.type}' is not supported: a grey of 0.5 is used", key=("texture", tp.type))
         return (0.5, 0.5, 0.5)
 
+    def texture(self, tex: _Node) -> Texture:
+        """The Texture of a bitmap or checkerboard node (one object per node:
+        a texture referenced twice is stored once)."""
+        key = ("texture", id(tex))
+        if key in self.materials:
+            return self.materials[key]
+        tp = self.props(tex)
+        name = f"{tex.where()}: {tex.label()}"
+        to_uv = tp.transform("to_uv")
+        try:
+            if tp.type == "checkerboard":
+                t = Texture("checkerboard", color0=tp.color("color0", 0.4), color1=tp.color("color1", 0.2),
+                            to_uv=to_uv, name=name)
+            else:
+                filt = self._choice(tp, "filter_type", FILTERS, "bilinear")
+                wrap = self._choice(tp, "wrap_mode", WRAP_MODES, "repeat")
+                path = self.resolve(tex, tp.string("filename") or tex.fail("missing property 'filename'"))
+                raw = tp.boolean("raw", False)
+                try:
+                    data = load_bitmap(path, raw)
+                except (ImageError, OSError) as e:
+                    tex.fail(f"cannot read {path}: {e}")
+                t = Texture("bitmap", data=data, filter=filt, wrap=wrap, to_uv=to_uv, name=name)
+        except SceneError as e:
+            if str(e).startswith(name):
+                raise
+            tex.fail(str(e))
+        tp.finish(quiet=("format",))
+        self.materials[key] = t
+        return t
+
+    @staticmethod
+    def _choice(tp: _Props, prop: str, known: tuple, default: str) -> str:
+        v = tp.string(prop, default)
+        if v not in known:
+            tp.props[prop].fail(f"unknown {prop} {v!r}{_suggest(v, known)}; known: {', '.join(known)}")
+        return v
+
     def _bitmap_mean(self, tex: _Node, tp: _Props):
         path = self.resolve(tex, tp.string("filename") or tex.fail("missing property 'filename'"))
-        raw = tp.boolean("raw", False)
         try:
-            img = np.asarray(load_image(path), dtype=np.float64)
+            img = load_bitmap(path, tp.boolean("raw", False)).astype(np.float64)
         except (ImageError, OSError) as e:
             tex.fail(f"cannot read {path}: {e}")
-        if img.ndim == 2:
-            img = img[:, :, None]
-        img = img[:, :, :3] if img.shape[2] >= 3 else np.repeat(img[:, :, :1], 3, axis=2)
-        if not raw and path.suffix.lower() not in (".exr", ".hdr", ".pfm"):
-            # 8-bit images hold sRGB-encoded values (as Mitsuba assumes unless raw).
-            img = np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4)
         return tuple(float(c) for c in np.clip(img.reshape(-1, 3).mean(axis=0), 0.0, 1.0))
 
     # --- BSDFs ---------------------------------------------------------------------------------
@@ -743,13 +831,14 @@ class _Loader:
                                 "sides", key=("twosided2",))
             m = replace(self.bsdf(inner[0]), one_sided=False)
         elif t == "diffuse":
-            m = Material(kd=p.color("reflectance", 0.5), one_sided=True)
+            kd, tex = p.textured("reflectance", 0.5)
+            m = Material(kd=kd, one_sided=True, textures=_slots(reflectance=tex))
         elif t == "conductor":
             spec = np.array(p.color("specular_reflectance", 1.0)) * self._conductor_albedo(p)
             m = Material(kr=tuple(spec), one_sided=True)
         elif t == "roughconductor":
             # The microfacet lobe itself (kernels/microfacet.h), Fresnel from eta + i k per channel.
-            spec = p.color("specular_reflectance", 1.0)
+            spec, spec_tex = p.textured("specular_reflectance", 1.0)
             eta, k = self._conductor_ior(p)
             dist = p.string("distribution", "beckmann")  # Mitsuba 3's default
             if dist not in DISTRIBUTIONS:
@@ -757,7 +846,7 @@ class _Loader:
                                              f"known: {', '.join(DISTRIBUTIONS)}")
             p.boolean("sample_visible", True)  # either way the same expectation; clpt samples visible normals
             m = Material(km=tuple(spec), alpha=min(self._alpha(p), ALPHA_RANGE[1]), distribution=dist,
-                         eta=eta, k=k, one_sided=True)
+                         eta=eta, k=k, one_sided=True, textures=_slots(specular=spec_tex))
         elif t in ("dielectric", "roughdielectric", "thindielectric"):
             eta = p.ior("int_ior", "bk7") / p.ior("ext_ior", "air")
             refl = np.array(p.color("specular_reflectance", 1.0))
@@ -781,7 +870,7 @@ class _Loader:
         elif t in ("plastic", "roughplastic"):
             # The coated diffuse lobe itself (kernels/bsdf.h plastic_*, clpt/coating.py).
             eta = p.ior("int_ior", "polypropylene") / p.ior("ext_ior", "air")
-            kd = p.color("diffuse_reflectance", 0.5)
+            kd, kd_tex = p.textured("diffuse_reflectance", 0.5)
             spec = p.color("specular_reflectance", 1.0)
             nonlinear = p.boolean("nonlinear", False)
             if abs(eta - 1.0) < 1e-6:
@@ -798,7 +887,7 @@ class _Loader:
                 m = Material(one_sided=True)  # black
             else:
                 m = Material(plastic=True, kp=tuple(kd), kps=tuple(spec), alpha=alpha, distribution=dist,
-                             plastic_eta=eta, nonlinear=nonlinear, one_sided=True)
+                             plastic_eta=eta, nonlinear=nonlinear, one_sided=True, textures=_slots(reflectance=kd_tex))
         elif t in ("bumpmap", "normalmap", "mask"):
             inner = p.nested("bsdf")
             if not inner:
@@ -907,7 +996,9 @@ class _Loader:
             for _ in p.nested(obj_tag):
                 self.warn(node, f"a {obj_tag} inside a shape is not supported; ignored", key=("shape", obj_tag))
         if t == "rectangle":
-            out.append(self._parallelogram(m, (-1, -1, 0), (2, 0, 0), (0, 2, 0), flip, kw))
+            # Mitsuba's (u, v) = ((x + 1) / 2, (y + 1) / 2) of the local point.
+            out.append(self._parallelogram(m, (-1, -1, 0), (2, 0, 0), (0, 2, 0), flip, kw,
+                                           uv=((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))))
         elif t == "cube":
             for axis in range(3):
                 a1, a2 = (axis + 1) % 3, (axis + 2) % 3
@@ -917,7 +1008,7 @@ class _Loader:
                     u[a1], v[a2] = 2.0, 2.0
                     if side < 0:
                         u, v = v, u
-                    out.append(self._parallelogram(m, c, u, v, flip, kw))
+                    out.append(self._parallelogram(m, c, u, v, flip, kw, uv=_cube_face_uv(axis, side, c, u, v)))
         elif t == "sphere":
             center = _apply(m, p.point("center", (0.0, 0.0, 0.0)))
             r = p.float("radius", 1.0, lo=0.0)
@@ -929,7 +1020,10 @@ class _Loader:
                 self.warn(node, "flip_normals on a sphere is not supported: it is made two-sided (reflecting "
                                 "and emitting on both sides)", key=("flip_sphere",))
                 kw = dict(kw, material=replace(mat, one_sided=False), two_sided=True)
-            out.append(Sphere(center=_floats3(center), radius=r * float(np.mean(sv)), **kw))
+            # Mitsuba's (u, v) come from the direction in the sphere's own frame: to_world's rotation undone.
+            frame = np.linalg.inv(m[:3, :3]) * float(np.mean(sv))
+            out.append(Sphere(center=_floats3(center), radius=r * float(np.mean(sv)),
+                              uv_frame=tuple(tuple(float(x) for x in row) for row in frame), **kw))
         elif t == "disk":
             k = DISK_SEGMENTS
             ang = 2 * math.pi * np.arange(k) / k
@@ -962,12 +1056,13 @@ class _Loader:
             if index < 0:
                 p.props["shape_index"].fail(f"must be >= 0 (got {index})")
             try:
-                verts, tris, normals = read_mesh(path, shape_index=index)
+                verts, tris, normals, uvs = read_mesh_uv(path, shape_index=index)
             except (SceneError, ValueError, OSError) as e:
                 node.fail(str(e))
             face_normals = p.boolean("face_normals", False)
-            if t == "obj":
-                p.boolean("flip_tex_coords")
+            if t == "obj" and uvs is not None and p.boolean("flip_tex_coords", True):
+                uvs = np.stack([uvs[:, 0], 1.0 - uvs[:, 1]], axis=1)  # Mitsuba's default for OBJ files
+            kw = dict(kw, uvs=uvs)
             if t in ("obj", "ply") and p.has("max_smooth_angle"):  # Mitsuba 0.6's crease angle (maxSmoothAngle)
                 p.float("max_smooth_angle")
                 self.warn(node, "max_smooth_angle (Mitsuba 0.6) is not supported: normals are computed as "
@@ -979,7 +1074,7 @@ class _Loader:
             return
         p.finish()
 
-    def _parallelogram(self, m, c, u, v, flip, kw):
+    def _parallelogram(self, m, c, u, v, flip, kw, uv):
         c, u, v = (np.asarray(a, dtype=np.float64) for a in (c, u, v))
         corner = _apply(m, c)
         eu, ev = m[:3, :3] @ u, m[:3, :3] @ v
@@ -987,7 +1082,8 @@ class _Loader:
         # cofactor, which differs by det(m): a mirroring transform keeps Mitsuba's normal.
         if (np.linalg.det(m[:3, :3]) < 0) != flip:
             eu, ev = ev, eu
-        return Quad(corner=_floats3(corner), edge_u=_floats3(eu), edge_v=_floats3(ev), **kw)
+            uv = (uv[0], uv[2], uv[1])
+        return Quad(corner=_floats3(corner), edge_u=_floats3(eu), edge_v=_floats3(ev), uv=uv, **kw)
 
     def _file_mesh(self, node, verts, tris, normals, smooth, m, flip, kw):
         """A mesh read from a file, as Mitsuba 3 makes it. With the file's own

@@ -7,7 +7,9 @@ sections:
 
   materials, spheres, quads, triangles, planes, lights, caustic casters,
   then BVH nodes and leaf blocks (which hold their items' records), vertex
-  normals and mesh-light triangles.
+  normals, mesh-light triangles, rough plastics' tables and, in scenes with
+  textures, the TEXTURE records, one UV record per primitive and last the
+  texels (3 reals each, every texture from a row of its own).
 
 Scenes with fewer than BVH_MIN_PRIMS bounded primitives keep them in the
 plain sections, which the kernels loop over; larger ones put every sphere,
@@ -27,7 +29,8 @@ from . import coating, layout
 from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_POINT, KIND_QUAD,
                      KIND_SPHERE, KIND_SPOT, KIND_TRIANGLE, Rows)
 from .meshio import cross_rows
-from .scene import Camera, Material, Scene, SceneError, Sphere, SpotLight, length_scale
+from .scene import DEFAULT_UV, Camera, Material, Scene, SceneError, Sphere, SpotLight, length_scale
+from .texture import FILTERS, KINDS, WRAP_MODES
 
 # Records are referred to as layout.NAME where they are filled (a test reorders their fields).
 MAT_STRIDE = layout.MATERIAL.stride
@@ -64,6 +67,8 @@ class PackedScene:
     bvh: object = None           # the clpt.bvh.Tree, when the scene has one
     primitives: int = 0          # bounded primitives (spheres, quads, triangles)
     pixel_filter: str = "box"    # the camera's pixel filter kind (its parameters go in each launch record)
+    textures: tuple = ()         # the distinct clpt.texture.Texture objects the materials use
+    texel_rows: int = 0          # the records' last rows: texels (not indexed by reals)
 
     @property
     def lum_scale(self) -> float:
@@ -108,6 +113,11 @@ class PackedScene:
     @property
     def has_glass(self) -> bool:
         return any(max(m.kt) > 0 for m in self.materials)
+
+    @property
+    def indexed_rows(self) -> int:
+        """The records indexed by reals (every one but the texels)."""
+        return len(self.records) - self.texel_rows
 
     @property
     def has_caustics(self) -> bool:
@@ -156,7 +166,7 @@ def _coat_tables(mat_recs, materials, base: int) -> np.ndarray:
 
 
 def _material_records(materials) -> np.ndarray:
-    """MATERIAL records of the materials, in order."""
+    """MATERIAL records of the materials, in order (texture pointers: _texture_records)."""
     out = layout.MATERIAL.zeros(len(materials))
     for rec, m in zip(out, materials):
         p_d, p_s, p_r, p_t, p_m = lobe_probabilities(m)
@@ -173,7 +183,8 @@ def _material_records(materials) -> np.ndarray:
                 _, fdr = coating.rough_tables(float(m.alpha), m.distribution, eta)
             else:
                 fdr = coating.fresnel_diffuse_reflectance(1.0 / eta)
-            d_mean, s_mean = float(np.mean(m.kp)), float(np.mean(m.kps))
+            kp_tex = m.texture("reflectance")
+            d_mean, s_mean = float(np.mean(kp_tex.mean() if kp_tex else m.kp)), float(np.mean(m.kps))
             w = s_mean / (d_mean + s_mean) if d_mean + s_mean > 0 else 0.5
             rec["kp_pp"] = (*m.kp, plastic_probability(m))
             rec["kps_w"] = (*m.kps, w)
@@ -184,6 +195,56 @@ def _material_records(materials) -> np.ndarray:
             rec["km_pm"] = (*m.km, p_m)
             rec["eta_alpha"] = (*m.eta, m.alpha)
             rec["k_dist"] = (*m.k, 1.0 if m.distribution == "beckmann" else 0.0)
+    return out
+
+
+def _texture_records(mat_recs, materials, base: int):
+    """TEXTURE records of the materials' distinct textures from record index
+    base, then the UV section's and the texels' first rows: (textures, their
+    records, texel rows); each material record's coat_tab.z and .w point to
+    its reflectance and specular textures. The UV section follows the
+    TEXTURE records; the texels follow it (uv_rows of them)."""
+    textures = []
+    for m in materials:
+        for _, t in m.textures:
+            if not any(t is x for x in textures):
+                textures.append(t)
+    recs = layout.TEXTURE.zeros(len(textures))
+    for rec, m in zip(mat_recs, materials):
+        for col, slot in ((2, "reflectance"), (3, "specular")):
+            t = m.texture(slot)
+            if t is not None:
+                rec["coat_tab"][col] = base + layout.TEXTURE.stride * next(k for k, x in enumerate(textures)
+                                                                           if x is t)
+    return textures, recs
+
+
+def _texel_rows(textures, recs, uv_base: int, texel_base: int) -> np.ndarray:
+    """The textures' texels as rows of 4 reals from record index texel_base
+    (each texture from a row of its own), filling their records."""
+    rows, at = [], texel_base
+    for rec, t in zip(recs, textures):
+        h, w = (t.data.shape[:2] if t.data is not None else (0, 0))
+        rec["kind_size"] = (KINDS.index(t.kind), w, h, WRAP_MODES.index(t.wrap))
+        rec["data"] = (at // layout.TEX_ROW_SPLIT, at % layout.TEX_ROW_SPLIT, FILTERS.index(t.filter), uv_base)
+        rec["uv_u"][:3], rec["uv_v"][:3] = t.to_uv
+        rec["color0"][:3], rec["color1"][:3] = t.color0, t.color1
+        if t.data is not None:
+            flat = t.data.reshape(-1).astype(np.float64)
+            flat = np.concatenate([flat, np.zeros(-len(flat) % 4)])
+            rows.append(flat.reshape(-1, 4))
+            at += len(rows[-1])
+    return np.concatenate(rows) if rows else np.zeros((0, 4))
+
+
+def _planar_uv(uv, m: int) -> np.ndarray:
+    """UV records of m planar primitives of one (u, v) parametrisation
+    ((u0, v0), change along edge u, change along edge v), or of (m, 3, 2)."""
+    a = np.broadcast_to(np.asarray(uv, dtype=np.float64), (m, 3, 2))
+    out = layout.UV.zeros(m)
+    out["a"] = np.concatenate([a[:, 0], a[:, 1]], axis=1)
+    out["b"][:, :2] = a[:, 2]
+    out["b"][:, 3] = layout.UV_PLANAR
     return out
 
 
@@ -269,6 +330,7 @@ class _Builder:
         self.n_prims = 0    # every primitive, planes included, has an id
         self.n_bounded = 0
         self.bounds = []    # (lo, hi) blocks of the bounded primitives, in prim order
+        self.uvs = None     # UV record blocks in prim order (a list, when the scene has textures)
 
     def _light1(self, m):
         """The light record index + 1 a primitive of material m will have (0: none)."""
@@ -285,13 +347,21 @@ class _Builder:
         c = np.array(p.center, dtype=np.float64)
         prim = self._prims(1)[0]
         self.spheres.append((c, float(p.radius), mid, prim, self._light1(m)))
+        if self.uvs is not None:
+            f = np.asarray(p.uv_frame, dtype=np.float64)
+            rec = layout.UV.zeros(1)
+            rec["a"] = (*f[0], 1.0 if np.linalg.det(f) >= 0 else -1.0)
+            rec["b"] = (*f[1], layout.UV_SPHERE)
+            self.uvs.append(rec)
         self.bounds.append((c[None] - p.radius, c[None] + p.radius))
         if m.is_emissive:
             self.lights.append((_sides(m), p.area(), m, {"p_kind": (*c, LIGHT_KIND_SPHERE),
                                                          "u": (p.radius, 0.0, 0.0, 0.0)}, mid, None))
 
-    def planar(self, c, u, v, mat, triangle: bool, light: bool):
+    def planar(self, c, u, v, mat, triangle: bool, light: bool, uv=DEFAULT_UV):
         mid, m = mat
+        if self.uvs is not None:
+            self.uvs.append(_planar_uv(uv, 1))
         kind = KIND_TRIANGLE if triangle else KIND_QUAD
         recs, n, ln = _planar_array(c[None], u[None], v[None], mid, ITEM_FLAT_TRIANGLE if triangle else ITEM_QUAD,
                                     self._prims(1), self._light1(m) if light else 0.0)
@@ -323,6 +393,8 @@ class _Builder:
         mid, _ = mat
         n = np.array(p.normal, dtype=np.float64)
         self.planes.append((p.point, n / np.linalg.norm(n), mid, self._prims(1, bounded=False)[0]))
+        if self.uvs is not None:
+            self.uvs.append(_planar_uv(((0.0, 0.0), (0.0, 0.0), (0.0, 0.0)), 1))  # no parametrisation
 
     def mesh(self, p, mat):
         mid, m = mat
@@ -331,6 +403,12 @@ class _Builder:
         u, w = v1 - v0, v2 - v0
         recs, n, ln = _planar_array(v0, u, w, mid, ITEM_FLAT_TRIANGLE, self._prims(len(t)), self._light1(m))
         self.blocks[KIND_TRIANGLE].append(recs)
+        if self.uvs is not None:
+            if p.uvs is None:
+                self.uvs.append(_planar_uv(DEFAULT_UV, len(t)))
+            else:
+                t0 = p.uvs[t[:, 0]]
+                self.uvs.append(_planar_uv(np.stack([t0, p.uvs[t[:, 1]] - t0, p.uvs[t[:, 2]] - t0], axis=1), len(t)))
         self.bounds.append((np.minimum(np.minimum(v0, v1), v2), np.maximum(np.maximum(v0, v1), v2)))
         if p.normals is not None:
             self.normals.append((recs, p.normals[t]))
@@ -393,6 +471,8 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
         scene = scene.scaled(scale)
     surfaces: dict[Material, int] = {}
     b = _Builder()
+    if any(scene.surface(p).textures for _, p in scene.primitives()):
+        b.uvs = []
     for _, p in scene.primitives():
         m = scene.surface(p)
         p.pack(b, (float(surfaces.setdefault(m, len(surfaces))), m))
@@ -509,8 +589,17 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     coat_base = ltri_base + len(ltri_recs)
     coat_recs = _coat_tables(mat_recs, list(surfaces), coat_base)
 
+    # Textures: their records, the primitives' (u, v) and the texels (scenes with textures only).
+    tex_base = coat_base + len(coat_recs)
+    textures, tex_recs = _texture_records(mat_recs, list(surfaces), tex_base)
+    uv_recs = np.concatenate(b.uvs) if textures else layout.UV.zeros(0)
+    uv_base = tex_base + len(Rows.rows(tex_recs))
+    texel_base = uv_base + len(Rows.rows(uv_recs))
+    texels = _texel_rows(textures, tex_recs, uv_base, texel_base)
+
     records = np.concatenate([Rows.rows(x) for x in sections] +
-                             [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs, coat_recs])
+                             [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs, coat_recs, Rows.rows(tex_recs),
+                              Rows.rows(uv_recs), texels])
     n_nodes = wide.n_nodes if use_bvh else 0
     counts = (n_mat, len(sphere_plain), len(quads), len(tris), len(planes), len(lights), len(caustics), n_nodes)
     kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere",
@@ -523,7 +612,8 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,
                        max_radiance=max((max(m.emission) for _, _, m, *_ in lights), default=1.0),
                        smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale,
-                       pixel_filter=scene.camera.pixel_filter.kind)
+                       pixel_filter=scene.camera.pixel_filter.kind, textures=tuple(textures),
+                       texel_rows=len(texels))
 
 
 @dataclass(frozen=True)

@@ -61,8 +61,8 @@ from .layout import c_source
 from .resources import cache_dir, kernel_dir
 
 # Device libraries in dependency order; entry files (*.cl) come after them.
-LIBRARY_FILES = ("features.h", "simd.h", "rng.h", "sampler.h", "sampling.h", "scene.h", "bvh.h", "lights.h",
-                 "photon_aim.h", "camera.h", "film.h", "microfacet.h", "bsdf.h",
+LIBRARY_FILES = ("features.h", "simd.h", "rng.h", "sampler.h", "sampling.h", "scene.h", "bvh.h", "texture.h",
+                 "lights.h", "photon_aim.h", "camera.h", "film.h", "microfacet.h", "bsdf.h",
                  "photon_grid.h")
 
 

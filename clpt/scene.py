@@ -30,6 +30,14 @@ from .hostio import open_regular_file
 from .meshio import check_mesh, compose, cross_rows, norm_rows, read_mesh, transform_mesh
 from .presets import PRESETS
 from .spectrum import conductor_ior
+from .texture import Texture
+
+# Material.textures slots: "reflectance" (kd, or kp of a plastic), "specular" (km, or kr).
+TEXTURE_SLOTS = ("reflectance", "specular")
+# A planar primitive's default (u, v): the corner's, and its change along
+# edge_u and along edge_v (a triangle's: its barycentrics of v1 and v2, as
+# Mitsuba gives a mesh without texture coordinates).
+DEFAULT_UV = ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
 
 Vec3 = tuple[float, float, float]
 
@@ -58,6 +66,10 @@ class Material:
     with specular_reflectance kps over a diffuse base of diffuse_reflectance
     kp, with its internal scattering (clpt/coating.py); the material's only
     lobe (`Material.rough_plastic`, `Material.smooth_plastic`).
+    textures: ((slot, clpt.texture.Texture), ...): "reflectance" varies kd
+    (kp of a plastic), "specular" km (or kr) over the surface by its
+    (u, v); the colour field then holds the texture's largest value per
+    channel (the bound lobe probabilities and energy checks use).
     emission is radiance leaving the surface (on the side its normal points
     to, or both sides if two_sided). one_sided makes the surface black from
     behind (the side its normal points away from): no reflection, no
@@ -83,6 +95,7 @@ class Material:
     kps: Vec3 = (1.0, 1.0, 1.0)
     plastic_eta: float = 1.49 / 1.000277
     nonlinear: bool = False
+    textures: tuple = ()
 
     def __post_init__(self):
         # Types now (a clear TypeError at the mistake); ranges in check_material.
@@ -100,6 +113,16 @@ class Material:
         for key in ("two_sided", "plastic", "nonlinear"):
             if not isinstance(getattr(self, key), (bool, np.bool_)):
                 raise TypeError(f"Material.{key} must be True or False (got {getattr(self, key)!r})")
+        slots = [s for s, _ in self.textures] if isinstance(self.textures, tuple) and \
+            all(isinstance(x, tuple) and len(x) == 2 for x in self.textures) else None
+        if slots is None or any(s not in TEXTURE_SLOTS for s in slots) or len(set(slots)) != len(slots) or \
+                not all(isinstance(t, Texture) for _, t in self.textures):
+            raise TypeError(f"Material.textures must be ((slot, clpt.texture.Texture), ...) with slots among "
+                            f"{', '.join(TEXTURE_SLOTS)}, each once (got {self.textures!r})")
+
+    def texture(self, slot: str):
+        """The Texture in a slot ("reflectance": kd, or kp of a plastic; "specular": km, or kr), or None."""
+        return next((t for s, t in self.textures if s == slot), None)
 
     @classmethod
     def preset(cls, name: str, **overrides) -> "Material":
@@ -278,8 +301,13 @@ class _ShapeBase:
 
 @dataclass(frozen=True)
 class Sphere(_ShapeBase):
+    """uv_frame: the rows of the rotation from world to the sphere's own
+    frame, in which (u, v) = (phi / 2 pi, theta / pi) of the direction from
+    its centre (Mitsuba 3's sphere parametrisation)."""
+
     center: Vec3 = (0.0, 0.0, 0.0)
     radius: float = 1.0
+    uv_frame: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
 
     def check(self, src, path):
         _finite_vec(src, f"{path}.center", self.center)
@@ -301,6 +329,7 @@ class Triangle(_ShapeBase):
     """Triangle v0 v1 v2; its front face is given by the right-hand rule."""
 
     vertices: tuple[Vec3, Vec3, Vec3] = ((0.0, 0.0, 0.0), (1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+    uv: tuple = DEFAULT_UV  # (u, v) at v0, and its change towards v1 and towards v2
 
     def check(self, src, path):
         if len(self.vertices) != 3:
@@ -317,7 +346,7 @@ class Triangle(_ShapeBase):
 
     def pack(self, b, mat):
         v0, v1, v2 = self.points()
-        b.planar(v0, v1 - v0, v2 - v0, mat, triangle=True, light=True)
+        b.planar(v0, v1 - v0, v2 - v0, mat, triangle=True, light=True, uv=self.uv)
 
 
 @dataclass(frozen=True)
@@ -330,6 +359,7 @@ class Quad(_ShapeBase):
     corner: Vec3 = (0.0, 0.0, 0.0)
     edge_u: Vec3 = (1.0, 0.0, 0.0)
     edge_v: Vec3 = (0.0, 1.0, 0.0)
+    uv: tuple = DEFAULT_UV  # (u, v) at the corner, and its change along edge_u and along edge_v
 
     @classmethod
     def from_vertices(cls, vertices, **kw) -> "Quad":
@@ -365,7 +395,7 @@ class Quad(_ShapeBase):
 
     def pack(self, b, mat):
         c, u, v = (np.array(a, dtype=np.float64) for a in (self.corner, self.edge_u, self.edge_v))
-        b.planar(c, u, v, mat, triangle=False, light=True)
+        b.planar(c, u, v, mat, triangle=False, light=True, uv=self.uv)
 
 
 @dataclass(frozen=True)
@@ -457,17 +487,27 @@ class Mesh(_ShapeBase):
 
     vertices (N, 3) floats, triangles (M, 3) vertex indices (front faces by
     the right-hand rule), normals (N, 3) per-vertex shading normals or None
-    (flat shading). The arrays are checked and copied (float64, int64,
-    read-only); degenerate triangles are dropped with one warning.
-    Mesh.from_file reads OBJ or PLY (clpt.meshio)."""
+    (flat shading), uvs (N, 2) per-vertex texture coordinates or None (each
+    triangle's barycentrics of v1 and v2, as Mitsuba). The arrays are checked
+    and copied (float64, int64, read-only); degenerate triangles are dropped
+    with one warning. Mesh.from_file reads OBJ or PLY (clpt.meshio)."""
 
     vertices: np.ndarray = None
     triangles: np.ndarray = None
     normals: np.ndarray | None = None
+    uvs: np.ndarray | None = None
 
     def __post_init__(self):
         v, t, n = check_mesh(self.vertices, self.triangles, self.normals,
                              source=f"mesh {self.name!r}" if self.name else "mesh")
+        uv = None
+        if self.uvs is not None:
+            uv = np.array(self.uvs, dtype=np.float64)
+            if uv.shape != (len(v), 2) or not np.isfinite(uv).all():
+                raise MeshError(f"mesh {self.name!r}: uvs must be finite, one (u, v) per vertex, shape "
+                                f"{(len(v), 2)} (got {uv.shape})")
+            uv.setflags(write=False)
+        object.__setattr__(self, "uvs", uv)
         for a in (v, t, n):
             if a is not None:
                 a.setflags(write=False)

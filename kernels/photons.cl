@@ -77,6 +77,9 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
         Hit h = scene_intersect(sc, o, d);
         live = live && h.t < R(INFINITY);
         Material m = material_fetch(sc, h.mat);
+#if CLPT_HAS_TEXTURES
+        material_textures(sc, &m, &h, live);
+#endif
         V3 x = v3_fma(d, h.t, o);
         vmask front = v3_dot(h.ng, d) < R(0);
         live = live && (front || m.one_sided == R(0));  // a one-sided surface absorbs from behind

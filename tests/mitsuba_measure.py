@@ -13,6 +13,8 @@ in the tests (and clpt/data/mitsuba_ior.json) were produced:
         tests/data/cbox_blob_mitsuba.json spp=16384                         # a render's block means
     MI_VARIANT=llvm_ad_rgb python tests/mitsuba_measure.py --reference tests/data/cbox_lamp_gaussian.xml \
         tests/data/cbox_lamp_gaussian_mitsuba.json spp=16384
+    MI_VARIANT=llvm_ad_rgb python tests/mitsuba_measure.py --reference tests/data/cbox_textured.xml \
+        tests/data/cbox_textured_mitsuba.json spp=8192                      # textures (tests/texgen.py first)
 """
 
 import json

@@ -1,0 +1,164 @@
+"""Textures: Mitsuba 3's `bitmap` and `checkerboard`, on the host.
+
+A Texture is looked up at a surface point's (u, v) after its to_uv affine
+map, as Mitsuba 3 does:
+
+- bitmap: an H x W RGB image of linear values (an 8-bit sRGB file is decoded
+  to linear once, on loading, unless raw: Mitsuba filters the decoded
+  values). Texel (i, j) (column, row; row 0 the file's first) covers
+  [i, i+1)/W x [j, j+1)/H. nearest: the texel under (u W, v H); bilinear:
+  the four texels around (u W - 1/2, v H - 1/2), weighted by distance. Each
+  texel index is wrapped by wrap_mode: repeat (modulo), mirror (period 2W,
+  the second half reversed) or clamp.
+- checkerboard: color0 where the fractional parts of u and v are both above
+  1/2 or both at most 1/2, color1 elsewhere.
+
+``eval`` is the numpy reference the kernels (kernels/texture.h) are tested
+against. ``TEXEL_BYTES`` is what a texel takes on the device (kernels
+texture.h reads 3 reals a texel from the scene's records).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SceneError
+
+FILTERS = ("bilinear", "nearest")
+WRAP_MODES = ("repeat", "mirror", "clamp")
+KINDS = ("bitmap", "checkerboard")
+# Formats whose values are linear already (everything else is read as sRGB-encoded unless raw).
+LINEAR_SUFFIXES = (".exr", ".hdr", ".pfm")
+TEXEL_BYTES = {False: 12, True: 24}  # float builds, double builds: 3 reals a texel
+
+
+def srgb_to_linear(x: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function, inverted (IEC 61966-2-1), as Mitsuba decodes 8-bit images."""
+    x = np.asarray(x, dtype=np.float64)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
+def _affine(to_uv) -> tuple:
+    """A 2x3 uv map (rows (a, b, c), (d, e, f): u' = a u + b v + c) from a
+    4x4 to_uv transform (Mitsuba keeps its x and y rows, columns x, y and the
+    translation) or a 2x3/3x3 array."""
+    m = np.asarray(to_uv, dtype=np.float64)
+    if m.shape == (4, 4):
+        m = m[:2][:, [0, 1, 3]]
+    elif m.shape in ((3, 3), (2, 3)):
+        m = m[:2]
+    else:
+        raise SceneError(f"a texture's to_uv must be a 4x4, 3x3 or 2x3 matrix (got shape {m.shape})")
+    if not np.isfinite(m).all():
+        raise SceneError("a texture's to_uv must be finite")
+    return tuple(tuple(float(x) for x in row) for row in m)
+
+
+@dataclass(frozen=True, eq=False)
+class Texture:
+    """kind "bitmap" (data: H x W x 3 linear float32) or "checkerboard"
+    (color0, color1); filter, wrap and to_uv as Mitsuba 3's. Compared and
+    hashed by identity: one texture, one device copy."""
+
+    kind: str
+    data: np.ndarray | None = None
+    color0: tuple = (0.4, 0.4, 0.4)
+    color1: tuple = (0.2, 0.2, 0.2)
+    filter: str = "bilinear"
+    wrap: str = "repeat"
+    to_uv: tuple = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+    name: str = field(default="texture")
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise SceneError(f"{self.name}: unknown texture kind {self.kind!r}; known: {', '.join(KINDS)}")
+        if self.filter not in FILTERS:
+            raise SceneError(f"{self.name}: filter_type must be one of {', '.join(FILTERS)} (got {self.filter!r})")
+        if self.wrap not in WRAP_MODES:
+            raise SceneError(f"{self.name}: wrap_mode must be one of {', '.join(WRAP_MODES)} (got {self.wrap!r})")
+        object.__setattr__(self, "to_uv", _affine(self.to_uv))
+        if self.kind == "bitmap":
+            d = np.asarray(self.data, dtype=np.float32)
+            if d.ndim != 3 or d.shape[2] != 3 or d.shape[0] < 1 or d.shape[1] < 1:
+                raise SceneError(f"{self.name}: a bitmap's data must be H x W x 3 (got shape {d.shape})")
+            if not np.isfinite(d).all() or d.min() < 0:
+                raise SceneError(f"{self.name}: a bitmap's texels must be finite and not negative")
+            d = np.ascontiguousarray(d)
+            d.setflags(write=False)
+            object.__setattr__(self, "data", d)
+        else:
+            for k in ("color0", "color1"):
+                c = tuple(float(x) for x in np.broadcast_to(np.asarray(getattr(self, k), dtype=np.float64), 3))
+                if not all(np.isfinite(c)) or min(c) < 0:
+                    raise SceneError(f"{self.name}: {k} must be 3 finite numbers >= 0 (got {c})")
+                object.__setattr__(self, k, c)
+
+    @property
+    def texels(self) -> int:
+        return 0 if self.data is None else self.data.shape[0] * self.data.shape[1]
+
+    def max(self) -> tuple:
+        """The largest value of each channel anywhere (filtering only mixes texels)."""
+        if self.kind == "bitmap":
+            return tuple(float(x) for x in self.data.reshape(-1, 3).max(axis=0))
+        return tuple(float(x) for x in np.maximum(self.color0, self.color1))
+
+    def mean(self) -> tuple:
+        """The mean over the texture's [0, 1)^2 (Mitsuba's Texture::mean: the texels' or the two colours')."""
+        if self.kind == "bitmap":
+            return tuple(float(x) for x in self.data.reshape(-1, 3).astype(np.float64).mean(axis=0))
+        return tuple(float(x) for x in 0.5 * (np.asarray(self.color0) + np.asarray(self.color1)))
+
+    def eval(self, uv) -> np.ndarray:
+        """RGB (..., 3) at surface coordinates uv (..., 2): the reference lookup."""
+        uv = np.asarray(uv, dtype=np.float64)
+        a = np.asarray(self.to_uv)
+        u = a[0, 0] * uv[..., 0] + a[0, 1] * uv[..., 1] + a[0, 2]
+        v = a[1, 0] * uv[..., 0] + a[1, 1] * uv[..., 1] + a[1, 2]
+        if self.kind == "checkerboard":
+            m0 = ((u - np.floor(u)) > 0.5) == ((v - np.floor(v)) > 0.5)
+            return np.where(m0[..., None], np.asarray(self.color0), np.asarray(self.color1))
+        h, w = self.data.shape[:2]
+        d = self.data.astype(np.float64)
+        if self.filter == "nearest":
+            return d[wrap_index(np.floor(v * h), h, self.wrap), wrap_index(np.floor(u * w), w, self.wrap)]
+        x, y = u * w - 0.5, v * h - 0.5
+        x0, y0 = np.floor(x), np.floor(y)
+        fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+        i0, i1 = wrap_index(x0, w, self.wrap), wrap_index(x0 + 1, w, self.wrap)
+        j0, j1 = wrap_index(y0, h, self.wrap), wrap_index(y0 + 1, h, self.wrap)
+        return (1 - fy) * ((1 - fx) * d[j0, i0] + fx * d[j0, i1]) + fy * ((1 - fx) * d[j1, i0] + fx * d[j1, i1])
+
+
+def wrap_index(i, n: int, mode: str) -> np.ndarray:
+    """Integer texel indices (as floats) wrapped into [0, n)."""
+    i = np.asarray(i, dtype=np.float64).astype(np.int64)
+    if mode == "repeat":
+        return np.mod(i, n)
+    if mode == "clamp":
+        return np.clip(i, 0, n - 1)
+    k = np.mod(i, 2 * n)
+    return np.where(k >= n, 2 * n - 1 - k, k)
+
+
+def load_bitmap(path: Path, raw: bool = False) -> np.ndarray:
+    """An image file as H x W x 3 linear float32 texels: grey repeated, alpha
+    dropped; 8-bit (and other non-float) formats decoded from sRGB unless raw,
+    as Mitsuba 3's bitmap texture does. An unreadable file raises ImageError or OSError."""
+    from .image import load_image
+
+    img = np.asarray(load_image(path), dtype=np.float64)
+    if img.ndim == 2:
+        img = img[:, :, None]
+    img = img[:, :, :3] if img.shape[2] >= 3 else np.repeat(img[:, :, :1], 3, axis=2)
+    if not raw and Path(path).suffix.lower() not in LINEAR_SUFFIXES:
+        img = srgb_to_linear(img)
+    return img.astype(np.float32)
+
+
+def device_bytes(textures, double: bool = False) -> int:
+    """What the textures' texels take in the scene's records on the device."""
+    return sum(t.texels for t in textures) * TEXEL_BYTES[bool(double)]

@@ -1,0 +1,153 @@
+// texture.h: Mitsuba 3's bitmap and checkerboard textures, looked up at a
+// hit's (u, v) (clpt/texture.py is the reference and says what each mode
+// does). Compiled only when CLPT_HAS_TEXTURES: a scene without textures
+// builds none of it.
+//
+// Records (clpt/layout.py): a material's coat_tab.z and .w are the TEXTURE
+// records of its reflectance (kd, or kp of a plastic) and specular
+// reflectance (km, or kr); 0 for none. A TEXTURE record points to its texels
+// (3 reals each, row by row, from a record of its own, at the records' end:
+// indexed as integers, past the 2^24 records float reals index) and to the
+// UV section, one UV record per primitive id, from which hit_uv forms the
+// hit's (u, v): a quad's or triangle's from the hit's edge coordinates
+// (Hit.bu, .bv), a sphere's from its normal in the sphere's own frame.
+
+#if CLPT_HAS_TEXTURES
+#define TEX_PI R(3.14159265358979323846)
+
+// Texel index i wrapped into [0, n) as the mode says (repeat, mirror, clamp).
+inline int texture_wrap(int i, int n, int mode)
+{
+    if (mode == TEX_CLAMP)
+        return clamp(i, 0, n - 1);
+    int p = mode == TEX_MIRROR ? 2 * n : n;
+    int k = i % p;
+    k = k < 0 ? k + p : k;
+    return k >= n ? p - 1 - k : k;
+}
+
+// floor(x) as an int, bounded (a NaN or huge coordinate gives a texel, never a wild index).
+inline int texture_floor(real x)
+{
+    return (int)floor(fmin(fmax(x, R(-1e9)), R(1e9)));
+}
+
+inline real4 texture_texel(const Scene *sc, ulong first, int w, int i, int j)
+{
+    __global const real *t = (__global const real *)sc->rec + first + 3 * ((ulong)j * (ulong)w + (ulong)i);
+    return (real4)(t[0], t[1], t[2], R(0));
+}
+
+// The RGB of the TEXTURE record at row r at surface coordinates (u, v).
+inline real4 texture_eval(const Scene *sc, uint r, real u, real v)
+{
+    real4 ks = scene_rec(sc, r + TEX_KIND_SIZE), dt = scene_rec(sc, r + TEX_DATA);
+    real4 mu = scene_rec(sc, r + TEX_UV_U), mv = scene_rec(sc, r + TEX_UV_V);
+    real tu = mu.x * u + mu.y * v + mu.z, tv = mv.x * u + mv.y * v + mv.z;
+    if ((int)ks.x == TEX_CHECKERBOARD) {
+        int m0 = (tu - floor(tu) > R(0.5)) == (tv - floor(tv) > R(0.5));
+        return scene_rec(sc, r + (m0 ? TEX_COLOR0 : TEX_COLOR1));
+    }
+    int w = (int)ks.y, h = (int)ks.z, wrap = (int)ks.w;
+    ulong first = 4 * ((ulong)dt.x * TEX_ROW_SPLIT + (ulong)dt.y);
+    if ((int)dt.z == TEX_NEAREST)
+        return texture_texel(sc, first, w, texture_wrap(texture_floor(tu * w), w, wrap),
+                             texture_wrap(texture_floor(tv * h), h, wrap));
+    // Bilinear: the four texels whose centres surround the point.
+    real x = tu * w - R(0.5), y = tv * h - R(0.5);
+    int x0 = texture_floor(x), y0 = texture_floor(y);
+    real fx = x - (real)x0, fy = y - (real)y0;
+    int i0 = texture_wrap(x0, w, wrap), i1 = texture_wrap(x0 + 1, w, wrap);
+    int j0 = texture_wrap(y0, h, wrap), j1 = texture_wrap(y0 + 1, h, wrap);
+    return (R(1) - fy) * ((R(1) - fx) * texture_texel(sc, first, w, i0, j0) + fx * texture_texel(sc, first, w, i1, j0))
+           + fy * ((R(1) - fx) * texture_texel(sc, first, w, i0, j1) + fx * texture_texel(sc, first, w, i1, j1));
+}
+
+// The (u, v) of primitive prim hit at edge coordinates (bu, bv) with unit
+// geometric normal n (a sphere's: outward), from the UV section at uv_base.
+inline real4 hit_uv(const Scene *sc, uint uv_base, real prim, real bu, real bv, real4 n)
+{
+    uint r = uv_base + UV_STRIDE * (uint)prim;
+    real4 a = scene_rec(sc, r + UV_A), b = scene_rec(sc, r + UV_B);
+    if ((int)b.w == UV_SPHERE) {
+        real4 ez = a.w * cross(a, b);
+        real lx = dot(a.xyz, n.xyz), ly = dot(b.xyz, n.xyz), lz = dot(ez.xyz, n.xyz);
+        real phi = atan2(ly, lx);
+        phi = phi < R(0) ? phi + R(2) * TEX_PI : phi;
+        return (real4)(phi * R(0.5) / TEX_PI, acos(clamp(lz, R(-1), R(1))) / TEX_PI, R(0), R(0));
+    }
+    return (real4)(a.x + bu * a.z + bv * b.x, a.y + bu * a.w + bv * b.y, R(0), R(0));
+}
+
+// Scales lobe probability p by how much the textured colour c is of the
+// bound b the host chose it for (so a lobe weight c / p stays what an
+// untextured surface of colour c would have).
+inline real texture_prob(real p, real4 c, real b)
+{
+    return b > R(0) ? p * fmax(c.x, fmax(c.y, c.z)) / b : p;
+}
+
+// The material m of the lanes in `hit` at their hits h, its textured colours
+// looked up there (a BSDF never knows whether a colour is constant).
+inline void material_textures(const Scene *sc, Material *m, const Hit *h, vmask hit)
+{
+    for (int l = 0; l < CLPT_LANES; l++) {
+        if (!VLANE_M(hit, l))
+            continue;
+        vreal mat = h->mat;
+        real4 slots = scene_rec(sc, MAT_STRIDE * (uint)VLANE_R(mat, l) + MAT_COAT_TAB);
+        if (slots.z == R(0) && slots.w == R(0))
+            continue;
+        uint t = (uint)(slots.z > R(0) ? slots.z : slots.w);
+        vreal prim = h->prim, bu = h->bu, bv = h->bv;
+        vreal nx = h->ng.x, ny = h->ng.y, nz = h->ng.z;
+        real4 n = (real4)(VLANE_R(nx, l), VLANE_R(ny, l), VLANE_R(nz, l), R(0));
+        real4 uv = hit_uv(sc, (uint)scene_rec(sc, t + TEX_DATA).w, VLANE_R(prim, l), VLANE_R(bu, l),
+                          VLANE_R(bv, l), n);
+        if (slots.z > R(0)) {
+            real4 c = texture_eval(sc, (uint)slots.z, uv.x, uv.y);
+#if CLPT_HAS_PLASTIC
+            vreal pp = m->p_p;
+            if (VLANE_R(pp, l) > R(0)) {
+                VLANE_R(m->kp.x, l) = c.x;
+                VLANE_R(m->kp.y, l) = c.y;
+                VLANE_R(m->kp.z, l) = c.z;
+            } else
+#endif
+            {
+                vreal kx = m->kd.x, ky = m->kd.y, kz = m->kd.z;
+                real b = fmax(VLANE_R(kx, l), fmax(VLANE_R(ky, l), VLANE_R(kz, l)));
+                VLANE_R(m->p_d, l) = texture_prob(VLANE_R(m->p_d, l), c, b);
+                VLANE_R(m->kd.x, l) = c.x;
+                VLANE_R(m->kd.y, l) = c.y;
+                VLANE_R(m->kd.z, l) = c.z;
+            }
+        }
+        if (slots.w > R(0)) {
+            real4 c = texture_eval(sc, (uint)slots.w, uv.x, uv.y);
+#if CLPT_HAS_MICROFACET
+            vreal pm = m->p_m;
+            if (VLANE_R(pm, l) > R(0)) {
+                vreal kx = m->km.x, ky = m->km.y, kz = m->km.z;
+                real b = fmax(VLANE_R(kx, l), fmax(VLANE_R(ky, l), VLANE_R(kz, l)));
+                VLANE_R(m->p_m, l) = texture_prob(VLANE_R(m->p_m, l), c, b);
+                VLANE_R(m->km.x, l) = c.x;
+                VLANE_R(m->km.y, l) = c.y;
+                VLANE_R(m->km.z, l) = c.z;
+            } else
+#endif
+            {
+#if CLPT_HAS_MIRROR
+                vreal kx = m->kr.x, ky = m->kr.y, kz = m->kr.z;
+                real b = fmax(VLANE_R(kx, l), fmax(VLANE_R(ky, l), VLANE_R(kz, l)));
+                VLANE_R(m->p_r, l) = texture_prob(VLANE_R(m->p_r, l), c, b);
+                VLANE_R(m->kr.x, l) = c.x;
+                VLANE_R(m->kr.y, l) = c.y;
+                VLANE_R(m->kr.z, l) = c.z;
+#endif
+            }
+        }
+    }
+}
+
+#endif
