@@ -38,6 +38,10 @@ PHOTON_BYTES = 130  # traced, sorted and keyed copies of each photon
 # adds (150 and 290).
 MESH_BYTES_PER_TRIANGLE = 1450
 MESH_LIGHT_BYTES_PER_TRIANGLE = 300
+# A bitmap texture's texels while it renders (not measured: counted from the copies made): the
+# decoded float32 image (12 bytes a texel), the packed float64 records (24) and the device's copy (12
+# in float builds; host memory on a CPU device).
+TEXTURE_BYTES_PER_TEXEL = 12 + 24 + 12
 
 MAX_EXPOSURE = 64.0  # stops; 2^64 already saturates every float image
 
@@ -167,9 +171,16 @@ def host_bytes_needed(width: int, height: int, aux: bool = False, adaptive: bool
 
 def scene_resources(scene) -> list[tuple[str, int]]:
     """(what, bytes) of each of the scene's resources while it renders, from
-    the measured costs above: its meshes. Textures, when clpt reads them,
-    add an entry each here (their texels, and any mip levels)."""
+    the costs above: its meshes and its bitmap textures (their texels; an
+    8192 x 8192 bitmap takes 768 MiB on the device in float builds)."""
     out = []
+    seen = set()
+    for _, p in scene.primitives():
+        for _, t in scene.surface(p).textures:
+            if id(t) not in seen and t.texels:
+                seen.add(id(t))
+                h, w = t.data.shape[:2]
+                out.append((f"{w}x{h} texture", t.texels * TEXTURE_BYTES_PER_TEXEL))
     for s in scene.shapes:
         if isinstance(s, Mesh):
             light = scene.surface(s).is_emissive
@@ -193,8 +204,11 @@ def check_scene_memory(scene, available: int | None = None):
     if not items or avail is None or need <= avail:
         return
     what, most = max(items, key=lambda x: x[1])
-    raise SceneError(f"{scene.source}: its meshes need about {need / 2**30:.1f} GiB of memory to render "
-                     f"({len(items)} mesh{'es' if len(items) > 1 else ''}, the largest a {what}: "
+    n_tex = sum(1 for w, _ in items if w.endswith(" texture"))
+    kinds = f"{len(items) - n_tex} mesh{'es' if len(items) - n_tex != 1 else ''}" + \
+        (f" and {n_tex} texture{'s' if n_tex > 1 else ''}" if n_tex else "")
+    raise SceneError(f"{scene.source}: its {'meshes and textures' if n_tex else 'meshes'} need about "
+                     f"{need / 2**30:.1f} GiB of memory to render ({kinds}, the largest a {what}: "
                      f"{most / 2**30:.1f} GiB) and {max(avail, 0) / 2**30:.1f} GiB are available")
 
 

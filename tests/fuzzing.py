@@ -33,6 +33,7 @@ from hypothesis import strategies as st
 
 import clpt
 from clpt.resources import scene_dir, scene_path
+from clpt.texture import Texture
 
 def bounded(n):
     """Settings for a test of n inputs, the same ones every run
@@ -509,7 +510,8 @@ def finite_image(img, what):
 def xml_seeds() -> list[bytes]:
     """The test XML scenes, and the BSDFs they include (as a scene of its own);
     cbox_bunny.xml with a shipped PLY in place of its $bunny (not in the repo)."""
-    seeds = [(DATA / n).read_bytes() for n in ("cbox_mesh.xml", "cbox_shapes.xml", "cbox/materials.xml")]
+    seeds = [(DATA / n).read_bytes() for n in ("cbox_mesh.xml", "cbox_shapes.xml", "cbox/materials.xml",
+                                               "cbox_textured.xml")]
     seeds.append((DATA / "cbox_bunny.xml").read_bytes().replace(b'value="$bunny"', b'value="cbox/bunny.ply"'))
     return seeds
 
@@ -545,7 +547,7 @@ class _Values:
 
 def _color(v: _Values, name, emitter=False):
     hi = 20.0 if emitter else 1.0
-    kind = v.pick(["rgb", "rgb", "float", "spectrum", "spectrum_pairs", "checkerboard"])
+    kind = v.pick(["rgb", "rgb", "float", "spectrum", "spectrum_pairs", "checkerboard", "bitmap"])
     if kind == "rgb":
         return f'<rgb name="{name}" value="{v.vec(0, hi)}"/>'
     if kind == "float":
@@ -556,8 +558,20 @@ def _color(v: _Values, name, emitter=False):
         wavelengths = sorted(v.rng.sample(range(360, 831, 10), v.int(1, 4)))
         pairs = ", ".join(f"{w if not v.is_wild() else v.num()}:{v.num(0, hi)}" for w in wavelengths)
         return f'<spectrum name="{name}" value="{pairs}"/>'
+    if kind == "bitmap":
+        props = [f'<string name="filename" value="{v.pick(["textures/pattern.png"], ["nope.png", ""])}"/>']
+        if v.pick([True, False]):
+            props.append(f'<string name="filter_type" value="{v.pick(["bilinear", "nearest"], ["cubic", ""])}"/>')
+        if v.pick([True, False]):
+            props.append(f'<string name="wrap_mode" value="{v.pick(["repeat", "mirror", "clamp"], ["wrap"])}"/>')
+        if v.pick([True, False]):
+            props.append(f'<boolean name="raw" value="{v.pick(["true", "false"], ["2"])}"/>')
+        if v.pick([True, False]):
+            props.append(_transform(v, "to_uv"))
+        return f'<texture type="bitmap" name="{name}">{"".join(props)}</texture>'
+    uv = _transform(v, "to_uv") if v.pick([True, False]) else ""
     return (f'<texture type="checkerboard" name="{name}">{_color(v, "color0", emitter)}'
-            f'{_color(v, "color1", emitter)}</texture>')
+            f'{_color(v, "color1", emitter)}{uv}</texture>')
 
 
 def _bsdf(v: _Values, depth=0, ident=None):
@@ -569,6 +583,8 @@ def _bsdf(v: _Values, depth=0, ident=None):
     if t == "diffuse":
         body.append(_color(v, "reflectance"))
     elif t in ("conductor", "roughconductor"):
+        if v.pick([True, False]):
+            body.append(_color(v, "specular_reflectance"))
         body.append(v.pick(['<string name="material" value="Au"/>', '<string name="material" value="none"/>',
                             f'<rgb name="eta" value="{v.vec(0, 3)}"/>', ""]))
     elif t in ("dielectric", "thindielectric", "roughdielectric", "plastic", "roughplastic"):
@@ -675,11 +691,12 @@ def xml_inputs():
 
 
 def xml_workspace() -> Path:
-    """A folder holding what the XML scenes refer to (tests/data/cbox, a
+    """A folder holding what the XML scenes refer to (tests/data/cbox and textures, a
     shipped PLY as cbox/bunny.ply and a serialized seed as
     cbox/shapes.serialized); inputs are written beside it."""
     d = Path(tempfile.mkdtemp(prefix="clpt-fuzz-xml-"))
     shutil.copytree(DATA / "cbox", d / "cbox")
+    shutil.copytree(DATA / "textures", d / "textures")
     shutil.copy(MESHES / "ring.ply", d / "cbox" / "bunny.ply")
     shutil.copy(DATA / "serialized" / "shapes_v4.serialized", d / "cbox" / "shapes.serialized")
     return d
@@ -721,6 +738,9 @@ def mesh_seeds() -> dict[str, list[bytes]]:
     square = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (2, 0, 0), (3, 0, 0), (3, 1, 0)]
     seeds["ply"].append(_ply_text(square, [(0, 1, 2, 3), (4, 5, 6), (0, 2, 3)], extra_vertex=[("uchar", "red")],
                                   extra_elements="element material 0\nproperty float shine"))
+    seeds["ply"].append(_ply_text(square, [(0, 1, 2, 3), (4, 5, 6)], extra_vertex=[("float", "u"), ("float", "v")]))
+    seeds["ply"].append(_ply_text(square, [(0, 1, 2), (4, 5, 6)], extra_vertex=[("float", "texture_s"),
+                                                                                ("float", "texture_t")]))
     big_endian = (MESHES / "ring.ply").read_bytes()
     head, body = big_endian.split(b"end_header\n", 1)
     verts = np.frombuffer(body, "<f4", 768 * 6)
@@ -741,12 +761,12 @@ def check_mesh_file(path: Path, render: bool, device=None, shape_index=0) -> str
     """Read a mesh file; what loads must hold finite positions and unit normals
     and index its own vertices, and (render) render finite, 4x4 at 1 spp, as
     an emitter seen by a camera framing it."""
-    from clpt.meshio import MeshError, read_mesh
+    from clpt.meshio import MeshError, read_mesh_uv
 
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            v, t, n = read_mesh(path, shape_index=shape_index)
+            v, t, n, uv = read_mesh_uv(path, shape_index=shape_index)
     except MeshError as e:
         return refusal(e, path)
     except Exception as e:  # noqa: BLE001
@@ -755,6 +775,8 @@ def check_mesh_file(path: Path, render: bool, device=None, shape_index=0) -> str
         raise Failure(f"{path.name}: loaded with non-finite vertices or indices out of range")
     if n is not None and not (np.abs(np.linalg.norm(n, axis=1) - 1) < 1e-9).all():
         raise Failure(f"{path.name}: loaded with normals that are not unit vectors")
+    if uv is not None and not (uv.shape == (len(v), 2) and np.isfinite(uv).all()):
+        raise Failure(f"{path.name}: loaded with texture coordinates not finite or not one per vertex")
     if not render:
         return "accepted"
     lo, hi = v.min(axis=0), v.max(axis=0)
@@ -762,7 +784,10 @@ def check_mesh_file(path: Path, render: bool, device=None, shape_index=0) -> str
     cam = clpt.Camera(origin=tuple(c + (0.3 * r, 0.2 * r, 2 * r)), target=tuple(c), width=4, height=4)
 
     def render_it():  # a SceneError: a mesh the renderer cannot frame (e.g. spanning 1e-300 to 1e300)
-        scene = clpt.Scene(camera=cam, shapes=[clpt.Mesh(vertices=v, triangles=t, normals=n, material="white",
+        # Texture coordinates, where read, look up a checkerboard (the kernels' UV path).
+        mat = "white" if uv is None else clpt.Material(kd=(0.8, 0.8, 0.8), textures=(
+            ("reflectance", Texture("checkerboard", color0=(0.8, 0.8, 0.8), color1=(0.1, 0.2, 0.3))),))
+        scene = clpt.Scene(camera=cam, shapes=[clpt.Mesh(vertices=v, triangles=t, normals=n, uvs=uv, material=mat,
                                                          emission=(1.0, 1.0, 1.0), two_sided=True)]).check()
         return clpt.Renderer(scene, kernel="generic", device=device).render(1, max_depth=3, rr_depth=2, seed=1)
     return rendered("render", render_it, path)

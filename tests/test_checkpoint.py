@@ -13,6 +13,7 @@ import sys
 import threading
 import time
 import zipfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -57,6 +58,8 @@ CASES = {
                                                                        offline_spp=4)}),
     "adaptive": ("cornell_box", {}, {"adaptive": clpt.AdaptiveSettings(min_spp=8, pass_spp=8)}),
     "filtered": ("cornell_box", {"aux": True}, {"filter": clpt.FilterSettings()}),
+    # Textures travel in the checkpoint (their texels as arrays).
+    "textures": (str(Path(__file__).parent / "data" / "cbox_textured.xml"), {}, {}),
 }
 
 

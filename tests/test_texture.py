@@ -301,3 +301,16 @@ def test_textured_box_renders_as_in_mitsuba(device_spec):
     mean_err, z = stats.compare_to_reference(res, REFERENCE)
     assert mean_err < 0.005, f"image mean off by {mean_err:.2%}"
     assert np.abs(z).max() < 4, f"a block is {np.abs(z).max():.1f} sigma off"
+
+
+def test_textures_are_weighed_against_memory():
+    from clpt import preflight
+
+    tex = Texture("bitmap", data=np.zeros((32, 16, 3), np.float32))
+    scene = _head_on(tex)
+    assert preflight.scene_resources(scene) == [("16x32 texture", 512 * preflight.TEXTURE_BYTES_PER_TEXEL)]
+    room = preflight.HOST_BASE_BYTES + 512 * preflight.TEXTURE_BYTES_PER_TEXEL
+    preflight.check_scene_memory(scene, available=room)
+    with pytest.raises(SceneError, match=r"its meshes and textures need about .* \(0 meshes and 1 texture, "
+                                         r"the largest a 16x32 texture"):
+        preflight.check_scene_memory(scene, available=room - 1)

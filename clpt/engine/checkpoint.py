@@ -38,6 +38,7 @@ from ..hostio import open_regular_file
 from ..photons import PhotonSettings
 from ..scene import (Box, Camera, Material, Mesh, PixelFilter, Plane, PointLight, Quad, RenderSettings, Scene, Sphere,
                      SpotLight, Triangle)
+from ..texture import Texture
 from ..version import __version__
 from .accum import WIDTHS, Accumulator
 from .job import FORMAT, DeviceOptions, RenderJob
@@ -90,7 +91,7 @@ def _job_types() -> dict:
     """The classes a job is made of, by name: the only ones reading builds."""
     return {c.__name__: c for c in (RenderJob, DeviceOptions, PhotonSettings, AdaptiveSettings, FilterSettings,
                                     OidnSettings, Scene, Camera, PixelFilter, RenderSettings, Material, Sphere,
-                                    Triangle, Quad, Plane, Box, Mesh, PointLight, SpotLight)}
+                                    Triangle, Quad, Plane, Box, Mesh, PointLight, SpotLight, Texture)}
 
 
 def _encode(obj, arrays: list):
