@@ -131,10 +131,12 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
     if bvh_walk not in BVH_WALKS:
         raise ValueError(f"bvh_walk must be one of {', '.join(BVH_WALKS)} (got {bvh_walk!r})")
     use_photons = packed.has_caustics if photons is None else bool(photons) and packed.has_caustics
-    # The pixel filter is compiled in (or out) in both modes, as the photons and feature buffers are.
+    # The pixel filter is compiled in (or out) in both modes, as the photons and feature buffers are;
+    # textures too, so that a scene without them builds exactly as it did before clpt had them.
     if mode == "generic":
         return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
-                        photons=use_photons, aux=aux, bvh_walk=bvh_walk, pixel_filter=packed.pixel_filter)
+                        photons=use_photons, aux=aux, bvh_walk=bvh_walk, pixel_filter=packed.pixel_filter,
+                        textures=bool(packed.textures))
     return Features(
         lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
         pixel_filter=packed.pixel_filter,
