@@ -6,6 +6,7 @@ against a Mitsuba 3 reference (tests/data/cbox_textured_mitsuba.json)."""
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -330,3 +331,37 @@ def test_generic_lanes_and_double_builds_give_the_same_textured_image(device_spe
         assert np.isfinite(img).all()
         close = np.isclose(img, ref, rtol=1e-3, atol=1e-4).all(axis=2)
         assert close.mean() > 0.98, f"{rkw}: {1 - close.mean():.1%} of the pixels differ"
+
+
+def _lobe(kind, colour, tex=None):
+    """A material of one lobe whose colour (or texture) is in the slot a texture would fill."""
+    slot = (("specular" if kind == "roughconductor" else "reflectance", tex),) if tex else ()
+    c = tex.max() if tex else colour
+    if kind == "diffuse":
+        return Material(kd=c, textures=slot)
+    if kind == "roughconductor":
+        return Material.rough_conductor(alpha=0.3, distribution="ggx", specular_reflectance=c, textures=slot)
+    return Material.rough_plastic(diffuse_reflectance=c, specular_reflectance=(0, 0, 0), alpha=0.2, textures=slot)
+
+
+@pytest.mark.parametrize("kind", ["diffuse", "roughconductor", "plastic"])
+def test_a_textured_lobe_is_the_untextured_lobe_of_its_colour(device_spec, kind):
+    """Head-on (as above), one bounce, every random number the same: a
+    checkerboard cell of the textured surface is, pixel for pixel, the
+    untextured surface of that cell's colour (the BSDF never knows the colour
+    was looked up; the rough conductor's specular and the plastic's diffuse
+    base included)."""
+    tex = Texture("checkerboard", color0=(0.8, 0.3, 0.1), color1=(0.2, 0.5, 0.9), to_uv=((2, 0, 0), (0, 2, 0)))
+    base = _head_on(tex)
+
+    def render(mat):
+        scene = Scene(camera=base.camera, shapes=[replace(base.shapes[0], material=mat), base.shapes[1]])
+        return clpt.Renderer(scene, device=device_spec, photons=False).render(spp=8, seed=9, max_depth=1).image
+
+    img = render(_lobe(kind, None, tex))
+    cell0 = tex.eval(_pixel_uv())[..., 0] == tex.color0[0]
+    for colour, where in ((tex.color0, cell0), (tex.color1, ~cell0)):
+        plain = render(_lobe(kind, colour))
+        assert plain[where].mean() > 0.01
+        assert np.allclose(img[where], plain[where], rtol=1e-5, atol=1e-7), \
+            f"{kind}: {np.abs(img[where] - plain[where]).max():.3g} off in the cells of {colour}"
