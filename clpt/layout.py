@@ -175,8 +175,7 @@ MATERIAL = Rows("material", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_s
                 "diffuse_reflectance.rgb, p_plastic | specular_reflectance.rgb, specular sampling weight | "
                 "eta, internal reflectance, alpha (0: smooth), distribution | record index of its "
                 "transmittance table (COAT_TABLE_ROWS rows after the triangles' records), nonlinear, record "
-                "index of the TEXTURE of its reflectance (kd, or kp of a plastic; 0: none), of its specular "
-                "reflectance (km, or kr; 0: none)")
+                "index of its TEXTURE_SLOTS (0: no textures), 0")
 SPHERE = Rows("sphere", "SPHERE", _r4("center_radius", "mat"),
               "sphere: center.xyz, radius | material, light + 1 (0: not a light), prim id, 0")
 PLANAR = Rows("planar", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "wv_kind"),
@@ -209,9 +208,12 @@ NORMALS = Rows("vertex normals", "NORMALS", _r4("n0", "n1", "n2"), "vertex norma
 TEXTURE = Rows("texture", "TEX", _r4("kind_size", "data", "uv_u", "uv_v", "color0", "color1"),
                "texture (clpt/texture.py): kind (TEX_BITMAP, TEX_CHECKERBOARD), width, height, wrap (TEX_REPEAT, "
                "TEX_MIRROR, TEX_CLAMP) | the record of its first texel as hi, lo (hi * TEX_ROW_SPLIT + lo; "
-               "3 reals a texel, row by row, from there), filter (TEX_BILINEAR, TEX_NEAREST), record index "
-               "of the UV section | to_uv: a, b, c, 0 (u' = a u + b v + c) | d, e, f, 0 (v') | color0.rgb, 0 | "
+               "3 reals a texel, row by row, from there), filter (TEX_BILINEAR, TEX_NEAREST), 0 | to_uv: a, b, c, 0 (u' = a u + b v + c) | d, e, f, 0 (v') | color0.rgb, 0 | "
                "color1.rgb, 0")
+TEXTURE_SLOTS = Rows("material textures", "TEXS", _r4("slots"),
+                     "a textured material's textures (the record index of each TEXTURE, 0: none): reflectance "
+                     "(kd, or kp of a plastic), specular reflectance (km, or kr), a rough conductor's alpha "
+                     "(the texture's luminance), record index of the UV section")
 UV = Rows("surface coordinates", "UV", _r4("a", "b"),
           "a primitive's (u, v), one record per primitive id (scenes with textures): a quad or triangle: "
           "u, v at its corner, their change along edge u | their change along edge v, 0, UV_PLANAR; a sphere: "
@@ -274,7 +276,7 @@ PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"),
 
 def scene_records() -> tuple:
     """The scene's records (Rows), as this module holds them now."""
-    return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI, TEXTURE, UV)
+    return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI, TEXTURE_SLOTS, TEXTURE, UV)
 
 
 def launch_records() -> tuple:

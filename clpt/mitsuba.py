@@ -29,6 +29,7 @@ from .scene import (ALPHA_RANGE, DISTRIBUTIONS, FILTER_MAX_RADIUS, Camera, Mater
 from .errors import ImageError
 from .image import load_image
 from .meshio import read_mesh_uv, transform_mesh, vertex_normals
+from .constants import LUMA
 from .texture import FILTERS, WRAP_MODES, Texture, load_bitmap
 from .spectrum import conductor_ior, ior_data as _ior_data, constant_spectrum_to_rgb, parse_spectrum_pairs, spectrum_to_rgb_checked
 
@@ -504,10 +505,9 @@ class _Props:
             n.fail(f"a reflectance must be at most 1 (got {list(rgb)})")
         return tuple(float(c) for c in rgb)
 
-    def textured(self, name, default):
-        """A reflectance that may be a texture: (its RGB, None), or, for a
-        bitmap or checkerboard, (the texture's largest value per channel,
-        the clpt.texture.Texture)."""
+    def texture(self, name):
+        """The Texture given as property `name` (nested or by reference) when
+        it is a bitmap or checkerboard, else None."""
         obj = None
         if name not in self.props:
             obj = next((o for nm, o in self.objects if nm == name), None)
@@ -515,11 +515,20 @@ class _Props:
             obj = self.props[name]
         tex = self.loader.deref(obj) if obj is not None else None
         if tex is None or tex.tag != "texture" or tex.attrs.get("type") not in TEXTURE_KINDS:
-            return self.color(name, default), None
+            return None
         self.used.add(name)
-        t = self.loader.texture(tex)
+        return self.loader.texture(tex)
+
+    def textured(self, name, default):
+        """A reflectance that may be a texture: (its RGB, None), or, for a
+        bitmap or checkerboard, (the texture's largest value per channel,
+        the clpt.texture.Texture)."""
+        t = self.texture(name)
+        if t is None:
+            return self.color(name, default), None
         if max(t.max()) > 1:
-            tex.fail(f"a reflectance texture must be at most 1 (its largest value is {max(t.max()):g})")
+            raise SceneError(f"{t.name}: a reflectance texture must be at most 1 (its largest value is "
+                             f"{max(t.max()):g})")
         return t.max(), t
 
     def nested(self, tag):
@@ -845,8 +854,10 @@ class _Loader:
                 p.props["distribution"].fail(f"unknown distribution {dist!r}{_suggest(dist, DISTRIBUTIONS)}; "
                                              f"known: {', '.join(DISTRIBUTIONS)}")
             p.boolean("sample_visible", True)  # either way the same expectation; clpt samples visible normals
-            m = Material(km=tuple(spec), alpha=min(self._alpha(p), ALPHA_RANGE[1]), distribution=dist,
-                         eta=eta, k=k, one_sided=True, textures=_slots(specular=spec_tex))
+            alpha_tex = p.texture("alpha")  # the texture's luminance, as Mitsuba's eval_1
+            alpha = float(np.dot(alpha_tex.mean(), LUMA)) if alpha_tex else self._alpha(p)
+            m = Material(km=tuple(spec), alpha=float(np.clip(alpha, *ALPHA_RANGE)), distribution=dist,
+                         eta=eta, k=k, one_sided=True, textures=_slots(specular=spec_tex, alpha=alpha_tex))
         elif t in ("dielectric", "roughdielectric", "thindielectric"):
             eta = p.ior("int_ior", "bk7") / p.ior("ext_ior", "air")
             refl = np.array(p.color("specular_reflectance", 1.0))

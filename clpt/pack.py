@@ -8,7 +8,7 @@ sections:
   materials, spheres, quads, triangles, planes, lights, caustic casters,
   then BVH nodes and leaf blocks (which hold their items' records), vertex
   normals, mesh-light triangles, rough plastics' tables and, in scenes with
-  textures, the TEXTURE records, one UV record per primitive and last the
+  textures, the materials' TEXTURE_SLOTS, the TEXTURE records, one UV record per primitive and last the
   texels (3 reals each, every texture from a row of its own).
 
 Scenes with fewer than BVH_MIN_PRIMS bounded primitives keep them in the
@@ -29,7 +29,7 @@ from . import coating, layout
 from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_POINT, KIND_QUAD,
                      KIND_SPHERE, KIND_SPOT, KIND_TRIANGLE, Rows)
 from .meshio import cross_rows
-from .scene import DEFAULT_UV, Camera, Material, Scene, SceneError, Sphere, SpotLight, length_scale
+from .scene import DEFAULT_UV, TEXTURE_SLOTS, Camera, Material, Scene, SceneError, Sphere, SpotLight, length_scale
 from .texture import FILTERS, KINDS, WRAP_MODES
 
 # Records are referred to as layout.NAME where they are filled (a test reorders their fields).
@@ -199,34 +199,37 @@ def _material_records(materials) -> np.ndarray:
 
 
 def _texture_records(mat_recs, materials, base: int):
-    """TEXTURE records of the materials' distinct textures from record index
-    base, then the UV section's and the texels' first rows: (textures, their
-    records, texel rows); each material record's coat_tab.z and .w point to
-    its reflectance and specular textures. The UV section follows the
-    TEXTURE records; the texels follow it (uv_rows of them)."""
+    """From record index base: a TEXTURE_SLOTS record per textured material
+    (its record's coat_tab.z points to it), then a TEXTURE record per
+    distinct texture: (textures, slot records, texture records). The UV
+    section follows them (its first row goes in each slot record's .w, set
+    by the caller), then the texels."""
     textures = []
     for m in materials:
         for _, t in m.textures:
             if not any(t is x for x in textures):
                 textures.append(t)
-    recs = layout.TEXTURE.zeros(len(textures))
-    for rec, m in zip(mat_recs, materials):
-        for col, slot in ((2, "reflectance"), (3, "specular")):
+    textured = [(rec, m) for rec, m in zip(mat_recs, materials) if m.textures]
+    slots = layout.TEXTURE_SLOTS.zeros(len(textured))
+    first_tex = base + layout.TEXTURE_SLOTS.stride * len(textured)
+    for k, (rec, m) in enumerate(textured):
+        rec["coat_tab"][2] = base + layout.TEXTURE_SLOTS.stride * k
+        for col, slot in enumerate(TEXTURE_SLOTS):
             t = m.texture(slot)
             if t is not None:
-                rec["coat_tab"][col] = base + layout.TEXTURE.stride * next(k for k, x in enumerate(textures)
-                                                                           if x is t)
-    return textures, recs
+                slots[k]["slots"][col] = first_tex + layout.TEXTURE.stride * next(i for i, x in enumerate(textures)
+                                                                                  if x is t)
+    return textures, slots, layout.TEXTURE.zeros(len(textures))
 
 
-def _texel_rows(textures, recs, uv_base: int, texel_base: int) -> np.ndarray:
+def _texel_rows(textures, recs, texel_base: int) -> np.ndarray:
     """The textures' texels as rows of 4 reals from record index texel_base
     (each texture from a row of its own), filling their records."""
     rows, at = [], texel_base
     for rec, t in zip(recs, textures):
         h, w = (t.data.shape[:2] if t.data is not None else (0, 0))
         rec["kind_size"] = (KINDS.index(t.kind), w, h, WRAP_MODES.index(t.wrap))
-        rec["data"] = (at // layout.TEX_ROW_SPLIT, at % layout.TEX_ROW_SPLIT, FILTERS.index(t.filter), uv_base)
+        rec["data"] = (at // layout.TEX_ROW_SPLIT, at % layout.TEX_ROW_SPLIT, FILTERS.index(t.filter), 0.0)
         rec["uv_u"][:3], rec["uv_v"][:3] = t.to_uv
         rec["color0"][:3], rec["color1"][:3] = t.color0, t.color1
         if t.data is not None:
@@ -591,15 +594,16 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
 
     # Textures: their records, the primitives' (u, v) and the texels (scenes with textures only).
     tex_base = coat_base + len(coat_recs)
-    textures, tex_recs = _texture_records(mat_recs, list(surfaces), tex_base)
+    textures, slot_recs, tex_recs = _texture_records(mat_recs, list(surfaces), tex_base)
     uv_recs = np.concatenate(b.uvs) if textures else layout.UV.zeros(0)
-    uv_base = tex_base + len(Rows.rows(tex_recs))
+    uv_base = tex_base + len(Rows.rows(slot_recs)) + len(Rows.rows(tex_recs))
+    slot_recs["slots"][:, 3] = uv_base
     texel_base = uv_base + len(Rows.rows(uv_recs))
-    texels = _texel_rows(textures, tex_recs, uv_base, texel_base)
+    texels = _texel_rows(textures, tex_recs, texel_base)
 
     records = np.concatenate([Rows.rows(x) for x in sections] +
-                             [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs, coat_recs, Rows.rows(tex_recs),
-                              Rows.rows(uv_recs), texels])
+                             [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs, coat_recs, Rows.rows(slot_recs),
+                              Rows.rows(tex_recs), Rows.rows(uv_recs), texels])
     n_nodes = wide.n_nodes if use_bvh else 0
     counts = (n_mat, len(sphere_plain), len(quads), len(tris), len(planes), len(lights), len(caustics), n_nodes)
     kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere",

@@ -32,8 +32,9 @@ from .presets import PRESETS
 from .spectrum import conductor_ior
 from .texture import Texture
 
-# Material.textures slots: "reflectance" (kd, or kp of a plastic), "specular" (km, or kr).
-TEXTURE_SLOTS = ("reflectance", "specular")
+# Material.textures slots: "reflectance" (kd, or kp of a plastic), "specular" (km, or kr), "alpha" (a
+# rough conductor's roughness: the texture's luminance).
+TEXTURE_SLOTS = ("reflectance", "specular", "alpha")
 # A planar primitive's default (u, v): the corner's, and its change along
 # edge_u and along edge_v (a triangle's: its barycentrics of v1 and v2, as
 # Mitsuba gives a mesh without texture coordinates).
@@ -69,7 +70,9 @@ class Material:
     textures: ((slot, clpt.texture.Texture), ...): "reflectance" varies kd
     (kp of a plastic), "specular" km (or kr) over the surface by its
     (u, v); the colour field then holds the texture's largest value per
-    channel (the bound lobe probabilities and energy checks use).
+    channel (the bound lobe probabilities and energy checks use). "alpha"
+    varies a rough conductor's roughness (the texture's luminance, within
+    ALPHA_RANGE; alpha holds its mean).
     emission is radiance leaving the surface (on the side its normal points
     to, or both sides if two_sided). one_sided makes the surface black from
     behind (the side its normal points away from): no reflection, no
@@ -121,7 +124,8 @@ class Material:
                             f"{', '.join(TEXTURE_SLOTS)}, each once (got {self.textures!r})")
 
     def texture(self, slot: str):
-        """The Texture in a slot ("reflectance": kd, or kp of a plastic; "specular": km, or kr), or None."""
+        """The Texture in a slot ("reflectance": kd, or kp of a plastic; "specular": km, or kr; "alpha": a
+        rough conductor's alpha), or None."""
         return next((t for s, t in self.textures if s == slot), None)
 
     @classmethod

@@ -3,9 +3,10 @@
 // does). Compiled only when CLPT_HAS_TEXTURES: a scene without textures
 // builds none of it.
 //
-// Records (clpt/layout.py): a material's coat_tab.z and .w are the TEXTURE
-// records of its reflectance (kd, or kp of a plastic) and specular
-// reflectance (km, or kr); 0 for none. A TEXTURE record points to its texels
+// Records (clpt/layout.py): a material's coat_tab.z is its TEXTURE_SLOTS
+// record (0: no textures), which holds the TEXTURE records of its
+// reflectance (kd, or kp of a plastic), specular reflectance (km, or kr) and
+// a rough conductor's alpha (0 for none). A TEXTURE record points to its texels
 // (3 reals each, row by row, from a record of its own, at the records' end:
 // indexed as integers, past the 2^24 records float reals index) and to the
 // UV section, one UV record per primitive id, from which hit_uv forms the
@@ -14,6 +15,9 @@
 
 #if CLPT_HAS_TEXTURES
 #define TEX_PI R(3.14159265358979323846)
+// clpt.scene.ALPHA_RANGE (tests/test_texture.py checks them): a textured alpha is clamped as a given one is.
+#define TEX_ALPHA_MIN 1e-4
+#define TEX_ALPHA_MAX 10.0
 
 // Texel index i wrapped into [0, n) as the mode says (repeat, mirror, clamp).
 inline int texture_wrap(int i, int n, int mode)
@@ -87,7 +91,7 @@ inline real texture_prob(real p, real4 c, real b)
     return b > R(0) ? p * fmax(c.x, fmax(c.y, c.z)) / b : p;
 }
 
-// The material m of the lanes in `hit` at their hits h, its textured colours
+// The material m of the lanes in `hit` at their hits h, its textured values
 // looked up there (a BSDF never knows whether a colour is constant).
 inline void material_textures(const Scene *sc, Material *m, const Hit *h, vmask hit)
 {
@@ -95,17 +99,16 @@ inline void material_textures(const Scene *sc, Material *m, const Hit *h, vmask 
         if (!VLANE_M(hit, l))
             continue;
         vreal mat = h->mat;
-        real4 slots = scene_rec(sc, MAT_STRIDE * (uint)VLANE_R(mat, l) + MAT_COAT_TAB);
-        if (slots.z == R(0) && slots.w == R(0))
+        real ts = scene_rec(sc, MAT_STRIDE * (uint)VLANE_R(mat, l) + MAT_COAT_TAB).z;
+        if (ts == R(0))
             continue;
-        uint t = (uint)(slots.z > R(0) ? slots.z : slots.w);
+        real4 slots = scene_rec(sc, (uint)ts + TEXS_SLOTS);
         vreal prim = h->prim, bu = h->bu, bv = h->bv;
         vreal nx = h->ng.x, ny = h->ng.y, nz = h->ng.z;
         real4 n = (real4)(VLANE_R(nx, l), VLANE_R(ny, l), VLANE_R(nz, l), R(0));
-        real4 uv = hit_uv(sc, (uint)scene_rec(sc, t + TEX_DATA).w, VLANE_R(prim, l), VLANE_R(bu, l),
-                          VLANE_R(bv, l), n);
-        if (slots.z > R(0)) {
-            real4 c = texture_eval(sc, (uint)slots.z, uv.x, uv.y);
+        real4 uv = hit_uv(sc, (uint)slots.w, VLANE_R(prim, l), VLANE_R(bu, l), VLANE_R(bv, l), n);
+        if (slots.x > R(0)) {
+            real4 c = texture_eval(sc, (uint)slots.x, uv.x, uv.y);
 #if CLPT_HAS_PLASTIC
             vreal pp = m->p_p;
             if (VLANE_R(pp, l) > R(0)) {
@@ -123,8 +126,8 @@ inline void material_textures(const Scene *sc, Material *m, const Hit *h, vmask 
                 VLANE_R(m->kd.z, l) = c.z;
             }
         }
-        if (slots.w > R(0)) {
-            real4 c = texture_eval(sc, (uint)slots.w, uv.x, uv.y);
+        if (slots.y > R(0)) {
+            real4 c = texture_eval(sc, (uint)slots.y, uv.x, uv.y);
 #if CLPT_HAS_MICROFACET
             vreal pm = m->p_m;
             if (VLANE_R(pm, l) > R(0)) {
@@ -147,6 +150,13 @@ inline void material_textures(const Scene *sc, Material *m, const Hit *h, vmask 
 #endif
             }
         }
+#if CLPT_HAS_MICROFACET
+        if (slots.z > R(0)) {  // a rough conductor's alpha: the texture's luminance, within ALPHA_RANGE
+            real4 c = texture_eval(sc, (uint)slots.z, uv.x, uv.y);
+            real a = R(CLPT_LUMA_R) * c.x + R(CLPT_LUMA_G) * c.y + R(CLPT_LUMA_B) * c.z;
+            VLANE_R(m->alpha, l) = clamp(a, R(TEX_ALPHA_MIN), R(TEX_ALPHA_MAX));
+        }
+#endif
     }
 }
 

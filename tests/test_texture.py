@@ -6,6 +6,7 @@ against a Mitsuba 3 reference (tests/data/cbox_textured_mitsuba.json)."""
 
 import json
 import math
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -229,6 +230,22 @@ def test_loader_maps_textures_to_materials(tmp_path):
     assert np.allclose(mats["c"].km, 0.4) and mats["c"].texture("specular") is not None
 
 
+def test_alpha_texture_of_a_rough_conductor(tmp_path):
+    """Its luminance (Mitsuba's eval_1), clamped to ALPHA_RANGE as the kernels clamp it."""
+    from clpt import program
+    from clpt.scene import ALPHA_RANGE
+
+    s = _load(tmp_path, '''<shape type="rectangle" id="c"><bsdf type="roughconductor"><texture type="checkerboard"
+        name="alpha"><rgb name="color0" value="0.1, 0.2, 0.3"/><rgb name="color1" value="0.5"/></texture>
+        </bsdf></shape>''')
+    m = s.surface(s.shapes[-1])
+    assert m.texture("alpha").kind == "checkerboard"
+    assert m.alpha == pytest.approx(0.5 * (0.5 + np.dot((0.1, 0.2, 0.3), (0.2126, 0.7152, 0.0722))))
+    src = program.stitch(["path.h", "trace.cl"])
+    kernel_range = [float(re.search(rf"#define TEX_ALPHA_{k} (\S+)", src).group(1)) for k in ("MIN", "MAX")]
+    assert kernel_range == list(ALPHA_RANGE)
+
+
 def test_reflectance_texture_above_one_is_refused(tmp_path):
     clpt.save_image(tmp_path / "t.exr", np.full((1, 1, 3), 1.5, dtype=np.float32))
     with pytest.raises(SceneError, match="at most 1"):
@@ -335,8 +352,11 @@ def test_generic_lanes_and_double_builds_give_the_same_textured_image(device_spe
 
 def _lobe(kind, colour, tex=None):
     """A material of one lobe whose colour (or texture) is in the slot a texture would fill."""
-    slot = (("specular" if kind == "roughconductor" else "reflectance", tex),) if tex else ()
+    slot = (({"roughconductor": "specular", "alpha": "alpha"}.get(kind, "reflectance"), tex),) if tex else ()
     c = tex.max() if tex else colour
+    if kind == "alpha":  # a grey texture: its luminance is its value
+        return Material.rough_conductor(alpha=c[0], distribution="ggx", specular_reflectance=(0.9, 0.8, 0.7),
+                                        textures=slot)
     if kind == "diffuse":
         return Material(kd=c, textures=slot)
     if kind == "roughconductor":
@@ -344,14 +364,15 @@ def _lobe(kind, colour, tex=None):
     return Material.rough_plastic(diffuse_reflectance=c, specular_reflectance=(0, 0, 0), alpha=0.2, textures=slot)
 
 
-@pytest.mark.parametrize("kind", ["diffuse", "roughconductor", "plastic"])
+@pytest.mark.parametrize("kind", ["diffuse", "roughconductor", "plastic", "alpha"])
 def test_a_textured_lobe_is_the_untextured_lobe_of_its_colour(device_spec, kind):
     """Head-on (as above), one bounce, every random number the same: a
     checkerboard cell of the textured surface is, pixel for pixel, the
     untextured surface of that cell's colour (the BSDF never knows the colour
     was looked up; the rough conductor's specular and the plastic's diffuse
-    base included)."""
-    tex = Texture("checkerboard", color0=(0.8, 0.3, 0.1), color1=(0.2, 0.5, 0.9), to_uv=((2, 0, 0), (0, 2, 0)))
+    base included, and a rough conductor's alpha)."""
+    colours = ((0.1, 0.1, 0.1), (0.6, 0.6, 0.6)) if kind == "alpha" else ((0.8, 0.3, 0.1), (0.2, 0.5, 0.9))
+    tex = Texture("checkerboard", color0=colours[0], color1=colours[1], to_uv=((2, 0, 0), (0, 2, 0)))
     base = _head_on(tex)
 
     def render(mat):
