@@ -302,7 +302,8 @@ def test_06_texture_offsets_and_an_included_06_file(tmp_path):
         warnings.simplefilter("always")
         s = load_mitsuba(p)
     assert [str(x.message) for x in w if "not supported" in str(x.message) and "mean" not in str(x.message)] == []
-    assert np.allclose(s.surface(mesh_of(s)).kd, 0.3)
+    m = s.surface(mesh_of(s))  # the checkerboard itself, kd its bound; to_uv: translate (0, 0.5), scale (4, 2)
+    assert np.allclose(m.kd, 0.5) and m.texture("reflectance").to_uv == ((4, 0, 0), (0, 2, 1))
     # In a Mitsuba 3 file, the same names are not upgraded: reported.
     (tmp_path / "old.xml").write_text((tmp_path / "old.xml").read_text().replace("0.6.0", "3.0.0")
                                       .replace("diffuseReflectance", "reflectance"))
