@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import SceneError
+from .image import load_image
 
 FILTERS = ("bilinear", "nearest")
 WRAP_MODES = ("repeat", "mirror", "clamp")
@@ -148,8 +149,6 @@ def load_bitmap(path: Path, raw: bool = False) -> np.ndarray:
     """An image file as H x W x 3 linear float32 texels: grey repeated, alpha
     dropped; 8-bit (and other non-float) formats decoded from sRGB unless raw,
     as Mitsuba 3's bitmap texture does. An unreadable file raises ImageError or OSError."""
-    from .image import load_image
-
     img = np.asarray(load_image(path), dtype=np.float64)
     if img.ndim == 2:
         img = img[:, :, None]
