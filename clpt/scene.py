@@ -58,6 +58,11 @@ class Material:
     with specular_reflectance kps over a diffuse base of diffuse_reflectance
     kp, with its internal scattering (clpt/coating.py); the material's only
     lobe (`Material.rough_plastic`, `Material.smooth_plastic`).
+    rough_dielectric_lobe, kgr, kgt, sample_visible (with ior, alpha and
+    distribution): Mitsuba 3's `roughdielectric`, a microfacet interface of
+    relative index ior (inside over outside) that reflects (specular_reflectance
+    kgr) and refracts (specular_transmittance kgt) through the same microfacet
+    normal; the material's only lobe (`Material.rough_dielectric`).
     emission is radiance leaving the surface (on the side its normal points
     to, or both sides if two_sided). one_sided makes the surface black from
     behind (the side its normal points away from): no reflection, no
@@ -83,10 +88,14 @@ class Material:
     kps: Vec3 = (1.0, 1.0, 1.0)
     plastic_eta: float = 1.49 / 1.000277
     nonlinear: bool = False
+    rough_dielectric_lobe: bool = False
+    kgr: Vec3 = (1.0, 1.0, 1.0)
+    kgt: Vec3 = (1.0, 1.0, 1.0)
+    sample_visible: bool = True
 
     def __post_init__(self):
         # Types now (a clear TypeError at the mistake); ranges in check_material.
-        for key in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k", "kp", "kps"):
+        for key in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k", "kp", "kps", "kgr", "kgt"):
             v = getattr(self, key)
             if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 3 or \
                     not all(_is_number(c) for c in v):
@@ -97,7 +106,7 @@ class Material:
         for key in ("shininess", "ior", "alpha", "plastic_eta"):
             if not _is_number(getattr(self, key)):
                 raise TypeError(f"Material.{key} must be a number (got {getattr(self, key)!r})")
-        for key in ("two_sided", "plastic", "nonlinear"):
+        for key in ("two_sided", "plastic", "nonlinear", "rough_dielectric_lobe", "sample_visible"):
             if not isinstance(getattr(self, key), (bool, np.bool_)):
                 raise TypeError(f"Material.{key} must be True or False (got {getattr(self, key)!r})")
 
@@ -139,6 +148,22 @@ class Material:
     def smooth_plastic(cls, diffuse_reflectance: Vec3 = (0.5, 0.5, 0.5), **kw) -> "Material":
         """Mitsuba 3's smooth `plastic` (the keywords of rough_plastic but alpha)."""
         return cls.rough_plastic(diffuse_reflectance, alpha=0.0, **kw)
+
+    @classmethod
+    def rough_dielectric(cls, alpha: float = 0.1, distribution: str = "beckmann", int_ior: float = 1.5046,
+                    ext_ior: float = 1.000277, specular_reflectance: Vec3 = (1.0, 1.0, 1.0),
+                    specular_transmittance: Vec3 = (1.0, 1.0, 1.0), sample_visible: bool = True,
+                    **overrides) -> "Material":
+        """Mitsuba 3's `roughdielectric` (its defaults: Beckmann, alpha 0.1,
+        BK7 glass in air)."""
+        for name, v in (("int_ior", int_ior), ("ext_ior", ext_ior)):
+            if not _is_number(v) or not IOR_RANGE[0] <= v <= IOR_RANGE[1]:
+                raise SceneError(f"rough_dielectric: {name} must be a number in [{IOR_RANGE[0]:g}, "
+                                 f"{IOR_RANGE[1]:g}] (got {v!r})")
+        base = dict(rough_dielectric_lobe=True, kgr=tuple(float(c) for c in specular_reflectance),
+                    kgt=tuple(float(c) for c in specular_transmittance), alpha=alpha, distribution=distribution,
+                    ior=int_ior / ext_ior, sample_visible=sample_visible)
+        return cls(**{**base, **overrides})
 
     @property
     def is_emissive(self) -> bool:
@@ -796,6 +821,12 @@ def _length_in_range(source, path, size, extent):
                             f"split the scene")
 
 
+def _distribution(source, path, m: Material):
+    if m.distribution not in DISTRIBUTIONS:
+        _fail(source, f"{path}.distribution", f"must be one of {', '.join(DISTRIBUTIONS)} "
+                                               f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
+
+
 def check_material(source, path, m: Material):
     total = np.zeros(3)
     for key in ("kd", "ks", "km", "kr", "kt"):
@@ -803,9 +834,7 @@ def check_material(source, path, m: Material):
     if max(m.km) > 0:
         _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
                 hi_open=False)
-        if m.distribution not in DISTRIBUTIONS:
-            _fail(source, f"{path}.distribution", f"must be one of {', '.join(DISTRIBUTIONS)} "
-                                                   f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
+        _distribution(source, path, m)
         _finite_vec(source, f"{path}.eta", m.eta, nonneg=True)
         _finite_vec(source, f"{path}.k", m.k, nonneg=True)
     if m.plastic:
@@ -820,12 +849,27 @@ def check_material(source, path, m: Material):
         if m.alpha != 0:
             _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
                     hi_open=False)
-        if m.distribution not in DISTRIBUTIONS:
-            _fail(source, f"{path}.distribution", f"must be one of {', '.join(DISTRIBUTIONS)} "
-                                                   f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
+        _distribution(source, path, m)
         _finite(source, f"{path}.plastic_eta", m.plastic_eta, lo=1.0 / 1e3, lo_open=False, hi=1e3, hi_open=False)
         if abs(m.plastic_eta - 1.0) < 1e-6:
             _fail(source, f"{path}.plastic_eta", "must differ from 1 (a coating of the index around it)")
+    if m.rough_dielectric_lobe:
+        if total.max() > 0 or m.plastic:
+            _fail(source, path, "a rough dielectric is the material's only lobe (kd, ks, km, kr and kt must be 0, "
+                                "plastic false)")
+        _finite_vec(source, f"{path}.kgr", m.kgr, nonneg=True)
+        _finite_vec(source, f"{path}.kgt", m.kgt, nonneg=True)
+        if max(m.kgr) > 1 or max(m.kgt) > 1:
+            _fail(source, path, f"rough dielectric reflectances must be at most 1 (kgr {tuple(m.kgr)}, "
+                                f"kgt {tuple(m.kgt)})")
+        _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
+                hi_open=False)
+        _distribution(source, path, m)
+        _finite(source, f"{path}.ior", m.ior, lo=1.0 / 1e3, lo_open=False, hi=1e3, hi_open=False)
+        if abs(m.ior - 1.0) < 1e-6:
+            _fail(source, f"{path}.ior", "must differ from 1 (an interface between media of one index)")
+        if not isinstance(m.sample_visible, (bool, np.bool_)):
+            _fail(source, f"{path}.sample_visible", f"must be True or False (got {m.sample_visible!r})")
     _emission(source, f"{path}.emission", m.emission)
     _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False, hi=MAX_SHININESS, hi_open=False)
     _finite(source, f"{path}.ior", m.ior, lo=IOR_RANGE[0], lo_open=False, hi=IOR_RANGE[1], hi_open=False)
