@@ -285,6 +285,26 @@ inline vreal bsdf_pdf(const Material *m, LobeProbs p, V3 d, V3 n, V3 wi)
 #endif
 }
 
+#if CLPT_HAS_ROUGH_DIELECTRIC
+// bsdf_eval and, in *pdf, bsdf_pdf of wi, the rough dielectric evaluated once for both.
+inline V3 bsdf_eval_pdf(const Material *m, LobeProbs p, V3 d, V3 n, V3 wi, vreal *pdf)
+{
+    Material o = *m;
+    LobeProbs po = p;
+    o.p_g = po.g = (vreal)R(0);  // the other lobes
+    V3 f = bsdf_eval(&o, d, n, wi);
+    vreal pd = bsdf_pdf(&o, po, d, n, wi);
+    vmask g = m->p_g > R(0);
+    if (VANY(g)) {
+        vreal pg;
+        f = v3_sel(f, v3_add(f, rough_dielectric_eval_pdf(m, d, n, wi, &pg)), g);
+        pd = VSEL(pd, pd + p.g * pg, p.g > R(0));
+    }
+    *pdf = pd;
+    return f;
+}
+#endif
+
 // Power heuristic (beta = 2) weight of a technique with pdf a against one with pdf b.
 // Formed from b / a so that neither square can overflow.
 inline vreal mis_power(vreal a, vreal b)
@@ -397,7 +417,7 @@ inline void sample_plastic(const Material *m, LobeProbs pr, V3 d, V3 n, BsdfU u,
 // (radiance: the transmitted one over e^2); lost (*is_g cleared) where -d is
 // below n or the direction leaves on the wrong side of n ---------------------
 inline void sample_rough_dielectric(const Material *m, LobeProbs pr, V3 d, V3 n, BsdfU u, int mode, V3 *wi,
-                                    V3 *w, vmask *is_g, vmask *up)
+                                    V3 *w, vreal *pdf_g, vmask *is_g, vmask *up)
 {
     vreal co = -v3_dot(d, n), e = m->g_eta;
     vmask bk = m->g_beckmann != R(0), vis = m->g_visible != R(0);
@@ -421,14 +441,22 @@ inline void sample_rough_dielectric(const Material *m, LobeProbs pr, V3 d, V3 n,
     V3 wv = v3_sel(v3_scale(m->gt, kt), m->gr, refl);
     vreal k = g1 / pr.g;
     vmask ok = co > R(0) && oh > R(0) && VSEL(cg < R(0), cg > R(0), refl) && g1 > R(0);
+    // The lobe's pdf of wg (rough_dielectric_eval_pdf's): visible normals' density of h, the lobe's
+    // choice, the Jacobian of the half-vector map.
+    vreal ih = v3_dot(wg, h), den = oh + e * ih;
+    vreal hn = v3_dot(h, n);
+    vreal ph = mf_D(hn, mf_sin2(h, n), m->g_alpha, bk) * mf_G1(co, mf_sin2(d, n), oh, m->g_alpha, bk) * oh / co;
+    vreal pdf = ph * VSEL(R(1) - F, F, refl) * VSEL(e * e * fabs(ih) / (den * den), R(1) / (R(4) * ih), refl);
     if (VANY(!vis && *is_g)) {
-        vreal pdf;
-        V3 f = rough_dielectric_eval_pdf(m, d, n, wg, &pdf);
-        V3 wn = v3_scale(f, fabs(cg) / (pdf * pr.g));
+        vreal pn;
+        V3 f = rough_dielectric_eval_pdf(m, d, n, wg, &pn);
+        V3 wn = v3_scale(f, fabs(cg) / (pn * pr.g));
         wv = v3_sel(wv, v3_scale(wn, VSEL(e * e * kt, (vreal)R(1), refl)), !vis);
         k = VSEL(k, (vreal)R(1), !vis);
-        ok = ok && (vis || pdf > R(0));
+        ok = ok && (vis || pn > R(0));
+        pdf = VSEL(pdf, pn, !vis);
     }
+    *pdf_g = VSEL(*pdf_g, pdf, *is_g);
     *wi = v3_sel(*wi, wg, *is_g);
     *w = v3_sel(*w, v3_scale(wv, k), *is_g);
     *up = *up && !(*is_g && !refl);
@@ -471,6 +499,9 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
     vmask is_r = !is_d && !is_s && !is_m && !is_p && !is_g && c < c_m + pr.r;
     vmask is_t = !is_d && !is_s && !is_m && !is_p && !is_g && !is_r && c < c_m + pr.r + pr.t;
     vmask p_delta = is_p && !is_p;  // the smooth plastic's specular reflection
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    vreal pdf_g = (vreal)R(0);  // the rough dielectric's pdf of the direction it drew
+#endif
     V3 wi = v3_reflect(d, n);
     V3 w = v3_scale(m->kr, R(1) / pr.r);
     bs.up = alive;
@@ -504,7 +535,7 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
 #endif
 #if CLPT_HAS_ROUGH_DIELECTRIC
         if (VANY(is_g))
-            sample_rough_dielectric(m, pr, d, n, u, mode, &wi, &w, &is_g, &bs.up);
+            sample_rough_dielectric(m, pr, d, n, u, mode, &wi, &w, &pdf_g, &is_g, &bs.up);
 #endif
     } else {
         is_m = is_m && !is_m;
@@ -535,8 +566,16 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
     bs.weight = w;
     // The pdf of the direction under the whole non-delta mixture (what light
     // sampling's weight is measured against), not only the chosen lobe's.
-    bs.pdf = nondelta ? VSEL((vreal)R(0), bsdf_pdf(m, pr, d, n, bs.wi),
-                                     is_d || is_s || is_m || (is_p && !p_delta) || is_g)
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    // A rough dielectric is its material's only lobe: its lanes' pdf is the one it drew with.
+    LobeProbs po = pr;
+    po.g = (vreal)R(0);
+    bs.pdf = nondelta ? VSEL(VSEL((vreal)R(0), bsdf_pdf(m, po, d, n, bs.wi), is_d || is_s || is_m || (is_p && !p_delta)),
+                             pr.g * pdf_g, is_g)
                       : (vreal)R(0);
+#else
+    bs.pdf = nondelta ? VSEL((vreal)R(0), bsdf_pdf(m, pr, d, n, bs.wi), is_d || is_s || is_m || (is_p && !p_delta))
+                      : (vreal)R(0);
+#endif
     *out = bs;
 }
