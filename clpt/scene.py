@@ -135,10 +135,7 @@ class Material:
                       **overrides) -> "Material":
         """Mitsuba 3's `roughplastic` (one-sided; its defaults: Beckmann,
         alpha 0.1, polypropylene in air). alpha=0 is the smooth `plastic`."""
-        for name, v in (("int_ior", int_ior), ("ext_ior", ext_ior)):
-            if not _is_number(v) or not IOR_RANGE[0] <= v <= IOR_RANGE[1]:
-                raise SceneError(f"rough_plastic: {name} must be a number in [{IOR_RANGE[0]:g}, "
-                                 f"{IOR_RANGE[1]:g}] (got {v!r})")
+        _check_iors("rough_plastic", int_ior, ext_ior)
         base = dict(plastic=True, kp=tuple(float(c) for c in diffuse_reflectance),
                     kps=tuple(float(c) for c in specular_reflectance), alpha=alpha, distribution=distribution,
                     plastic_eta=int_ior / ext_ior, nonlinear=nonlinear, one_sided=True)
@@ -151,15 +148,12 @@ class Material:
 
     @classmethod
     def rough_dielectric(cls, alpha: float = 0.1, distribution: str = "beckmann", int_ior: float = 1.5046,
-                    ext_ior: float = 1.000277, specular_reflectance: Vec3 = (1.0, 1.0, 1.0),
-                    specular_transmittance: Vec3 = (1.0, 1.0, 1.0), sample_visible: bool = True,
-                    **overrides) -> "Material":
+                         ext_ior: float = 1.000277, specular_reflectance: Vec3 = (1.0, 1.0, 1.0),
+                         specular_transmittance: Vec3 = (1.0, 1.0, 1.0), sample_visible: bool = True,
+                         **overrides) -> "Material":
         """Mitsuba 3's `roughdielectric` (its defaults: Beckmann, alpha 0.1,
         BK7 glass in air)."""
-        for name, v in (("int_ior", int_ior), ("ext_ior", ext_ior)):
-            if not _is_number(v) or not IOR_RANGE[0] <= v <= IOR_RANGE[1]:
-                raise SceneError(f"rough_dielectric: {name} must be a number in [{IOR_RANGE[0]:g}, "
-                                 f"{IOR_RANGE[1]:g}] (got {v!r})")
+        _check_iors("rough_dielectric", int_ior, ext_ior)
         base = dict(rough_dielectric_lobe=True, kgr=tuple(float(c) for c in specular_reflectance),
                     kgt=tuple(float(c) for c in specular_transmittance), alpha=alpha, distribution=distribution,
                     ior=int_ior / ext_ior, sample_visible=sample_visible)
@@ -176,6 +170,12 @@ class Material:
 
 
 MaterialRef = Union[str, Material]
+
+
+def _check_iors(who: str, int_ior, ext_ior):
+    for name, v in (("int_ior", int_ior), ("ext_ior", ext_ior)):
+        if not _is_number(v) or not IOR_RANGE[0] <= v <= IOR_RANGE[1]:
+            raise SceneError(f"{who}: {name} must be a number in [{IOR_RANGE[0]:g}, {IOR_RANGE[1]:g}] (got {v!r})")
 
 
 def _is_number(x) -> bool:
@@ -821,6 +821,20 @@ def _length_in_range(source, path, size, extent):
                             f"split the scene")
 
 
+def _reflectances(source, path, m: Material, what: str, keys):
+    vals = [_finite_vec(source, f"{path}.{k}", getattr(m, k), nonneg=True) for k in keys]
+    if max(v.max() for v in vals) > 1:
+        _fail(source, path, f"{what} reflectances must be at most 1 ("
+                            + ", ".join(f"{k} {tuple(getattr(m, k))}" for k in keys) + ")")
+
+
+def _interface_eta(source, path, m: Material, key: str, what: str):
+    eta = getattr(m, key)
+    _finite(source, f"{path}.{key}", eta, lo=1.0 / 1e3, lo_open=False, hi=1e3, hi_open=False)
+    if abs(eta - 1.0) < 1e-6:
+        _fail(source, f"{path}.{key}", f"must differ from 1 ({what})")
+
+
 def _distribution(source, path, m: Material):
     if m.distribution not in DISTRIBUTIONS:
         _fail(source, f"{path}.distribution", f"must be one of {', '.join(DISTRIBUTIONS)} "
@@ -840,34 +854,23 @@ def check_material(source, path, m: Material):
     if m.plastic:
         if total.max() > 0:
             _fail(source, path, "a plastic is the material's only lobe (kd, ks, km, kr and kt must be 0)")
-        _finite_vec(source, f"{path}.kp", m.kp, nonneg=True)
-        _finite_vec(source, f"{path}.kps", m.kps, nonneg=True)
-        if max(m.kp) > 1 or max(m.kps) > 1:
-            _fail(source, path, f"plastic reflectances must be at most 1 (kp {tuple(m.kp)}, kps {tuple(m.kps)})")
+        _reflectances(source, path, m, "plastic", ("kp", "kps"))
         if max(m.kp) + max(m.kps) == 0:
             _fail(source, path, "a plastic needs kp or kps above 0")
         if m.alpha != 0:
             _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
                     hi_open=False)
         _distribution(source, path, m)
-        _finite(source, f"{path}.plastic_eta", m.plastic_eta, lo=1.0 / 1e3, lo_open=False, hi=1e3, hi_open=False)
-        if abs(m.plastic_eta - 1.0) < 1e-6:
-            _fail(source, f"{path}.plastic_eta", "must differ from 1 (a coating of the index around it)")
+        _interface_eta(source, path, m, "plastic_eta", "a coating of the index around it")
     if m.rough_dielectric_lobe:
         if total.max() > 0 or m.plastic:
             _fail(source, path, "a rough dielectric is the material's only lobe (kd, ks, km, kr and kt must be 0, "
                                 "plastic false)")
-        _finite_vec(source, f"{path}.kgr", m.kgr, nonneg=True)
-        _finite_vec(source, f"{path}.kgt", m.kgt, nonneg=True)
-        if max(m.kgr) > 1 or max(m.kgt) > 1:
-            _fail(source, path, f"rough dielectric reflectances must be at most 1 (kgr {tuple(m.kgr)}, "
-                                f"kgt {tuple(m.kgt)})")
+        _reflectances(source, path, m, "rough dielectric", ("kgr", "kgt"))
         _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
                 hi_open=False)
         _distribution(source, path, m)
-        _finite(source, f"{path}.ior", m.ior, lo=1.0 / 1e3, lo_open=False, hi=1e3, hi_open=False)
-        if abs(m.ior - 1.0) < 1e-6:
-            _fail(source, f"{path}.ior", "must differ from 1 (an interface between media of one index)")
+        _interface_eta(source, path, m, "ior", "an interface between media of one index")
         if not isinstance(m.sample_visible, (bool, np.bool_)):
             _fail(source, f"{path}.sample_visible", f"must be True or False (got {m.sample_visible!r})")
     _emission(source, f"{path}.emission", m.emission)

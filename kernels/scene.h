@@ -437,9 +437,8 @@ inline void material_face(Material *m, vmask front)
 #endif
 }
 
-// Per-lane material by selecting over the (few) materials: cheaper on a CPU
-// than eight scattered loads per field.
-inline Material material_fetch(const Scene *sc, vreal id)
+// A material with no lobe: every field at its neutral value (tables at rec).
+inline Material material_blank(__global const real4 *rec)
 {
     Material m;
     m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
@@ -452,13 +451,21 @@ inline Material material_fetch(const Scene *sc, vreal id)
     m.kp = m.kps = v3_zero();
     m.p_p = m.spec_w = m.c_fdr = m.c_alpha = m.c_beckmann = m.c_tab = m.c_nonlinear = (vreal)R(0);
     m.c_eta = (vreal)R(1.5);
-    m.rec = sc->rec;
+    m.rec = rec;
 #endif
 #if CLPT_HAS_ROUGH_DIELECTRIC
     m.gr = m.gt = v3_zero();
     m.p_g = m.g_beckmann = m.g_visible = (vreal)R(0);
     m.g_eta = m.g_alpha = (vreal)R(1);
 #endif
+    return m;
+}
+
+// Per-lane material by selecting over the (few) materials: cheaper on a CPU
+// than eight scattered loads per field.
+inline Material material_fetch(const Scene *sc, vreal id)
+{
+    Material m = material_blank(sc->rec);
     for (uint i = 0; i < NUM_MATERIALS; i++) {
         uint r = MAT_STRIDE * i;
         vmask is = id == (real)i;

@@ -14,16 +14,13 @@ import argparse
 import dataclasses
 import json
 import sys
-import time
 from pathlib import Path
-
-import numpy as np
 
 import clpt
 
 sys.path.insert(0, str(Path(__file__).parent))
 from bench_lights import speed  # noqa: E402
-from stats import compare_to_reference  # noqa: E402
+from bench_plastic import accuracy  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
 
@@ -49,16 +46,7 @@ def main():
     scene = clpt.load_scene(DATA / "rough_glass.xml")
     for name, sc, photons in (("smooth dielectric (before)", smooth(scene), None),
                               ("rough dielectric", scene, False)):
-        r = clpt.Renderer(sc, device=a.device, photons=photons)
-        r.render(spp=8, seed=0)  # builds
-        t = time.perf_counter()
-        res = r.render(spp=a.spp, seed=1)
-        dt = time.perf_counter() - t
-        err, z = compare_to_reference(res, ref)
-        ratio = res.image.reshape(-1, 3).mean(axis=0) / np.array(ref["mean_rgb"])
-        print(f"clpt, {name}: mean / Mitsuba's {np.round(ratio, 4).tolist()}, worst block "
-              f"{np.abs(z).max():.1f} sigma ({(np.abs(z) > 4).sum()} of {z.size} beyond 4), "
-              f"{a.spp} spp in {dt:.2f} s", flush=True)
+        accuracy(name, clpt.Renderer(sc, device=a.device, photons=photons), a.spp, ref)
     speed(a.device, a.mitsuba_python, spp=a.speed_spp, res=64, xml=DATA / "rough_glass.xml")
 
 

@@ -13,12 +13,14 @@ transport) and pdf.
 
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
 import mitsuba as mi
 
-mi.set_variant("scalar_rgb")
+sys.path.insert(0, str(Path(__file__).parent))
+from mitsuba_roughconductor import rows_of  # noqa: E402  (sets the scalar_rgb variant)
 
 CASES = [
     {"distribution": "ggx", "alpha": 0.05, "int_ior": 1.5, "ext_ior": 1.0},
@@ -86,15 +88,7 @@ def main(out_path):
                 wo[j] = v / np.linalg.norm(v)
             wi = wi * np.array([1, 1, side])
             wo = wo * np.array([1, 1, side])
-            for a, b in zip(wi, wo):
-                si = mi.SurfaceInteraction3f()
-                si.wi = mi.Vector3f(*a)
-                si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
-                ctx = mi.BSDFContext()
-                f = bsdf.eval(ctx, si, mi.Vector3f(*b))
-                p = bsdf.pdf(ctx, si, mi.Vector3f(*b))
-                rows.append({"wi": [float(x) for x in a], "wo": [float(x) for x in b],
-                             "eval": [float(f[0]), float(f[1]), float(f[2])], "pdf": float(p)})
+            rows += rows_of(bsdf, wi, wo)
         out.append({"bsdf": case, "rows": rows})
     with open(out_path, "w") as fh:
         json.dump({"mitsuba": mi.__version__, "cases": out}, fh, separators=(",", ":"))

@@ -287,14 +287,12 @@ __kernel void probe_pixel_filter(int kind, real radius, uint sample_border, real
     ST(filter_sample_offset(&f, kind, LD(u, i), LD(c, i), n), out, i);
 }
 
-// The rough dielectric's fields of a material built by hand: none.
-inline void probe_clear_rough_dielectric(Material *m)
+// A material built by hand: no lobe but a non-delta one to come (tables at tab).
+inline Material probe_material_blank(__global const real4 *tab)
 {
-#if CLPT_HAS_ROUGH_DIELECTRIC
-    m->gr = m->gt = v3_zero();
-    m->p_g = m->g_beckmann = m->g_visible = (vreal)R(0);
-    m->g_eta = m->g_alpha = (vreal)R(1);
-#endif
+    Material m = material_blank(tab);
+    m.nondelta = (vreal)R(1);
+    return m;
 }
 
 // The rough conductor's lobe (bsdf.h, microfacet.h) at a vertex with normal
@@ -312,20 +310,9 @@ __kernel void probe_microfacet(real4 par, real4 eta, real4 k, real4 km,
                                __global real *er, __global real *eg, __global real *eb, __global real *epdf)
 {
     size_t i = get_global_id(0);
-    Material m;
-    m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
-    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.one_sided = (vreal)R(0);
-    m.ior = (vreal)R(1);
-    m.nondelta = (vreal)R(1);
+    Material m = probe_material_blank(0);
     m.km = v3_splat(km); m.eta = v3_splat(eta); m.k = v3_splat(k);
     m.p_m = (vreal)R(1); m.alpha = (vreal)par.x; m.beckmann = (vreal)par.y;
-#if CLPT_HAS_PLASTIC
-    m.kp = m.kps = v3_zero();
-    m.p_p = m.spec_w = m.c_fdr = m.c_alpha = m.c_beckmann = m.c_tab = m.c_nonlinear = (vreal)R(0);
-    m.c_eta = (vreal)R(1.5);
-    m.rec = 0;
-#endif
-    probe_clear_rough_dielectric(&m);
     LobeProbs pr = lobe_probs(&m, (vmask)0);
     V3 n = v3((vreal)R(0), (vreal)R(0), (vreal)R(1));
     V3 d = LD3(dx, dy, dz, i);
@@ -361,19 +348,11 @@ __kernel void probe_plastic(__global const real4 *tab, real4 par, real4 kp, real
                             __global real *er, __global real *eg, __global real *eb, __global real *epdf)
 {
     size_t i = get_global_id(0);
-    Material m;
-    m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
-    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.one_sided = (vreal)R(0);
-    m.ior = (vreal)R(1);
-    m.nondelta = (vreal)R(1);
-    m.km = m.eta = m.k = v3_zero();
-    m.p_m = m.beckmann = (vreal)R(0); m.alpha = (vreal)R(1);
+    Material m = probe_material_blank(tab);
     m.kp = v3_splat(kp); m.kps = v3_splat(kps);
     m.p_p = (vreal)R(1); m.spec_w = (vreal)kps.w;
     m.c_eta = (vreal)par.x; m.c_fdr = (vreal)par.y; m.c_alpha = (vreal)par.z; m.c_beckmann = (vreal)par.w;
     m.c_tab = (vreal)R(0); m.c_nonlinear = (vreal)kp.w;
-    m.rec = tab;
-    probe_clear_rough_dielectric(&m);
     LobeProbs pr = lobe_probs(&m, (vmask)0);
     V3 n = v3((vreal)R(0), (vreal)R(0), (vreal)R(1));
     V3 d = LD3(dx, dy, dz, i);
@@ -412,19 +391,7 @@ __kernel void probe_rough_dielectric(real4 par, real4 kr, real4 kt,
                                      __global real *er, __global real *eg, __global real *eb, __global real *epdf)
 {
     size_t i = get_global_id(0);
-    Material m;
-    m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
-    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.one_sided = (vreal)R(0);
-    m.ior = (vreal)R(1);
-    m.nondelta = (vreal)R(1);
-    m.km = m.eta = m.k = v3_zero();
-    m.p_m = m.beckmann = (vreal)R(0); m.alpha = (vreal)R(1);
-#if CLPT_HAS_PLASTIC
-    m.kp = m.kps = v3_zero();
-    m.p_p = m.spec_w = m.c_fdr = m.c_alpha = m.c_beckmann = m.c_tab = m.c_nonlinear = (vreal)R(0);
-    m.c_eta = (vreal)R(1.5);
-    m.rec = 0;
-#endif
+    Material m = probe_material_blank(0);
     m.gr = v3_splat(kr); m.gt = v3_splat(kt);
     m.p_g = (vreal)R(1); m.g_alpha = (vreal)par.x; m.g_beckmann = (vreal)par.y; m.g_eta = (vreal)par.z;
     m.g_visible = (vreal)par.w;
