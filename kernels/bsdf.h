@@ -360,6 +360,23 @@ inline V3 sample_half_vector(V3 d, V3 n, vreal alpha, vmask beckmann, vreal u1, 
 }
 #endif
 
+#if CLPT_HAS_PHONG
+// --- Phong lobe around the mirror direction --------------------------------------
+// f = ks (n+2)/(2 pi) cos^n(alpha), pdf = (n+1)/(2 pi) cos^n(alpha):
+// f cos_i / pdf = ks (n+2)/(n+1) cos_i; directions below the surface are lost.
+inline void sample_phong(const Material *m, LobeProbs pr, V3 d, V3 n, BsdfU u, V3 *wi, V3 *w, vmask *is_s)
+{
+    V3 rdir = v3_reflect(d, n);
+    V3 ll = sample_phong_lobe(u.u1, u.u2, m->shininess);
+    V3 ws = frame_to_world(rdir, ll.x, ll.y, ll.z);
+    vreal cos_i = v3_dot(ws, n);
+    vreal k = (m->shininess + R(2)) / (m->shininess + R(1)) * fmax(cos_i, R(0)) / pr.s;
+    *wi = v3_sel(*wi, ws, *is_s);
+    *w = v3_sel(*w, v3_scale(m->ks, k), *is_s);
+    *is_s = *is_s && cos_i > R(0);
+}
+#endif
+
 #if CLPT_HAS_MICROFACET
 // --- rough conductor: a visible normal h, reflected about ------------------------
 // f cos_i / pdf = km F(-d.h) G1(wi, h) (microfacet.h); lost (*is_m cleared)
@@ -511,19 +528,8 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
         wi = frame_to_world(n, lc.x, lc.y, lc.z);
         w = v3_scale(m->kd, R(1) / pr.d);
 #if CLPT_HAS_PHONG
-        // --- Phong lobe around the mirror direction --------------------------------
-        // f = ks (n+2)/(2 pi) cos^n(alpha), pdf = (n+1)/(2 pi) cos^n(alpha):
-        // f cos_i / pdf = ks (n+2)/(n+1) cos_i; directions below the surface are lost.
-        if (VANY(is_s)) {
-            V3 rdir = v3_reflect(d, n);
-            V3 ll = sample_phong_lobe(u.u1, u.u2, m->shininess);
-            V3 ws = frame_to_world(rdir, ll.x, ll.y, ll.z);
-            vreal cos_i = v3_dot(ws, n);
-            vreal k = (m->shininess + R(2)) / (m->shininess + R(1)) * fmax(cos_i, R(0)) / pr.s;
-            wi = v3_sel(wi, ws, is_s);
-            w = v3_sel(w, v3_scale(m->ks, k), is_s);
-            is_s = is_s && cos_i > R(0);
-        }
+        if (VANY(is_s))
+            sample_phong(m, pr, d, n, u, &wi, &w, &is_s);
 #endif
 #if CLPT_HAS_MICROFACET
         if (VANY(is_m))
