@@ -1066,7 +1066,7 @@ def _tname(v):
 
 
 _MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided", "one_sided",
-                  "km", "alpha", "distribution", "eta", "k"}
+                  "km", "alpha", "distribution", "eta", "k", "rough_dielectric", "kgr", "kgt", "sample_visible"}
 _COMMON_SHAPE_KEYS = {"type", "material", "emission", "two_sided", "name"}
 _SHAPE_KEYS = {
     "sphere": {"center", "radius"},
@@ -1088,7 +1088,7 @@ def _read_material(r: _Reader, d, path) -> Material:
             r.fail(f"{path}.preset", f"unknown preset {name!r}{_suggest(name, PRESETS)}; "
                                      f"presets: {', '.join(PRESETS)}")
         base = dict(PRESETS[name])
-    for k in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k"):
+    for k in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k", "kgr", "kgt"):
         if k in d:
             base[k] = r.vec3(d[k], f"{path}.{k}")
     for k in ("shininess", "ior", "alpha"):
@@ -1096,9 +1096,11 @@ def _read_material(r: _Reader, d, path) -> Material:
             base[k] = r.number(d[k], f"{path}.{k}")
     if "distribution" in d:
         base["distribution"] = r.string(d["distribution"], f"{path}.distribution")
-    for k in ("two_sided", "one_sided"):
+    for k in ("two_sided", "one_sided", "sample_visible"):
         if k in d:
             base[k] = r.boolean(d[k], f"{path}.{k}")
+    if "rough_dielectric" in d:
+        base["rough_dielectric_lobe"] = r.boolean(d["rough_dielectric"], f"{path}.rough_dielectric")
     m = Material(**base)
     check_material(r.source, path, m)
     return m
