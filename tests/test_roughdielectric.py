@@ -287,6 +287,19 @@ def test_loader_and_flag(tmp_path):
     assert (m.alpha, m.distribution) == (0.1, "beckmann")  # Mitsuba's defaults
 
 
+def test_toml_rough_dielectric(tmp_path):
+    """A TOML material with rough_dielectric = true is the same material as Material.rough_dielectric."""
+    p = tmp_path / "s.toml"
+    p.write_text('[camera]\norigin = [0, 0, 5]\ntarget = [0, 0, 0]\nfov = 40\nwidth = 8\nheight = 8\n\n[materials.frost]\nrough_dielectric = true\nalpha = 0.2\ndistribution = "ggx"\nior = 1.33\n'
+                 'kgt = [0.9, 0.8, 0.7]\nsample_visible = false\n\n'
+                 '[[shapes]]\ntype = "sphere"\nmaterial = "frost"\ncenter = [0, 0, 0]\nradius = 1\n\n'
+                 '[[shapes]]\ntype = "sphere"\nmaterial = "black"\ncenter = [0, 3, 0]\nradius = 0.5\n'
+                 'emission = [1, 1, 1]\n')
+    m = clpt.load_scene(p).materials["frost"]
+    assert m == clpt.Material.rough_dielectric(alpha=0.2, distribution="ggx", int_ior=1.33, ext_ior=1.0,
+                                               specular_transmittance=(0.9, 0.8, 0.7), sample_visible=False)
+
+
 def test_bad_rough_dielectrics_fail_in_one_line(tmp_path):
     def load(bsdf):
         p = tmp_path / "s.xml"
