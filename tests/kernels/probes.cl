@@ -287,6 +287,20 @@ __kernel void probe_pixel_filter(int kind, real radius, uint sample_border, real
     ST(filter_sample_offset(&f, kind, LD(u, i), LD(c, i), n), out, i);
 }
 
+// The lobe probes' outputs (probe_plastic, probe_rough_dielectric): sample bs
+// (direction, weight, pdf, chosen, and the mask `flag` into flag_out), then
+// f and pdf of w; the probe's names m, pr, d, n, i and buffers.
+#define PROBE_STORE(flag, flag_out) do {                                         \
+        ST3(bs.wi, sx, sy, sz, i);                                               \
+        ST3(bs.weight, fr, fg, fb, i);                                           \
+        ST(bs.pdf, spdf, i);                                                     \
+        ST(VSEL((vreal)R(0), (vreal)R(1), bs.chosen), chosen, i);               \
+        ST(VSEL((vreal)R(0), (vreal)R(1), flag), flag_out, i);                  \
+        V3 w = LD3(wx, wy, wz, i);                                               \
+        ST3(bsdf_eval(&m, d, n, w), er, eg, eb, i);                              \
+        ST(bsdf_pdf(&m, pr, d, n, w), epdf, i);                                  \
+    } while (0)
+
 // A material built by hand: no lobe but a non-delta one to come (tables at tab).
 inline Material probe_material_blank(__global const real4 *tab)
 {
@@ -361,15 +375,7 @@ __kernel void probe_plastic(__global const real4 *tab, real4 par, real4 kp, real
     vmask all = (vmask)(-1);
     BsdfSample bs;
     bsdf_sample(&m, pr, d, n, all, all, u, TRANSPORT_RADIANCE, 1, &bs);
-    ST3(bs.wi, sx, sy, sz, i);
-    ST3(bs.weight, fr, fg, fb, i);
-    ST(bs.pdf, spdf, i);
-    ST(VSEL((vreal)R(0), (vreal)R(1), bs.chosen), chosen, i);
-    ST(VSEL((vreal)R(0), (vreal)R(1), bs.delta), delta, i);
-    V3 w = LD3(wx, wy, wz, i);
-    V3 f = bsdf_eval(&m, d, n, w);
-    ST3(f, er, eg, eb, i);
-    ST(bsdf_pdf(&m, pr, d, n, w), epdf, i);
+    PROBE_STORE(bs.delta, delta);
 }
 #endif
 
@@ -405,14 +411,6 @@ __kernel void probe_rough_dielectric(real4 par, real4 kr, real4 kt,
     vmask all = (vmask)(-1);
     BsdfSample bs;
     bsdf_sample(&m, pr, d, n, front, all, u, kt.w > 0 ? TRANSPORT_IMPORTANCE : TRANSPORT_RADIANCE, 1, &bs);
-    ST3(bs.wi, sx, sy, sz, i);
-    ST3(bs.weight, fr, fg, fb, i);
-    ST(bs.pdf, spdf, i);
-    ST(VSEL((vreal)R(0), (vreal)R(1), bs.chosen), chosen, i);
-    ST(VSEL((vreal)R(0), (vreal)R(1), bs.up), up, i);
-    V3 w = LD3(wx, wy, wz, i);
-    V3 f = bsdf_eval(&m, d, n, w);
-    ST3(f, er, eg, eb, i);
-    ST(bsdf_pdf(&m, pr, d, n, w), epdf, i);
+    PROBE_STORE(bs.up, up);
 }
 #endif
