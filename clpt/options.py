@@ -93,6 +93,8 @@ PHOTON_OPTIONS = (
                                                        "roulette on the merge)"),
     Option("--no-photon-pilot", "pilot", "always use the photon map (no pilot deciding whether it pays)",
            value=False),
+    Option("--no-pilot-trial", "pilot_trial", "the pilot decides from the caustic photons' share of the light "
+                                             "alone, without timing a trial of each technique", value=False),
     Option("--offline-spp", "offline_spp", "samples per pixel of the offline pre-pass"),
     Option("--aim", "aim", "share photons among casters by solid angle or equally (the paper)",
            choices=("solid_angle", "equal")),

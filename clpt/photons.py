@@ -67,6 +67,7 @@ class PhotonSettings:
     photons_per_sample: float = 0.05
     pilot: bool = True
     min_caustic_share: float = 1e-3
+    pilot_trial: bool = True
     alpha: float = 0.7
     spp_per_map: int = 8
 
@@ -102,6 +103,8 @@ class PhotonSettings:
             bad(f"photons_per_sample must be > 0 (got {self.photons_per_sample!r})")
         if not isinstance(self.pilot, (bool, np.bool_)):
             bad(f"pilot must be True or False (got {self.pilot!r})")
+        if not isinstance(self.pilot_trial, (bool, np.bool_)):
+            bad(f"pilot_trial must be True or False (got {self.pilot_trial!r})")
         for key in ("offline_spp", "spp_per_map"):
             v = getattr(self, key)
             if not is_int(v) or not 1 <= v < 2 ** 32:
@@ -177,3 +180,45 @@ def pilot_choice(settings: PhotonSettings, power, max_flux: float, stored: int,
     out = {"choice": "photon merging" if use else "path tracing", "caustic_share": share,
            "stored": stored, "photons": int(settings.count), "seconds": seconds}
     return (replace(settings, pilot=False) if use else replace(settings, count=0, pilot=False)), out
+
+
+# The pilot's trial renders: at most this many pixels (the render's aspect),
+# this many samples per pixel, with each technique.
+TRIAL_PIXELS = 64 * 64
+TRIAL_SPP = 8
+RELMSE_EPS = 1e-2  # as in relMSE: (x - ref)^2 / (ref^2 + eps), on luminance
+
+
+def trial_size(width: int, height: int) -> tuple[int, int]:
+    """The trial's resolution: the render's, scaled down to at most
+    TRIAL_PIXELS pixels with its aspect kept."""
+    scale = min(1.0, math.sqrt(TRIAL_PIXELS / (width * height)))
+    return max(1, round(width * scale)), max(1, round(height * scale))
+
+
+def relmse_per_sample(trials: dict) -> dict:
+    """Per technique (name -> (luminance image, per-sample luminance
+    variance)), the relMSE one sample per pixel leaves: the mean over pixels
+    of var / (ref^2 + eps), ref the luminance of all techniques' images
+    averaged (each an unbiased or nearly unbiased estimate of the same image)."""
+    ref = np.mean([np.asarray(t[0], np.float64) for t in trials.values()], axis=0)
+    den = ref * ref + RELMSE_EPS
+    return {k: float(np.mean(np.asarray(v, np.float64) / den)) for k, (_, v) in trials.items()}
+
+
+def weigh_cost(settings: PhotonSettings, info: dict, n_pix: int, per_sample: dict,
+               seconds_per_sample: dict) -> tuple[PhotonSettings, dict]:
+    """The pilot's second step, after Grittmann et al. 2018: each technique's
+    error per unit of time, the relMSE one sample per pixel leaves
+    (relmse_per_sample) times the seconds a sample costs (device seconds of
+    its trial, photon maps included, per sample), for a render of n_pix
+    pixels: the relMSE it reaches after one second. Photon merging is kept
+    only where it reaches a lower figure than path tracing. The merge's
+    bias (the radius' blur) is not in the figure. Returns the settings and
+    info with the figures added."""
+    at_1s = {k: per_sample[k] * seconds_per_sample[k] * n_pix for k in ("merge", "path")}
+    use = at_1s["merge"] < at_1s["path"]
+    out = dict(info, choice="photon merging" if use else "path tracing",
+               relmse_per_sample=dict(per_sample), seconds_per_sample=dict(seconds_per_sample),
+               predicted_relmse_1s=at_1s, predicted_gain=at_1s["path"] / max(at_1s["merge"], 1e-300))
+    return (settings if use else replace(settings, count=0)), out

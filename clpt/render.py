@@ -15,6 +15,7 @@ a per-pixel caustic buffer that is added to the path-traced image.
 
 from __future__ import annotations
 
+import hashlib
 import inspect
 import math
 import time
@@ -26,6 +27,7 @@ import numpy as np
 
 from . import tune
 from .adaptive import AdaptiveSettings
+from .constants import luminance
 from .device import DeviceContext, choose_devices
 from .engine.checkpoint import Checkpoint
 from .engine.device import DeviceWorker, device_features, kernel_source
@@ -37,7 +39,8 @@ from .engine.schedule import Schedule
 from .errors import CheckpointError, DeviceError, SettingsError
 from .features import KERNEL_MODES, Experimental, Features
 from .loading import load_scene
-from .photons import PhotonSettings, pilot_choice
+from .photons import (TRIAL_SPP, PhotonSettings, pilot_choice, relmse_per_sample, trial_size,
+                      weigh_cost)
 from .preview import RenderUpdate  # noqa: F401 - part of the API
 from .result import RenderResult, RenderStats  # noqa: F401 - part of the API
 from .scene import Scene
@@ -258,7 +261,31 @@ class Renderer:
         res = run_item(executor, job, WorkItem("photons", iteration=0))
         pm = res.photon_maps[0]
         pset, info = pilot_choice(pset, pm["power"], self.packed.max_flux, pm["stored"], pm["host_seconds"])
+        if pset.count > 0 and pset.pilot_trial:
+            pset, info = self._pilot_trial(job, pset, info, executor)
         return replace(job, photons=pset), info, time.perf_counter() - t0
+
+    def _pilot_trial(self, job: RenderJob, pset: PhotonSettings, info: dict, executor):
+        """The pilot's weighing of cost against gain (photons.weigh_cost): the
+        job at a small resolution and few samples per pixel, once with photon
+        merging and once path tracing alone on the same build, each timed by
+        its kernels' device seconds (photon maps included)."""
+        w, h = trial_size(job.width, job.height)
+        small = replace(job, spp=min(TRIAL_SPP, job.spp), width=w, height=h, filter=None)
+        trials, seconds = {}, {}
+        for name, ps in (("path", replace(pset, count=0)), ("merge", pset)):
+            r = self._run(replace(small, photons=ps), None, None, 0.0, executor=executor)
+            trials[name] = (luminance(r.image), r.lum_var)
+            seconds[name] = sum(sum(v) for v in r.stats.kernel_seconds.values()) / max(r.samples, 1)
+        # The costs of a trial are measured once per device and trial and then
+        # taken from the cache, so a render's choice is reproducible from its seed.
+        key = hashlib.sha256(repr(([s.dctx.identity() for s in self.states], small.key)).encode()).hexdigest()[:32]
+        cached = tune.load_measured("pilot", key) if self.options.use_cache else None
+        if cached is not None and set(cached.get("seconds_per_sample", ())) == {"path", "merge"}:
+            seconds = {k: float(v) for k, v in cached["seconds_per_sample"].items()}
+        elif self.options.use_cache:
+            tune.save_measured("pilot", key, {"seconds_per_sample": seconds, "trial": [w, h, small.spp]})
+        return weigh_cost(pset, info, job.n_pix, relmse_per_sample(trials), seconds)
 
     def resume(self, checkpoint, *, out_checkpoint=None, **kw) -> RenderResult:
         """Continue the render saved in `checkpoint` (of this Renderer's scene

@@ -90,7 +90,12 @@ class RenderResult:
         if exposure is not None:
             meta["clpt:exposure"] = float(exposure)
         if self.stats.photon_pilot is not None:
-            meta["clpt:photon_choice"] = self.stats.photon_pilot["choice"]
+            pl = self.stats.photon_pilot
+            meta["clpt:photon_choice"] = pl["choice"]
+            if "predicted_relmse_1s" in pl:
+                e = pl["predicted_relmse_1s"]
+                meta["clpt:photon_pilot"] = (f"caustic share {pl['caustic_share']:.4g}; predicted relMSE after 1 s: "
+                                             f"merging {e['merge']:.4g}, path tracing {e['path']:.4g}")
         if self.photons is not None:
             p = self.photons
             meta["clpt:photons"] = (f"{p.count} photons, radius {p.radius}{'' if p.radius_absolute else ' x size'}, "

@@ -161,6 +161,26 @@ def save(key: str, t: Tuning, dctx, measured: dict):
         pass  # an unwritable cache only costs the next run a measurement
 
 
+def load_measured(kind: str, key: str) -> dict | None:
+    """A measurement cached beside the tuning's (cache_dir() / kind), or None."""
+    try:
+        d = json.loads((cache_dir() / kind / f"{key}.json").read_text())
+        return d if isinstance(d, dict) else None
+    except (OSError, ValueError):
+        return None
+
+
+def save_measured(kind: str, key: str, data: dict):
+    p = cache_dir() / kind / f"{key}.json"
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp = p.with_suffix(f".{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(data, indent=1))
+        os.replace(tmp, p)
+    except OSError:
+        pass  # an unwritable cache only costs the next run a measurement
+
+
 def cached_choices(dctx) -> list[dict]:
     """The measured choices cached for this device (for `clpt devices -v`)."""
     d = cache_dir() / "tune"

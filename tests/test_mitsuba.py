@@ -633,7 +633,7 @@ def test_one_sided_mirror_absorbs_photons_from_behind(device_spec):
                               emission=(10, 10, 10)),  # faces down
                     clpt.Quad(corner=(-0.5, 0, -0.5), edge_u=(1, 0, 0), edge_v=(0, 0, 1), material=mirror),  # faces down
                     clpt.Quad(corner=(-2, -1, -2), edge_u=(0, 0, 4), edge_v=(4, 0, 0), material=white)])  # floor, up
-        res = clpt.Renderer(scene, device=device_spec).render(spp=1, photons=clpt.PhotonSettings(count=20000))
+        res = clpt.Renderer(scene, device=device_spec).render(spp=1, photons=clpt.PhotonSettings(count=20000, pilot=False))
         return res.stats.photon_maps[0]["stored"]
 
     assert stored(True) == 0 and stored(False) > 100

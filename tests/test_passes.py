@@ -19,7 +19,7 @@ from clpt.engine.executors import LocalExecutor
 from clpt.engine.job import RenderJob, WorkItem
 from clpt.engine.passes import IMAGE_FIELDS, ITEM_FIELDS, Counters, PhotonPassArgs, TraceArgs
 from clpt.engine.runresult import RunResult
-from clpt.photons import pilot_choice
+from clpt.photons import RELMSE_EPS, PhotonSettings, pilot_choice, relmse_per_sample, trial_size, weigh_cost
 from clpt.resources import kernel_dir
 
 
@@ -177,7 +177,7 @@ def test_run_item_runs_one_item_on_the_first_live_worker():
 def test_the_pilot_is_a_photons_item_of_the_render_job(device_spec):
     """A "photons" item builds the job's first photon map and measures the
     power it stores; the render's pilot makes its choice from the same map."""
-    r = clpt.Renderer("cornell_box_caustics", device=device_spec)
+    r = clpt.Renderer("cornell_box_caustics", device=device_spec, photons=PhotonSettings(pilot_trial=False))
     res = r.render(2, width=16, height=12, seed=5)
     pilot = res.stats.photon_pilot
     assert pilot is not None and pilot["choice"] == "photon merging"
@@ -207,3 +207,45 @@ def test_the_tuning_trial_renders_a_job_on_one_worker(device_spec):
     a = r.render(2, width=16, height=12, seed=5).image
     b = clpt.Renderer("cornell_box_caustics", device=device_spec).render(2, width=16, height=12, seed=5).image
     assert np.array_equal(a, b)
+
+
+def test_the_pilot_weighs_each_techniques_error_against_its_cost(device_spec):
+    """Where caustic photons carry light, the pilot renders a small trial with
+    each technique and keeps merging only if its relMSE per second is the
+    lower: the errors come from the trial images alone (reproducible from the
+    seed), the costs from the trial's device seconds, measured once per
+    device and trial and cached, so the same seed makes the same choice."""
+    r = clpt.Renderer("cornell_box_caustics", device=device_spec)
+    a = r.render(2, width=40, height=30, seed=5).stats.photon_pilot
+    b = r.render(2, width=40, height=30, seed=5).stats.photon_pilot
+    assert a["relmse_per_sample"] == b["relmse_per_sample"]  # bit for bit: the same trial images
+    assert a["seconds_per_sample"] == b["seconds_per_sample"] and a["choice"] == b["choice"]  # costs measured once
+    assert a["relmse_per_sample"]["merge"] != a["relmse_per_sample"]["path"]
+    for p in (a, b):
+        at_1s = {k: p["relmse_per_sample"][k] * p["seconds_per_sample"][k] * 40 * 30 for k in ("merge", "path")}
+        assert p["predicted_relmse_1s"] == pytest.approx(at_1s, rel=1e-12)
+        assert p["choice"] == ("photon merging" if at_1s["merge"] < at_1s["path"] else "path tracing")
+    c = r.render(2, width=40, height=30, seed=6).stats.photon_pilot
+    assert c["relmse_per_sample"] != a["relmse_per_sample"]  # another seed, other trial samples
+
+
+def test_weigh_cost_keeps_merging_only_where_it_reaches_the_lower_error_per_second():
+    base = PhotonSettings(count=1000)
+    info = {"choice": "photon merging", "caustic_share": 0.1}
+    # merging halves the error per sample but costs three times as much: path tracing wins
+    s, out = weigh_cost(base, info, 100, {"merge": 0.1, "path": 0.2}, {"merge": 3e-6, "path": 1e-6})
+    assert s.count == 0 and out["choice"] == "path tracing"
+    assert out["predicted_gain"] == pytest.approx((0.2 * 1e-6) / (0.1 * 3e-6))
+    # ... and at 1.5 times the cost, merging
+    s, out = weigh_cost(base, info, 100, {"merge": 0.1, "path": 0.2}, {"merge": 1.5e-6, "path": 1e-6})
+    assert s.count == 1000 and out["choice"] == "photon merging"
+    assert out["predicted_relmse_1s"]["merge"] == pytest.approx(0.1 * 1.5e-6 * 100)
+
+
+def test_the_trial_relmse_uses_both_techniques_mean_as_reference():
+    ref = np.full((2, 2), 0.5)
+    out = relmse_per_sample({"path": (ref * 0.8, np.full((2, 2), 0.3)), "merge": (ref * 1.2, np.full((2, 2), 0.1))})
+    den = 0.25 + RELMSE_EPS
+    assert out == pytest.approx({"path": 0.3 / den, "merge": 0.1 / den})
+    assert trial_size(1920, 1080)[0] * trial_size(1920, 1080)[1] <= 64 * 64
+    assert trial_size(16, 12) == (16, 12)

@@ -197,7 +197,7 @@ def test_no_caustic_casters_no_photon_pass(device_spec):
     assert set(res.stats.launches) == {"trace_paths"} and not res.stats.photon_maps
     off = clpt.Renderer("cornell_box_caustics", device=device_spec, photons=False)
     assert not off.features.photons and off.states[0].pmap is None
-    on = clpt.Renderer("cornell_box_caustics", device=device_spec)
+    on = clpt.Renderer("cornell_box_caustics", device=device_spec, photons=PhotonSettings(pilot=False))
     res = on.render(2, width=8, height=8)
     assert on.features.photons and res.stats.launches["trace_photons"] == 1
     assert res.stats.launches["radix_scatter"] >= 2 and res.stats.photon_maps[0]["stored"] > 0
@@ -216,7 +216,7 @@ def test_photon_image_converges_to_path_tracing(device_spec, pt_reference):
     ref_var = pt_reference.lum_var / pt_reference.sample_count
     mse = {}
     for rad in (0.04, 0.02, 0.01, 0.005):
-        res = r.render(256, seed=2, photons=PhotonSettings(radius=rad, count=400_000))
+        res = r.render(256, seed=2, photons=PhotonSettings(radius=rad, count=400_000, pilot=False))
         var = res.lum_var / res.sample_count
         mse[rad], total = window_error(res.image, pt_reference)
         if rad == 0.005:  # the image's total (where blurring cannot hide bias) agrees within noise
@@ -293,9 +293,9 @@ def test_progressive_photon_mapping_converges_past_the_fixed_blur(device_spec, p
     """Same photons in all: one map with a fixed radius keeps its blur; fresh
     maps with a shrinking radius get closer to the path-traced image."""
     r = clpt.Renderer(caustic_scene(), device=device_spec)
-    fixed = r.render(256, seed=4, photons=PhotonSettings(radius=0.04, count=12_800 * 32))
+    fixed = r.render(256, seed=4, photons=PhotonSettings(radius=0.04, count=12_800 * 32, pilot=False))
     prog = r.render(256, seed=4, photons=PhotonSettings(radius=0.04, count=12_800, progressive=True,
-                                                        spp_per_map=8, alpha=0.5))
+                                                        spp_per_map=8, alpha=0.5, pilot=False))
     assert len(prog.stats.photon_maps) == 32
     radii = [m["radius"] for m in prog.stats.photon_maps]
     assert radii == sorted(radii, reverse=True) and radii[-1] < 0.7 * radii[0]

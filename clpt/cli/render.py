@@ -394,6 +394,11 @@ def _report(a, res, out, fallback):
             pl = st.photon_pilot
             print(f"photon pilot: {pl['choice']} (caustic photons carry {pl['caustic_share']:.2%} of the "
                   f"lights' power; {pl['stored']} of {pl['photons']} photons stored)", file=sys.stderr)
+            if "predicted_relmse_1s" in pl:
+                e, c = pl["predicted_relmse_1s"], pl["seconds_per_sample"]
+                print(f"photon pilot: predicted relMSE after 1 s: merging {e['merge']:.3g} "
+                      f"({c['merge'] * 1e6:.3g} us/sample), path tracing {e['path']:.3g} "
+                      f"({c['path'] * 1e6:.3g} us/sample); merging {pl['predicted_gain']:.3g}x", file=sys.stderr)
         for m in st.photon_maps[:3]:
             print(f"photon map: {m['stored']} of {res.photons.count} photons stored, radius {m['radius']:.4g}, "
                   f"trace {m['trace_seconds'] * 1e3:.1f} ms, grid {m['grid_seconds'] * 1e3:.1f} ms", file=sys.stderr)
