@@ -53,7 +53,7 @@ CASES = {
     "pixel_filter": (_gaussian_box(), {}, {}),  # the camera's filter travels in the checkpoint
     "kahan": ("cornell_box", {"accumulate": "kahan"}, {}),
     "progressive": ("cornell_box_caustics", {}, {"photons": PhotonSettings(count=20_000, progressive=True,
-                                                                           spp_per_map=2)}),
+                                                                           spp_per_map=2, pilot=False)}),
     "offline": ("cornell_box_caustics", {}, {"photons": PhotonSettings(count=20_000, mode="offline",
                                                                        offline_spp=4)}),
     "adaptive": ("cornell_box", {}, {"adaptive": clpt.AdaptiveSettings(min_spp=8, pass_spp=8)}),

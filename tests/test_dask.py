@@ -36,7 +36,7 @@ def assert_same(a, b):
 
 @pytest.mark.parametrize("scene,kw", [("cornell_box", {}),
                                        ("cornell_box_caustics", {"photons": clpt.PhotonSettings(
-                                           count=20_000, progressive=True, spp_per_map=4)}),
+                                           count=20_000, progressive=True, spp_per_map=4, pilot=False)}),
                                        ("cornell_box", {"adaptive": clpt.AdaptiveSettings(min_spp=8, pass_spp=8)})])
 def test_two_workers_give_the_one_process_image(client, device_spec, scene, kw):
     r = clpt.Renderer(scene, device=device_spec)

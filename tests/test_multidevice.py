@@ -19,8 +19,10 @@ try:
 except clpt.DeviceError as e:
     print(json.dumps({"devices": 0, "why": str(e)}))
     sys.exit(0)
-one = clpt.Renderer("cornell_box_caustics", device=pocl[0]).render(24, width=24, height=16, seed=9, pass_seconds=0.02)
-r = clpt.Renderer("cornell_box_caustics", device=list(pocl))
+ph = clpt.PhotonSettings(pilot=False)  # the same technique on one device and on two
+one = clpt.Renderer("cornell_box_caustics", device=pocl[0], photons=ph).render(24, width=24, height=16, seed=9,
+                                                                                 pass_seconds=0.02)
+r = clpt.Renderer("cornell_box_caustics", device=list(pocl), photons=ph)
 two = r.render(24, width=24, height=16, seed=9, pass_seconds=0.02)
 labels = [p[0] for p in two.stats.passes]
 procs = r.render(24, width=24, height=16, seed=9, pass_seconds=0.02, executor="processes")
@@ -55,7 +57,7 @@ def test_pocl_split_in_two_devices_gives_the_one_device_image(tmp_path):
 
 def test_a_device_failing_mid_render_leaves_its_work_to_the_other(device_spec):
     dev = clpt.device.select_devices(device_spec)[0]
-    ph = clpt.PhotonSettings(count=20_000, progressive=False)  # one map: ranges of any size
+    ph = clpt.PhotonSettings(count=20_000, progressive=False, pilot=False)  # one map: ranges of any size
     one = clpt.Renderer("cornell_box_caustics", device=dev).render(16, width=16, height=16, seed=9, photons=ph)
     r = clpt.Renderer("cornell_box_caustics", device=[dev, dev])
     bad = r.states[1]

@@ -282,7 +282,7 @@ def test_metadata_is_honest(tmp_path, capsys, device_spec):
     assert m["clpt:adaptive"].startswith("error, min spp 2")
     png = tmp_path / "a.png"
     assert main(["render", "cornell_box_caustics", "--spp", "1", "--width", "8", "--height", "8", "--photons",
-                 "1000", "-o", str(png), *dev]) == 0
+                 "1000", "--no-photon-pilot", "-o", str(png), *dev]) == 0
     m = read_metadata(png)
     assert m["clpt:spp"] == "1.0" and "1000 photons" in m["clpt:photons"] and "spp_max=1" in m["ImageDescription"]
 
