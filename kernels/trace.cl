@@ -31,8 +31,10 @@
 //   CLPT_HAS_{TRIANGLE,SPHERE,MESH}_LIGHTS, CLPT_HAS_{BVH,SMOOTH}, CLPT_BVH_PACKETS, CLPT_NUM_* (when not generic).
 
 #if CLPT_LANES > 1
-// Lanes are explicit vectors: Intel's CPU compiler must not vectorize the
-// kernel once more across work-items (see the note above).
+// The lanes are explicit vectors already: a vector type hint tells Intel's
+// CPU compiler not to vectorize the kernel once more across work-items. It
+// did so to the photon kernel (16 x 16 wide, 128 gathers and 80 scatters)
+// and ran it at a third of the speed; the plain kernel it left alone.
 #define TRACE_PATHS_ATTRS __attribute__((vec_type_hint(vreal)))
 #else
 #define TRACE_PATHS_ATTRS
