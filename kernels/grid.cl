@@ -100,11 +100,10 @@ __kernel void bucket_starts(__global const uint *keys, uint n, uint mask, __glob
 }
 
 // One work-item per slot: sets, in a bit table hashed like the buckets (with
-// its own mask), the bits of the occupancy cells (one radius wide, half a
-// grid cell: photon_grid.h occ_inv_cell) that hold points within the radius
-// of a stored photon, with a margin for rounding. A gather point whose own
-// occupancy cell's bit is clear has no photon within the radius (a set bit
-// may be a hash collision), so most empty gathers end after one vector test
+// its own mask), the bits of the 2 x 2 x 2 cells whose points can lie within
+// the radius of a stored photon (grid_lower_corner). A gather point whose own
+// cell's bit is clear has no photon within the radius (a set bit may be a
+// hash collision), so most empty gathers end after one vector test
 // (photon_maybe). OR is order-free: the table is the same bits every time.
 __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_cell, uint occ_mask,
                                __global uint *occ)
@@ -115,13 +114,11 @@ __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_c
     float4 p = ph_pos[i];
     if (p.w == 0.0f)
         return;
-    real3 q = clamp(REAL3(p.xyz) * occ_inv_cell(inv_cell), -GRID_COORD_LIMIT, GRID_COORD_LIMIT);
-    real3 m = R(1.0001) + R(1e-6) * fabs(q);  // one cell (the radius), and the margin
-    int3 lo = convert_int3(floor(q - m)), hi = convert_int3(floor(q + m));
-    for (int z = lo.z; z <= hi.z; z++)
-        for (int y = lo.y; y <= hi.y; y++)
-            for (int x = lo.x; x <= hi.x; x++) {
-                uint b = grid_bucket((int3)(x, y, z), occ_mask);
+    int3 c = grid_lower_corner(REAL3(p.xyz), inv_cell);
+    for (int dz = 0; dz <= 1; dz++)
+        for (int dy = 0; dy <= 1; dy++)
+            for (int dx = 0; dx <= 1; dx++) {
+                uint b = grid_bucket(c + (int3)(dx, dy, dz), occ_mask);
                 atomic_or(&occ[b >> 5], 1u << (b & 31u));
             }
 }

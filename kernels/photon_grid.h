@@ -85,22 +85,13 @@ inline void photon_map_init(PhotonMap *pm, const PhotonLookup *pl, __global cons
 #define VAS_UINT(x) CLPT_CAT(as_uint, CLPT_LANES)(x)
 #endif
 
-// The occupancy bits' cells are one radius wide, half a grid cell: a
-// photon marks the 2-3 per axis its ball reaches, 8 times less volume than
-// the grid's 2 x 2 x 2 cells, so fewer gathers start that find nothing.
-inline real occ_inv_cell(real inv_cell)
-{
-    return inv_cell * R(2);
-}
-
-// Lanes (among `active`) whose occupancy cell's bit is set: only they can
+// Lanes (among `active`) whose cell's occupancy bit is set: only they can
 // have photons within the radius. Vector code, one load per lane.
 inline vmask photon_maybe(const PhotonMap *pm, V3 x, vmask active)
 {
-    real inv = occ_inv_cell(pm->inv_cell);
-    vint cx = VINT(floor(clamp(x.x * inv, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
-    vint cy = VINT(floor(clamp(x.y * inv, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
-    vint cz = VINT(floor(clamp(x.z * inv, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    vint cx = VINT(floor(clamp(x.x * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    vint cy = VINT(floor(clamp(x.y * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    vint cz = VINT(floor(clamp(x.z * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
     vuint b = (GRID_ROW_HASH(VAS_UINT(cy), VAS_UINT(cz)) + VAS_UINT(cx)) & pm->occ_mask;
     vuint word = (vuint)0u;
     for (int l = 0; l < CLPT_LANES; l++)

@@ -108,43 +108,6 @@ def test_grid_is_sorted_with_consistent_bucket_starts(pmap):
     assert np.array_equal(starts, ref)
 
 
-def _occupancy_bit(occ, occ_mask, x, inv):
-    """photon_maybe's bit for points x (n x 3, the device's real type): the
-    bucket of their occupancy cell (kernels/photon_grid.h)."""
-    c = np.floor(np.clip(x * inv, -1e9, 1e9)).astype(np.int64).astype(np.uint32)
-    with np.errstate(over="ignore"):
-        row = (c[:, 1] * np.uint32(73856093)) ^ (c[:, 2] * np.uint32(19349663))
-        b = (row + c[:, 0]) & np.uint32(occ_mask)
-    return (occ[b >> 5] >> (b & 31)) & 1
-
-
-@pytest.mark.parametrize("center", [0.0, 300.0])
-def test_occupancy_bits_cover_every_point_within_the_radius(pmap, center):
-    """Every point closer to a photon than the radius, however close to the
-    radius and however far from the origin, finds its occupancy bit set
-    (a clear bit ends the gather), and a photon sets at most the 3 x 3 x 3
-    cells of one radius its ball reaches (or 4 where the margin for
-    rounding tips it over a cell's edge)."""
-    probe, pm = pmap
-    rng = np.random.default_rng(5)
-    n, r = 3000, 0.01
-    pos = (center + rng.normal(0, 0.3, (n, 3))).astype(np.float32)
-    pm.load(pos, np.tile([0, -1.0, 0], (n, 1)), np.ones((n, 3)), r)
-    occ = np.empty(pm.occ_bits // 32, np.uint32)
-    cl.enqueue_copy(probe.dctx.queue, occ, pm.occ)
-    probe.dctx.queue.finish()
-    real = probe.real
-    inv = real(real(pm.inv_cell) * real(2))
-    for scale in (1 - 1e-6, 0.999, 0.5, 0.1):
-        d = rng.normal(size=(n, 3))
-        x = (pos + d / np.linalg.norm(d, axis=1, keepdims=True) * (r * scale)).astype(real)
-        close = np.linalg.norm(x.astype(np.float64) - pos, axis=1) < r
-        assert close.mean() > 0.25  # (rounding to float puts some of the nearest outside)
-        assert _occupancy_bit(occ, pm.occ_bits - 1, x, inv)[close].all()
-    set_bits = int(np.unpackbits(occ.view(np.uint8)).sum())
-    assert set_bits <= 27.5 * n
-
-
 @pytest.mark.parametrize("cone_k", [1.0, 1.1, 2.0, 50.0])
 def test_uniform_photon_field_gives_its_irradiance(pmap, cone_k):
     """Photons of total flux Phi spread uniformly over area A give irradiance

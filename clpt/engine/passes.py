@@ -268,8 +268,8 @@ class PhotonPass:
             self.bucket_start = cl.Buffer(ctx, rw, 4 * ((1 << self.table_bits) + 1))
             self.hist = cl.Buffer(ctx, rw, 4 * 256 * self.n_chunks)
             self.counter = cl.Buffer(ctx, rw, 4)
-            # Occupancy bits: about 512 a photon (about 27 set each), 2^16 to 2^26.
-            self.occ_bits = 1 << max(16, min(26, (512 * m - 1).bit_length()))
+            # Occupancy bits: about 128 a photon (27 set each), 2^16 to 2^26.
+            self.occ_bits = 1 << max(16, min(26, (128 * m - 1).bit_length()))
             self.occ = cl.Buffer(ctx, rw, self.occ_bits // 8)
         except cl.Error as e:
             raise DeviceError(f"cannot allocate a photon map of {n} photons on {self.dctx.label} ({e}); "
