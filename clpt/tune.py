@@ -10,15 +10,19 @@ on request (CLPT_TUNE=measure).
   registers, so the register width is the best width (measured on the
   AVX-512 machine: 11.4 Msamples/s at 16 lanes, 7.3 at 8, 4.0 at 4, 1.6 at 1,
   on the Cornell box).
-- Other CPU runtimes (Intel's): predicted from the kernel. Intel's compiler
-  vectorizes across work-items itself, so 1 lane is also vector code, and
-  which of that and the register width wins depends on the kernel: with the
-  caustic photon gather 1 lane won on every shipped scene, and built in a
-  fraction of the time; without it the register width won on every one
-  (Intel 2026.2 on the AVX-512 machine, 128x128, 32 spp, `python
-  tests/bench_tune.py`; Msamples/s 1 lane / 16 lanes and build seconds):
-  photon scenes 1.4-2.0 / 0.2-1.4 at 1.3-2.1 s / 8-23 s builds, the others
-  6.0-8.4 / 7.7-13.6 (mesh_lights 1.2 / 1.7) at 0.6-1.0 s / 0.8-2.8 s. A
+- Intel's runtime: the register width, for every kernel. Intel's compiler
+  vectorizes across work-items itself, so 1 lane is also vector code, but
+  it gave up on the photon kernel at 1 lane (its vectorizer's cost model
+  turned down the 16-wide version with the gather's 26 extra memory
+  gathers), and explicit lanes tell it, by vec_type_hint (kernels/trace.cl),
+  not to vectorize again across work-items (before, it did so to the photon
+  kernel, 16 x 16 wide, and ran it at a third of the speed). Measured with
+  Intel 2026.2 on the AVX-512 machine (Msamples per CPU second, 128x128,
+  depth 64, medians of 3): the photon kernel on cornell_box_caustics merging
+  0.73 at 1 lane, 2.1-2.4 at 16 (the six photon scenes: 0.67-0.88 against
+  1.9-3.0); without photons the register width won on
+  every shipped scene before (`python tests/bench_tune.py`: 1 lane / 16
+  lanes 6.0-8.4 / 7.7-13.6, mesh_lights 1.2 / 1.7). A
   measurement costs both builds and trial renders (13-25 s on a photon
   scene, more than most renders), so it is not on the first render's path:
   CLPT_TUNE=measure measures (and caches the choice, which later renders
@@ -111,14 +115,10 @@ def predict(device, photons: bool = False, cpu: bool | None = None) -> Tuning:
         return Tuning(w, LOCAL_SIZE_CPU, PASS_SECONDS, "query",
                       f"PoCL compiles lane vectors to the ISA's registers: native float width "
                       f"{device.native_vector_width_float}")
-    if runtime == "intel" and photons:
-        return Tuning(1, LOCAL_SIZE_CPU, PASS_SECONDS, "query",
-                      "Intel's compiler vectorizes across work-items; with the photon gather 1 lane was faster "
-                      "on every shipped scene (CLPT_TUNE=measure measures)")
     if runtime == "intel":
         return Tuning(w, LOCAL_SIZE_CPU, PASS_SECONDS, "query",
-                      f"native float width {device.native_vector_width_float}: faster than 1 lane on every shipped "
-                      f"scene without photons (CLPT_TUNE=measure measures)")
+                      f"native float width {device.native_vector_width_float}: faster than 1 lane on the shipped "
+                      f"scenes, with and without photons (CLPT_TUNE=measure measures)")
     return Tuning(w, LOCAL_SIZE_CPU, PASS_SECONDS, "query",
                   f"native float width {device.native_vector_width_float} (not measured; CLPT_TUNE=measure measures)")
 

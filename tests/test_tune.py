@@ -149,7 +149,7 @@ def test_the_default_policy_predicts_without_trial_renders(monkeypatch, tmp_path
     assert not list(tmp_path.glob("tune/*.json"))
 
 
-@pytest.mark.parametrize("platform,photons,lanes", [("Intel(R) OpenCL", False, 16), ("Intel(R) OpenCL", True, 1),
+@pytest.mark.parametrize("platform,photons,lanes", [("Intel(R) OpenCL", False, 16), ("Intel(R) OpenCL", True, 16),
                                                     ("Portable Computing Language", True, 16)])
 def test_predictions_by_runtime_and_kernel(platform, photons, lanes):
     dev = _FakeDevice()
