@@ -93,8 +93,8 @@ PHOTON_OPTIONS = (
                                                        "roulette on the merge)"),
     Option("--no-photon-pilot", "pilot", "always use the photon map (no pilot deciding whether it pays)",
            value=False),
-    Option("--no-pilot-trial", "pilot_trial", "the pilot decides from the caustic photons' share of the light "
-                                             "alone, without timing a trial of each technique", value=False),
+    Option("--pilot-trial", "pilot_trial", "the pilot also times a small trial of each technique and keeps "
+                                          "merging only where its relMSE per second is the lower", value=True),
     Option("--offline-spp", "offline_spp", "samples per pixel of the offline pre-pass"),
     Option("--aim", "aim", "share photons among casters by solid angle or equally (the paper)",
            choices=("solid_angle", "equal")),

@@ -67,7 +67,7 @@ class PhotonSettings:
     photons_per_sample: float = 0.05
     pilot: bool = True
     min_caustic_share: float = 1e-3
-    pilot_trial: bool = True
+    pilot_trial: bool = False
     alpha: float = 0.7
     spp_per_map: int = 8
 

@@ -85,9 +85,6 @@ def render_all(device, scenes, only=None):
                 continue
             t0 = time.perf_counter()
             r = clpt.Renderer(name, device=device, **rkw)
-            if caustic and "photons" not in kw and "pilot_trial" in clpt.PhotonSettings.__dataclass_fields__:
-                # The pilot's timed trial can choose either technique; the share decides, as in older trees.
-                kw = {**kw, "photons": clpt.PhotonSettings(pilot_trial=False)}
             res = r.render(**{"spp": SPP, "width": SIZE, "height": SIZE, "seed": 7, **kw})
             for k, v in arrays(res).items():
                 out[f"{name}/{vname}/{k}"] = v

@@ -56,7 +56,7 @@ def test_counters_count_launches_and_read_times_once_settled():
 
 def _kernel_params(path, name):
     src = (kernel_dir() / path).read_text()
-    sig = src[src.index(f"__kernel void {name}("):]
+    sig = src[src.index(f" void {name}("):]  # (after __kernel and any attributes)
     sig = sig[:sig.index(")\n{")]
     sig = re.sub(r"#if \w+|#endif", "", sig)
     return tuple(re.findall(r"(\w+)\s*$", p.strip())[0] for p in sig[sig.index("(") + 1:].split(",") if p.strip())
@@ -215,7 +215,7 @@ def test_the_pilot_weighs_each_techniques_error_against_its_cost(device_spec):
     lower: the errors come from the trial images alone (reproducible from the
     seed), the costs from the trial's device seconds, measured once per
     device and trial and cached, so the same seed makes the same choice."""
-    r = clpt.Renderer("cornell_box_caustics", device=device_spec)
+    r = clpt.Renderer("cornell_box_caustics", device=device_spec, photons=PhotonSettings(pilot_trial=True))
     a = r.render(2, width=40, height=30, seed=5).stats.photon_pilot
     b = r.render(2, width=40, height=30, seed=5).stats.photon_pilot
     assert a["relmse_per_sample"] == b["relmse_per_sample"]  # bit for bit: the same trial images
