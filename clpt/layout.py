@@ -204,6 +204,15 @@ BVH_LEAF = Rows("BVH leaf block", "BVHL", _r4("px", "py", "pz", "nx", "ny", "nz"
                 "p.xyz | normal n.xyz | dual wu.xyz | dual wv.xyz (a sphere: centre in p, radius in n.x) | kind "
                 "(PlanarRec wv.w; ITEM_EMPTY for an empty slot) | material | light + 1 | primitive id")
 NORMALS = Rows("vertex normals", "NORMALS", _r4("n0", "n1", "n2"), "vertex normals of a smooth triangle")
+# An environment map's texels (after every other record; its light record points to them): row y of
+# W texels, then its marginal distribution, ENV_MARGINAL records of 4 reals.
+ENV_TEXEL = Rows("environment texel", "ENVT", _r4("rgb_cdf"),
+                 "environment map texel (x, y) at record base + W y + x: its radiance r, g, b (linear, unscaled), "
+                 "and (y < H - 1) the cumulative distribution of the sampling cells of row y up to and including "
+                 "cell x (cell (x, y): texels x..x+1 by y..y+1, weight the mean of their luminance times sin theta)")
+ENV_MARGINAL = Rows("environment marginal", "ENVM", _r4("cdf4"),
+                    "the environment map's marginal cumulative distribution over its H - 1 rows of cells, 4 a record "
+                    "(record base + W H + k / 4, component k % 4)")
 LIGHT_TRI = Rows("mesh-light triangle", "LTRI", _r4("p_alias", "u_prob", "v"),
                  "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
 
@@ -217,6 +226,14 @@ KIND_QUAD, KIND_TRIANGLE, KIND_SPHERE, KIND_MESH = 0, 1, 2, 3
 # width, 0 | 0, 0, 0, alias | 1, pick probability, alias probability, material (Le = the intensity).
 # A point light's u and v rows are 0, 0, 0, -2 | 0, 0, -2, 0: every direction inside the full beam.
 KIND_POINT, KIND_SPOT = 4, 5
+# Lights at infinity (after the other lights; at most one environment, the last light record):
+# an environment (Mitsuba's envmap or constant): bounding sphere center.xyz, kind | to_world's first column.xyz,
+# width W (0: constant) | second column.xyz, height H | first texel record (ENV_TEXEL), handedness (+-1, the
+# third column is that times first x second), 0, alias | pi R^2 (R the bounding sphere's radius), pick probability,
+# alias probability, material (Le: the scale, or the constant's radiance).
+# A directional light: bounding sphere center.xyz, kind | direction of travel.xyz, 0 | 0 | 0, 0, 0, alias | pi R^2,
+# pick probability, alias probability, material (Le: the irradiance).
+KIND_ENV, KIND_DIRECTIONAL = 6, 7
 # Primitive kinds in PLANAR.wv_kind.w (a smooth triangle has its normals' record index there instead).
 ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE = -1, -2, -3
 ITEM_EMPTY = -4  # an empty slot of a BVH leaf block
@@ -254,7 +271,8 @@ PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"),
 
 def scene_records() -> tuple:
     """The scene's records (Rows), as this module holds them now."""
-    return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI)
+    return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI, ENV_TEXEL,
+            ENV_MARGINAL)
 
 
 def launch_records() -> tuple:
@@ -269,6 +287,7 @@ def c_source() -> str:
     parts += [f"#define KIND_QUAD {KIND_QUAD}", f"#define KIND_TRIANGLE {KIND_TRIANGLE}",
               f"#define KIND_SPHERE {KIND_SPHERE}", f"#define KIND_MESH {KIND_MESH}",
               f"#define KIND_POINT {KIND_POINT}", f"#define KIND_SPOT {KIND_SPOT}",
+              f"#define KIND_ENV {KIND_ENV}", f"#define KIND_DIRECTIONAL {KIND_DIRECTIONAL}",
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
               f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define ITEM_EMPTY {ITEM_EMPTY}",
               f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}", f"#define COAT_TABLE_ROWS {COAT_TABLE_ROWS}"]

@@ -18,6 +18,15 @@
 // x, and delta is set: no BSDF sample finds them, so their sample's MIS
 // weight is 1. For photon emission n is the spot's axis (0 for a point) and
 // the falloff of the direction chosen is delta_falloff's.
+// Lights at infinity come after the others (clpt/pack.py), the environment
+// last. A directional light (CLPT_HAS_DIRECTIONAL_LIGHTS) is a delta light
+// like a point light: Le = its irradiance, pdf = the pick probability, wi
+// against its direction of travel. An environment (CLPT_HAS_ENV_LIGHT, at
+// most one: an envmap or a constant) draws a direction by its texels'
+// luminance times sin theta (env_sample) or, a constant, uniformly; rays
+// that leave the scene see it (env_emission, with light_sample's pdf of
+// their direction for the weight). Both stand at dist beyond the scene's
+// bounding sphere from x (infinite_dist), where the shadow ray ends.
 // A new light kind is a case of light_point (and of light_pdf_hit, and of
 // the light records' packing in clpt/pack.py).
 
@@ -209,6 +218,206 @@ CLPT_INLINE void delta_light_sample(const Scene *sc, uint r, real4 info, real4 m
 }
 #endif
 
+#if CLPT_HAS_ENV_LIGHT || CLPT_HAS_DIRECTIONAL_LIGHTS
+// A distance from x that stands for infinity: beyond the scene's bounding
+// sphere (center c.xyz, area = pi R^2 its disk).
+inline vreal infinite_dist(real4 c, real area, V3 x)
+{
+    V3 dc = v3_sub(x, v3_splat(c));
+    return sqrt(v3_dot(dc, dc)) + R(2) * sqrt(area * R(M_1_PI));
+}
+#endif
+
+#if CLPT_HAS_ENV_LIGHT
+#define ENV_LIGHT_REC (OFF_LIGHTS + LIGHT_STRIDE * (NUM_LIGHTS - 1u))
+
+// Component k % 4 of the environment's marginal cdf record (k: a row of cells).
+inline real env_marginal(const Scene *sc, uint mbase, uint k)
+{
+    real4 q = scene_rec(sc, mbase + k / 4u);
+    uint c = k % 4u;
+    return c == 0u ? q.x : c == 1u ? q.y : c == 2u ? q.z : q.w;
+}
+
+// The map's radiance between texels (x0, y0) and (x0 + 1 (wrapping), y0 + 1),
+// bilinear at (fx, fy), as Mitsuba looks it up; *cell: the sampling
+// probability of cell (x0, y0).
+inline real4 env_texels(const Scene *sc, uint base, uint w, uint h, uint x0, uint y0, real fx, real fy, real *cell)
+{
+    uint x1 = x0 + 1u == w ? 0u : x0 + 1u;
+    uint r0 = base + w * y0, r1 = r0 + w;
+    real4 t00 = scene_rec(sc, r0 + x0), t10 = scene_rec(sc, r0 + x1);
+    real4 t01 = scene_rec(sc, r1 + x0), t11 = scene_rec(sc, r1 + x1);
+    real pc = t00.w - (x0 > 0u ? scene_rec(sc, r0 + x0 - 1u).w : R(0));
+    uint mbase = base + w * h;
+    real pm = env_marginal(sc, mbase, y0) - (y0 > 0u ? env_marginal(sc, mbase, y0 - 1u) : R(0));
+    *cell = pc * pm;
+    real4 a = t00 * (R(1) - fx) + t10 * fx, b = t01 * (R(1) - fx) + t11 * fx;
+    return a * (R(1) - fy) + b * fy;
+}
+
+// The frame of the environment whose record is at r: columns c0, c1, c2 of to_world's rotation.
+inline void env_frame(const Scene *sc, uint r, real4 *c0, real4 *c1, real4 *c2)
+{
+    *c0 = scene_rec(sc, r + LIGHT_U);
+    *c1 = scene_rec(sc, r + LIGHT_V);
+    real hand = scene_rec(sc, r + LIGHT_N).y;
+    real4 a = (real4)((*c0).xyz, R(0)), b = (real4)((*c1).xyz, R(0));
+    *c2 = hand * cross(a, b);
+}
+
+// The environment's radiance towards -d (d: a unit world direction leaving
+// the scene, Le times the material's scale) and, in *pdf_sa, the solid-angle
+// pdf with which env_sample draws d, for the lanes in m. A constant: Le 1,
+// pdf 1 / (4 pi).
+inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
+{
+    real4 c0, c1, c2;
+    env_frame(sc, r, &c0, &c1, &c2);
+    uint w = (uint)c0.w, h = (uint)c1.w, base = (uint)scene_rec(sc, r + LIGHT_N).x;
+    if (w == 0u) {
+        *pdf_sa = (vreal)R(0.25 * M_1_PI);
+        return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
+    }
+    V3 l = v3(v3_dot4(d, c0), v3_dot4(d, c1), v3_dot4(d, c2));
+    V3 Le = v3_zero();
+    vreal pdf = (vreal)R(0);
+    for (int k = 0; k < CLPT_LANES; k++) {
+        if (VLANE_M(m, k) == 0)
+            continue;
+        real lx = VLANE_R(l.x, k), ly = VLANE_R(l.y, k), lz = VLANE_R(l.z, k);
+        real u = atan2(lx, -lz) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
+        u -= floor(u);
+        real gx = u * (real)w, gy = acos(fmin(fmax(ly, R(-1)), R(1))) * R(M_1_PI) * (real)(h - 1u);
+        uint x0 = min((uint)gx, w - 1u), y0 = min((uint)gy, h - 2u);
+        real cell;
+        real4 t = env_texels(sc, base, w, h, x0, y0, gx - (real)x0, gy - (real)y0, &cell);
+        real sin_t = sqrt(fmax(lx * lx + lz * lz, REAL_EPS * REAL_EPS));
+        VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
+        VLANE_R(pdf, k) = cell * (real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI) / sin_t;
+    }
+    *pdf_sa = pdf;
+    return Le;
+}
+
+// A direction d (unit, world) from the environment at r for the lanes in m:
+// a row of cells by the marginal cdf (u2), a cell in it by the row's cdf
+// (u1), a uniform point in the cell; its radiance (unscaled) and solid-angle
+// pdf. A constant: a uniform direction.
+inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d, vreal *pdf_sa)
+{
+    real4 c0, c1, c2;
+    env_frame(sc, r, &c0, &c1, &c2);
+    uint w = (uint)c0.w, h = (uint)c1.w, base = (uint)scene_rec(sc, r + LIGHT_N).x;
+    if (w == 0u) {
+        *d = sample_uniform_sphere(u1, u2);
+        *pdf_sa = (vreal)R(0.25 * M_1_PI);
+        return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
+    }
+    uint mbase = base + w * h;
+    V3 l = v3_zero(), Le = v3_zero();
+    vreal pdf = (vreal)R(0);
+    for (int k = 0; k < CLPT_LANES; k++) {
+        if (VLANE_M(m, k) == 0)
+            continue;
+        real a = VLANE_R(u1, k), b = VLANE_R(u2, k);
+        uint lo = 0u, hi = h - 2u;  // the first row whose cdf passes b
+        while (lo < hi) {
+            uint mid = (lo + hi) / 2u;
+            if (b < env_marginal(sc, mbase, mid)) hi = mid; else lo = mid + 1u;
+        }
+        uint y0 = lo;
+        real m0 = y0 > 0u ? env_marginal(sc, mbase, y0 - 1u) : R(0);
+        real fy = (b - m0) / (env_marginal(sc, mbase, y0) - m0);
+        uint row = base + w * y0;
+        lo = 0u; hi = w - 1u;  // the first cell of the row whose cdf passes a
+        while (lo < hi) {
+            uint mid = (lo + hi) / 2u;
+            if (a < scene_rec(sc, row + mid).w) hi = mid; else lo = mid + 1u;
+        }
+        uint x0 = lo;
+        real c0w = x0 > 0u ? scene_rec(sc, row + x0 - 1u).w : R(0);
+        real fx = (a - c0w) / (scene_rec(sc, row + x0).w - c0w);
+        fx = fmin(fmax(fx, R(0)), R(1));
+        fy = fmin(fmax(fy, R(0)), R(1));
+        real cell;
+        real4 t = env_texels(sc, base, w, h, x0, y0, fx, fy, &cell);
+        real phi = (((real)x0 + fx) / (real)w + R(0.5) / (real)w) * R(2 * M_PI);
+        real theta = ((real)y0 + fy) / (real)(h - 1u) * R(M_PI);
+        real st = sin(theta), ct = cos(theta);
+        VLANE_R(l.x, k) = sin(phi) * st; VLANE_R(l.y, k) = ct; VLANE_R(l.z, k) = -cos(phi) * st;
+        VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
+        VLANE_R(pdf, k) = cell * (real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI) / fmax(st, REAL_EPS);
+    }
+    *d = v3(l.x * c0.x + l.y * c1.x + l.z * c2.x, l.x * c0.y + l.y * c1.y + l.z * c2.y,
+            l.x * c0.z + l.y * c1.z + l.z * c2.z);
+    *pdf_sa = pdf;
+    return Le;
+}
+
+// What a ray leaving the scene along unit d sees of the environment (Le,
+// scaled) for the lanes in m, and (*pdf) the solid-angle pdf with which
+// light_sample picks the environment and draws d. Zero where the scene has
+// no environment (a generic build's).
+inline V3 env_emission(const Scene *sc, V3 d, vmask m, vreal *pdf)
+{
+    *pdf = (vreal)R(0);
+    if (NUM_LIGHTS == 0)
+        return v3_zero();
+    uint r = ENV_LIGHT_REC;
+    if ((int)scene_rec(sc, r + LIGHT_P_KIND).w != LIGHT_KIND_ENV)
+        return v3_zero();
+    real4 info = scene_rec(sc, r + LIGHT_INFO);
+    real4 s = scene_rec(sc, MAT_STRIDE * (uint)info.w + MAT_LE_SIDES);
+    vreal pdf_sa;
+    V3 Le = env_eval(sc, r, d, m, &pdf_sa);
+    *pdf = pdf_sa * info.y;
+    return v3_mul(Le, v3_splat(s));
+}
+#endif
+
+#if CLPT_HAS_ENV_LIGHT || CLPT_HAS_DIRECTIONAL_LIGHTS
+// light_sample's light at infinity (records at r; info and m its LIGHT_INFO
+// and material's Le row) for the lanes in pick, into *ls. At x: an
+// environment's direction and pdf (env_sample), or a directional light's
+// (delta: pdf = the pick probability), at a point beyond the scene. For
+// photon emission: none yet (pdf_area 0: their photons are not traced).
+CLPT_INLINE void infinite_light_sample(const Scene *sc, uint r, int kind, real4 info, real4 m, vmask pick, V3 x,
+                                       int at_x, LightU u, LightSample *ls)
+{
+    real4 c = scene_rec(sc, r + LIGHT_P_KIND);
+    if (!at_x) {
+        ls->pdf_area = VSEL(ls->pdf_area, (vreal)R(0), pick);
+        return;
+    }
+    V3 wi = v3_zero(), Le = v3_splat(m);
+    vreal pdf = (vreal)info.y;
+#if CLPT_HAS_ENV_LIGHT
+    if (kind == LIGHT_KIND_ENV) {
+        vreal pdf_sa;
+        Le = v3_mul(env_sample(sc, r, pick, u.u1, u.u2, &wi, &pdf_sa), Le);
+        pdf = pdf_sa * info.y;
+    }
+#endif
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+    if (kind == LIGHT_KIND_DIRECTIONAL) {
+        real4 d = scene_rec(sc, r + LIGHT_U);
+        wi = v3((vreal)-d.x, (vreal)-d.y, (vreal)-d.z);
+        ls->delta = ls->delta || pick;
+        ls->cos_cut = VSEL(ls->cos_cut, (vreal)R(-2), pick);  // no falloff
+        ls->cos_beam = VSEL(ls->cos_beam, (vreal)R(-2), pick);
+    }
+#endif
+    vreal dist = infinite_dist(c, info.x, x);
+    ls->Le = v3_sel(ls->Le, Le, pick);
+    ls->wi = v3_sel(ls->wi, wi, pick);
+    ls->dist = VSEL(ls->dist, dist, pick);
+    ls->p = v3_sel(ls->p, v3_fma(wi, dist, x), pick);
+    ls->pdf = VSEL(ls->pdf, pdf, pick);
+    ls->valid = ls->valid || (pick && pdf > R(0) && pdf < R(INFINITY));
+}
+#endif
+
 // A light picked by power and a point on it, into *out. With at_x (a
 // constant where this is inlined), as seen from the shading point x, for
 // next event estimation: wi, dist, the solid-angle pdf and validity are
@@ -235,6 +444,12 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, LightSa
 #if CLPT_HAS_DELTA_LIGHTS
         if (kind == LIGHT_KIND_POINT || kind == LIGHT_KIND_SPOT) {
             delta_light_sample(sc, r, info, m, pick, x, at_x, &ls);
+            continue;
+        }
+#endif
+#if CLPT_HAS_ENV_LIGHT || CLPT_HAS_DIRECTIONAL_LIGHTS
+        if (kind == LIGHT_KIND_ENV || kind == LIGHT_KIND_DIRECTIONAL) {
+            infinite_light_sample(sc, r, kind, info, m, pick, x, at_x, u, &ls);
             continue;
         }
 #endif
