@@ -57,7 +57,7 @@ class PackedScene:
     light_kinds: frozenset       # {"quad", "triangle", "sphere", "mesh", "point", "spot"}
     extent: float                # diagonal of the scene's bounds, camera included
     size: float                  # diagonal of the geometry's bounds: the unit of relative photon radii
-    max_flux: float              # total emitted power (pi * area * max Le * sides), for photon sum scales
+    max_flux: float              # power the lights that emit photons emit (pi * area * max Le * sides), for the pilot
     max_radiance: float = 1.0    # the brightest emission's largest channel
     length_scale: float = 1.0    # the records' lengths are the scene's times this (see length_scale)
     smooth: bool = False         # some triangles have vertex normals
@@ -609,8 +609,10 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
              LIGHT_KIND_MESH: "mesh", KIND_POINT: "point", KIND_SPOT: "spot", KIND_ENV: "environment",
              KIND_DIRECTIONAL: "directional"}
     lo, hi = scene.bounds(camera=False)
+    # The power photons can carry (an environment emits none: its light is path traced alone).
     flux = sum(b.delta_power[k] / max(float(np.mean(m.emission)), 1e-300) * max(m.emission) if k in b.delta_power
-               else sides * math.pi * area * max(m.emission) for k, (sides, area, m, *_) in enumerate(lights))
+               else sides * math.pi * area * max(m.emission) for k, (sides, area, m, f, *_) in enumerate(lights)
+               if f["p_kind"][3] != KIND_ENV)
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
                        light_kinds=frozenset(kinds[int(f["p_kind"][3])] for _, _, _, f, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,

@@ -46,6 +46,9 @@ typedef struct {
     vmask delta;      // a point or spot light (a delta light)
     vreal cos_cut, cut, inv_tr, cos_beam;  // the spot's falloff (a point light's: -2, 0, 0, -2, 1 everywhere)
 #endif
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+    vmask parallel;   // (photon emission) a directional light's: the photon travels along n from p
+#endif
 } LightSample;
 
 #if CLPT_HAS_DELTA_LIGHTS
@@ -376,18 +379,79 @@ inline V3 env_emission(const Scene *sc, V3 d, vmask m, vreal *pdf)
 }
 #endif
 
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+// Where a directional light's photon starts (lanes in pick; records at r,
+// c its bounding-sphere row, info and m as light_sample's), into *ls: on the
+// disk of radius R across the scene's bounding sphere, at R before its
+// center along the light's direction d, aimed at the caustic casters: a
+// caster picked in equal shares (u1), a uniform point in the disk its
+// bounding sphere casts along d (u1 rescaled, u2; an unbounded caster's:
+// the whole disk). pdf_area = the pick probability times the mixture of
+// those disks' uniform densities at the point; n = d, Le = the irradiance,
+// delta and parallel set (the photon leaves p along n).
+CLPT_INLINE void directional_photon_start(const Scene *sc, uint r, real4 c, real4 info, real4 m, vmask pick,
+                                          LightU u, LightSample *ls)
+{
+    real4 d4 = scene_rec(sc, r + LIGHT_U);
+    V3 d = v3((vreal)d4.x, (vreal)d4.y, (vreal)d4.z), t, b;
+    frame_from_z(d, &t, &b);
+    real big = sqrt(info.x * R(M_1_PI));
+    vreal uk = u.u1 * (real)NUM_CAUSTICS;
+    vreal kf = fmin(floor(uk), (vreal)(real)(NUM_CAUSTICS - 1));
+    vreal ur = fmin(uk - kf, (vreal)R(1));
+    V3 q = v3_zero();
+    vreal rad = (vreal)big;
+    for (uint k = 0; k < NUM_CAUSTICS; k++) {
+        real4 s = scene_rec(sc, OFF_CAUSTICS + CAUSTIC_STRIDE * k + CAUSTIC_SPHERE);
+        vmask is = kf == (real)k;
+        q = v3_sel(q, s.w < R(0) ? v3_splat(c) : v3_splat(s), is);
+        rad = VSEL(rad, (vreal)(s.w < R(0) ? big : s.w), is);
+    }
+    // The point in the plane through c across d, then moved back by R.
+    q = v3_fma(d, -v3_dot(v3_sub(q, v3_splat(c)), d), q);
+    vreal pr = rad * sqrt(ur), phi = u.u2 * R(2 * M_PI);
+    V3 p = v3_fma(t, pr * cos(phi), v3_fma(b, pr * sin(phi), q));
+    // The density: every caster's disk that holds the point.
+    vreal dens = (vreal)R(0);
+    for (uint k = 0; k < NUM_CAUSTICS; k++) {
+        real4 s = scene_rec(sc, OFF_CAUSTICS + CAUSTIC_STRIDE * k + CAUSTIC_SPHERE);
+        real rk = s.w < R(0) ? big : s.w;
+        V3 qk = s.w < R(0) ? v3_splat(c) : v3_splat(s);
+        qk = v3_fma(d, -v3_dot(v3_sub(qk, v3_splat(c)), d), qk);
+        V3 e = v3_sub(p, qk);
+        dens += VSEL((vreal)R(0), (vreal)(R(1) / (R(M_PI) * rk * rk)), v3_dot(e, e) <= rk * rk * R(1.000001));
+    }
+    dens *= R(1) / (real)NUM_CAUSTICS;
+    p = v3_fma(d, (vreal)(-big * R(1.001)), p);
+    ls->p = v3_sel(ls->p, p, pick);
+    ls->n = v3_sel(ls->n, d, pick);
+    ls->Le = v3_sel(ls->Le, v3_splat(m), pick);
+    ls->err = VSEL(ls->err, fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z))), pick);
+    ls->pdf_area = VSEL(ls->pdf_area, dens * info.y, pick);
+    ls->delta = ls->delta || pick;
+    ls->parallel = ls->parallel || pick;
+    ls->cos_cut = VSEL(ls->cos_cut, (vreal)R(-2), pick);  // no falloff
+    ls->cos_beam = VSEL(ls->cos_beam, (vreal)R(-2), pick);
+}
+#endif
+
 #if CLPT_HAS_ENV_LIGHT || CLPT_HAS_DIRECTIONAL_LIGHTS
 // light_sample's light at infinity (records at r; info and m its LIGHT_INFO
 // and material's Le row) for the lanes in pick, into *ls. At x: an
 // environment's direction and pdf (env_sample), or a directional light's
 // (delta: pdf = the pick probability), at a point beyond the scene. For
-// photon emission: none yet (pdf_area 0: their photons are not traced).
+// photon emission: a directional light's start (directional_photon_start);
+// an environment's photons are not traced (pdf_area 0).
 CLPT_INLINE void infinite_light_sample(const Scene *sc, uint r, int kind, real4 info, real4 m, vmask pick, V3 x,
                                        int at_x, LightU u, LightSample *ls)
 {
     real4 c = scene_rec(sc, r + LIGHT_P_KIND);
     if (!at_x) {
-        ls->pdf_area = VSEL(ls->pdf_area, (vreal)R(0), pick);
+        ls->pdf_area = VSEL(ls->pdf_area, (vreal)R(0), pick);  // an environment: no photons
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+        if (kind == LIGHT_KIND_DIRECTIONAL)
+            directional_photon_start(sc, r, c, info, m, pick, u, ls);
+#endif
         return;
     }
     V3 wi = v3_zero(), Le = v3_splat(m);
@@ -433,6 +497,9 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, LightSa
 #if CLPT_HAS_DELTA_LIGHTS
     ls.delta = ls.valid;
     ls.cos_cut = ls.cut = ls.inv_tr = ls.cos_beam = (vreal)R(0);
+#endif
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+    ls.parallel = ls.valid;
 #endif
     vreal li = light_pick_index(sc, u.pick);
     uint i, r;

@@ -51,6 +51,12 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
     lp.Le = v3_sel(lp.Le, v3_scale(lp.Le, delta_falloff(lp.n, lp.cos_cut, lp.cut, lp.inv_tr, lp.cos_beam, aim.w)),
                    lp.delta);
 #endif
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+    // A directional light's photon leaves its disk along the light's direction (lights.h).
+    aim.w = v3_sel(aim.w, lp.n, lp.parallel);
+    aim.pdf = VSEL(aim.pdf, (vreal)R(1), lp.parallel);
+    aim.valid = aim.valid || lp.parallel;
+#endif
     vmask emits = cos_y > R(0) || (lp.two_sided && cos_y < R(0));
     live = live && aim.valid && emits && lp.pdf_area > R(0);
     // pf = p_area p_dir / |cos|, the light-side pdf factor of the photon's

@@ -275,6 +275,25 @@ __kernel void probe_light_pdf(__global const real4 *rec, __constant SceneInfo *i
     ST(VSEL((vreal)R(0), p, fabs(h.t - ls.dist) < R(1e-4) * ls.dist), pdf_hit, i);
 }
 
+// What a ray leaving the scene along each unit direction d sees of the
+// environment (lights.h env_emission, as path.h's escape event calls it):
+// its radiance (r, g, b) and the pdf light_sample draws d with.
+__kernel void probe_env_emission(__global const real4 *rec, __constant SceneInfo *info,
+                                 __global const real *dx, __global const real *dy, __global const real *dz,
+                                 __global real *r, __global real *g, __global real *b, __global real *pdf)
+{
+    size_t i = get_global_id(0);
+    Scene s = probe_scene(rec, info);
+    V3 d = LD3(dx, dy, dz, i);
+    vreal p = (vreal)R(0);
+    V3 Le = v3_zero();
+#if CLPT_HAS_ENV_LIGHT
+    Le = env_emission(&s, d, d.x == d.x, &p);
+#endif
+    ST(Le.x, r, i); ST(Le.y, g, i); ST(Le.z, b, i);
+    ST(p, pdf, i);
+}
+
 // The pixel filter's offset (camera.h filter_sample_offset) for filter `kind`
 // (0 box, 1 tent, 2 gaussian), for samples u of pixel centres c of an image n
 // pixels wide.
