@@ -312,10 +312,11 @@ def test_envmap_orientation_is_mitsubas(tmp_path, device_spec):
         assert res.stats.nonfinite == 0
         return [_quad_mean(res.image, scene.camera, (3.0 * n[0], 0.0, 3.0 * n[2])) for n in normals]
 
+    # (The pixel's bilinear spread reaches the far side's horizon faintly.)
     a = lit(0, [(1, 0, 0), (-1, 0, 0)])
-    assert a[0] > 0 and a[1] == 0, a
+    assert a[0] > 0 and a[1] < 0.01 * a[0], a
     b = lit(90, [(0, 0, -1), (0, 0, 1)])
-    assert b[0] > 0 and b[1] == 0, b
+    assert b[0] > 0 and b[1] < 0.01 * b[0], b
 
 
 def _quad_mean(img, cam, center):
