@@ -64,6 +64,12 @@ class PackedScene:
     bvh: object = None           # the clpt.bvh.Tree, when the scene has one
     primitives: int = 0          # bounded primitives (spheres, quads, triangles)
     pixel_filter: str = "box"    # the camera's pixel filter kind (its parameters go in each launch record)
+    env_texels: int = 0          # the environment map's records, last (indexed by integers, not by reals)
+
+    @property
+    def indexed_records(self) -> int:
+        """The records the kernels index by reals (exact below MAX_FLOAT_RECORDS in float builds)."""
+        return len(self.records) - self.env_texels
 
     @property
     def lum_scale(self) -> float:
@@ -246,21 +252,23 @@ def env_cell_weights(image: np.ndarray) -> np.ndarray:
 def env_records(image: np.ndarray) -> np.ndarray:
     """The texel and marginal records (ENV_TEXEL, ENV_MARGINAL) of an environment map, as float64 rows."""
     h, w = image.shape[:2]
-    cells = env_cell_weights(image)
-    rows = cells.sum(axis=1)
-    cond = np.cumsum(cells, axis=1)
-    cond = np.where(rows[:, None] > 0, cond / np.where(rows > 0, rows, 1.0)[:, None],
-                    np.arange(1, w + 1) / w)  # an empty row is never picked; keep its cdf valid
+    cond = env_cell_weights(image)
+    rows = cond.sum(axis=1)
+    np.cumsum(cond, axis=1, out=cond)
+    cond /= np.where(rows > 0, rows, 1.0)[:, None]
+    cond[rows == 0] = np.arange(1, w + 1) / w  # an empty row is never picked; its cdf stays valid
     cond[:, -1] = 1.0
     marg = np.cumsum(rows) / rows.sum()
     marg[-1] = 1.0
-    tex = layout.ENV_TEXEL.zeros(w * h)
-    tex["rgb_cdf"][:, :3] = image.reshape(-1, 3)
-    tex["rgb_cdf"][: w * (h - 1), 3] = cond.reshape(-1)
-    m = layout.ENV_MARGINAL.zeros(-(-(h - 1) // 4))
-    m["cdf4"].reshape(-1)[: h - 1] = marg
-    m["cdf4"].reshape(-1)[h - 1:] = 1.0
-    return np.concatenate([Rows.rows(tex), Rows.rows(m)])
+    n_marg = -(-(h - 1) // 4)
+    out = np.zeros((w * h + n_marg, 4))
+    tex = layout.ENV_TEXEL.view(out[:w * h])["rgb_cdf"]
+    tex[:, :3] = image.reshape(-1, 3)
+    tex[:w * (h - 1), 3] = cond.reshape(-1)
+    m = layout.ENV_MARGINAL.view(out[w * h:])["cdf4"].reshape(-1)
+    m[:h - 1] = marg
+    m[h - 1:] = 1.0
+    return out
 
 
 def bounding_sphere(scene: Scene):
@@ -598,9 +606,6 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     parts = [Rows.rows(x) for x in sections] + [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs, coat_recs]
     if len(env_texels):
         light_recs["n"][-1, 0] = sum(len(x) for x in parts)
-        if light_recs["n"][-1, 0] >= MAX_FLOAT_RECORDS:
-            raise SceneError(f"{scene.source}: the scene has too many records before its environment map for float "
-                             f"kernels ({int(light_recs['n'][-1, 0])})")
         parts = [Rows.rows(x) for x in sections] + parts[len(sections):] + [env_texels]
     records = np.concatenate(parts)
     n_nodes = wide.n_nodes if use_bvh else 0
@@ -620,7 +625,7 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
                                         [p.max_radiance() for p, _ in b.infinite if isinstance(p, EnvironmentLight)],
                                         default=1.0),
                        smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale,
-                       pixel_filter=scene.camera.pixel_filter.kind)
+                       pixel_filter=scene.camera.pixel_filter.kind, env_texels=len(env_texels))
 
 
 @dataclass(frozen=True)

@@ -355,12 +355,10 @@ def test_directional_light_caustic_matches_a_far_point_lights(device_spec):
     its disk, aimed at the ball's shadow disk) carries what the same caustic
     from a point light far along the direction carries (photons aimed by
     solid angle: another emission path), its intensity giving the same
-    irradiance at the floor under the ball: the sum over the caustic region
-    within 4% (the point light's rays diverge by 1% over the region, and
-    both are noisy)."""
+    irradiance at the ball: the sum over the caustic region within 3% (the
+    point light's rays diverge by 0.8% across the ball, and both are noisy)."""
     far = 40.0
-    foot = np.array([0, 0.6, 0]) + D_SUN * (0.6 / -D_SUN[1])  # where the ray through the ball's centre meets the floor
-    pos = foot - D_SUN * far
+    pos = np.array([0, 0.6, 0]) - D_SUN * far
     ph = PhotonSettings(count=40000, spp_per_map=8, pilot=False)
     a = clpt.Renderer(_glass_ball(DirectionalLight(direction=tuple(D_SUN), irradiance=tuple(E_SUN))),
                       device=device_spec).render(spp=64, seed=2, max_depth=6, photons=ph)
@@ -371,7 +369,7 @@ def test_directional_light_caustic_matches_a_far_point_lights(device_spec):
     region = np.zeros((24, 24), dtype=bool)
     region[8:16, 8:16] = True
     sa, sb = (a.image @ LUMINANCE)[region].sum(), (b.image @ LUMINANCE)[region].sum()
-    assert sa > 0.05 * region.sum() and abs(sa / sb - 1) < 0.04, (sa, sb)
+    assert sa > 0.05 * region.sum() and abs(sa / sb - 1) < 0.03, (sa, sb)
 
 
 # --- against Mitsuba 3 -------------------------------------------------------------------------------

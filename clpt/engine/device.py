@@ -114,8 +114,8 @@ class DeviceWorker:
         self.features = features
         self.packed = packed
         real = np.float64 if features.double else np.float32
-        if not features.double and len(packed.records) > MAX_FLOAT_RECORDS:
-            raise SceneError(f"{len(packed.records)} scene records exceed what float kernels index exactly "
+        if not features.double and packed.indexed_records > MAX_FLOAT_RECORDS:
+            raise SceneError(f"{packed.indexed_records} scene records exceed what float kernels index exactly "
                              f"({MAX_FLOAT_RECORDS}); render with double=True or a smaller scene")
         recs = np.ascontiguousarray(packed.records, dtype=real)
         if recs.size == 0:
