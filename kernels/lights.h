@@ -270,9 +270,9 @@ inline void env_frame(const Scene *sc, uint r, real4 *c0, real4 *c1, real4 *c2)
 }
 
 // The environment's radiance towards -d (d: a unit world direction leaving
-// the scene, Le times the material's scale) and, in *pdf_sa, the solid-angle
-// pdf with which env_sample draws d, for the lanes in m. A constant: Le 1,
-// pdf 1 / (4 pi).
+// the scene, unscaled) and, in *pdf_sa, the solid-angle pdf with which
+// env_sample draws d, for the lanes in m. A constant: Le 1, pdf 1 / (4 pi).
+// The angles are computed for all lanes at once; the texel fetches lane by lane.
 inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
 {
     real4 c0, c1, c2;
@@ -283,30 +283,29 @@ inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
         return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
     }
     V3 l = v3(v3_dot4(d, c0), v3_dot4(d, c1), v3_dot4(d, c2));
+    vreal u = atan2(l.x, -l.z) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
+    vreal gx = (u - floor(u)) * (real)w;
+    vreal gy = acos(fmin(fmax(l.y, (vreal)R(-1)), (vreal)R(1))) * (R(M_1_PI) * (real)(h - 1u));
     V3 Le = v3_zero();
-    vreal pdf = (vreal)R(0);
+    vreal cell = (vreal)R(0);
     for (int k = 0; k < CLPT_LANES; k++) {
         if (VLANE_M(m, k) == 0)
             continue;
-        real lx = VLANE_R(l.x, k), ly = VLANE_R(l.y, k), lz = VLANE_R(l.z, k);
-        real u = atan2(lx, -lz) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
-        u -= floor(u);
-        real gx = u * (real)w, gy = acos(fmin(fmax(ly, R(-1)), R(1))) * R(M_1_PI) * (real)(h - 1u);
-        uint x0 = min((uint)gx, w - 1u), y0 = min((uint)gy, h - 2u);
-        real cell;
-        real4 t = env_texels(sc, base, w, h, x0, y0, gx - (real)x0, gy - (real)y0, &cell);
-        real sin_t = sqrt(fmax(lx * lx + lz * lz, REAL_EPS * REAL_EPS));
+        real x = VLANE_R(gx, k), y = VLANE_R(gy, k);
+        uint x0 = min((uint)x, w - 1u), y0 = min((uint)y, h - 2u);
+        real4 t = env_texels(sc, base, w, h, x0, y0, x - (real)x0, y - (real)y0, &VLANE_R(cell, k));
         VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
-        VLANE_R(pdf, k) = cell * (real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI) / sin_t;
     }
-    *pdf_sa = pdf;
+    vreal sin_t = sqrt(fmax(l.x * l.x + l.z * l.z, (vreal)(REAL_EPS * REAL_EPS)));
+    *pdf_sa = cell * ((real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI)) / sin_t;
     return Le;
 }
 
 // A direction d (unit, world) from the environment at r for the lanes in m:
 // a row of cells by the marginal cdf (u2), a cell in it by the row's cdf
 // (u1), a uniform point in the cell; its radiance (unscaled) and solid-angle
-// pdf. A constant: a uniform direction.
+// pdf. A constant: a uniform direction. The searches and fetches go lane by
+// lane, the angles for all lanes at once.
 inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d, vreal *pdf_sa)
 {
     real4 c0, c1, c2;
@@ -318,43 +317,46 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
         return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
     }
     uint mbase = base + w * h;
-    V3 l = v3_zero(), Le = v3_zero();
-    vreal pdf = (vreal)R(0);
+    V3 Le = v3_zero();
+    vreal gx = (vreal)R(0), gy = (vreal)R(0), cell = (vreal)R(0);
     for (int k = 0; k < CLPT_LANES; k++) {
         if (VLANE_M(m, k) == 0)
             continue;
         real a = VLANE_R(u1, k), b = VLANE_R(u2, k);
-        uint lo = 0u, hi = h - 2u;  // the first row whose cdf passes b
-        while (lo < hi) {
-            uint mid = (lo + hi) / 2u;
-            if (b < env_marginal(sc, mbase, mid)) hi = mid; else lo = mid + 1u;
+        // The first row whose cdf passes b, and the first cell of that row
+        // whose cdf passes a: binary searches whose steps do not depend on
+        // the data (a select, not a branch, picks the half).
+        uint lo = 0u;
+        for (uint n = h - 1u; n > 1u;) {
+            uint step = n / 2u;
+            lo = env_marginal(sc, mbase, lo + step - 1u) <= b ? lo + step : lo;
+            n -= step;
         }
-        uint y0 = lo;
+        uint y0 = lo + (env_marginal(sc, mbase, lo) <= b ? 1u : 0u);
         real m0 = y0 > 0u ? env_marginal(sc, mbase, y0 - 1u) : R(0);
-        real fy = (b - m0) / (env_marginal(sc, mbase, y0) - m0);
+        real fy = fmin(fmax((b - m0) / (env_marginal(sc, mbase, y0) - m0), R(0)), R(1));
         uint row = base + w * y0;
-        lo = 0u; hi = w - 1u;  // the first cell of the row whose cdf passes a
-        while (lo < hi) {
-            uint mid = (lo + hi) / 2u;
-            if (a < scene_rec(sc, row + mid).w) hi = mid; else lo = mid + 1u;
+        lo = 0u;
+        for (uint n = w; n > 1u;) {
+            uint step = n / 2u;
+            lo = scene_rec(sc, row + lo + step - 1u).w <= a ? lo + step : lo;
+            n -= step;
         }
-        uint x0 = lo;
-        real c0w = x0 > 0u ? scene_rec(sc, row + x0 - 1u).w : R(0);
-        real fx = (a - c0w) / (scene_rec(sc, row + x0).w - c0w);
-        fx = fmin(fmax(fx, R(0)), R(1));
-        fy = fmin(fmax(fy, R(0)), R(1));
-        real cell;
-        real4 t = env_texels(sc, base, w, h, x0, y0, fx, fy, &cell);
-        real phi = (((real)x0 + fx) / (real)w + R(0.5) / (real)w) * R(2 * M_PI);
-        real theta = ((real)y0 + fy) / (real)(h - 1u) * R(M_PI);
-        real st = sin(theta), ct = cos(theta);
-        VLANE_R(l.x, k) = sin(phi) * st; VLANE_R(l.y, k) = ct; VLANE_R(l.z, k) = -cos(phi) * st;
+        uint x0 = lo + (scene_rec(sc, row + lo).w <= a ? 1u : 0u);
+        real c = x0 > 0u ? scene_rec(sc, row + x0 - 1u).w : R(0);
+        real fx = fmin(fmax((a - c) / (scene_rec(sc, row + x0).w - c), R(0)), R(1));
+        real4 t = env_texels(sc, base, w, h, x0, y0, fx, fy, &VLANE_R(cell, k));
+        VLANE_R(gx, k) = (real)x0 + fx;
+        VLANE_R(gy, k) = (real)y0 + fy;
         VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
-        VLANE_R(pdf, k) = cell * (real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI) / fmax(st, REAL_EPS);
     }
+    vreal phi = (gx + R(0.5)) * (R(2 * M_PI) / (real)w);
+    vreal theta = gy * (R(M_PI) / (real)(h - 1u));
+    vreal st = sin(theta), ct = cos(theta), sp = sin(phi), cp = cos(phi);
+    V3 l = v3(sp * st, ct, -cp * st);
     *d = v3(l.x * c0.x + l.y * c1.x + l.z * c2.x, l.x * c0.y + l.y * c1.y + l.z * c2.y,
             l.x * c0.z + l.y * c1.z + l.z * c2.z);
-    *pdf_sa = pdf;
+    *pdf_sa = cell * ((real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI)) / fmax(st, (vreal)REAL_EPS);
     return Le;
 }
 
