@@ -205,14 +205,16 @@ BVH_LEAF = Rows("BVH leaf block", "BVHL", _r4("px", "py", "pz", "nx", "ny", "nz"
                 "(PlanarRec wv.w; ITEM_EMPTY for an empty slot) | material | light + 1 | primitive id")
 NORMALS = Rows("vertex normals", "NORMALS", _r4("n0", "n1", "n2"), "vertex normals of a smooth triangle")
 # An environment map's texels (after every other record; its light record points to them): row y of
-# W texels, then its marginal distribution, ENV_MARGINAL records of 4 reals.
+# W texels, then its tables, 4 entries a record (ENV_PACKED).
 ENV_TEXEL = Rows("environment texel", "ENVT", _r4("rgb_cdf"),
                  "environment map texel (x, y) at record base + W y + x: its radiance r, g, b (linear, unscaled), "
                  "and (y < H - 1) the cumulative distribution of the sampling cells of row y up to and including "
                  "cell x (cell (x, y): texels x..x+1 by y..y+1, weight the mean of their luminance times sin theta)")
-ENV_MARGINAL = Rows("environment marginal", "ENVM", _r4("cdf4"),
-                    "the environment map's marginal cumulative distribution over its H - 1 rows of cells, 4 a record "
-                    "(record base + W H + k / 4, component k % 4)")
+ENV_PACKED = Rows("environment table", "ENVP", _r4("four"),
+                  "4 entries of an environment map's tables a record, after its texels (entry k of a table at "
+                  "record table base + k / 4, component k % 4): the marginal cumulative distribution over its "
+                  "H - 1 rows of cells; the guide tables of its rows, W (H - 1) entries (entry j of row y: the "
+                  "first cell whose cdf passes j / W); the marginal's guide, H - 1 entries")
 LIGHT_TRI = Rows("mesh-light triangle", "LTRI", _r4("p_alias", "u_prob", "v"),
                  "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
 
@@ -272,7 +274,7 @@ PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"),
 def scene_records() -> tuple:
     """The scene's records (Rows), as this module holds them now."""
     return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI, ENV_TEXEL,
-            ENV_MARGINAL)
+            ENV_PACKED)
 
 
 def launch_records() -> tuple:

@@ -249,8 +249,23 @@ def env_cell_weights(image: np.ndarray) -> np.ndarray:
     return 0.25 * (row[:-1] + row[1:])
 
 
+def env_guides(cdf: np.ndarray) -> np.ndarray:
+    """Guide tables of rows of cumulative distributions (..., n), each
+    ending at 1: entry j of a row is the first cell whose cdf (as float
+    kernels hold it) passes j / n, so a search for u starts at entry
+    floor(u n) and steps fewer than 2 cells on average whatever the
+    distribution (the cutpoint method)."""
+    c = np.atleast_2d(cdf).astype(np.float32)
+    n = c.shape[1]
+    q = (np.arange(n) / n).astype(np.float32)
+    first = np.stack([np.searchsorted(row, q, side="right") for row in c])
+    return np.minimum(first, n - 1).reshape(cdf.shape)
+
+
 def env_records(image: np.ndarray) -> np.ndarray:
-    """The texel and marginal records (ENV_TEXEL, ENV_MARGINAL) of an environment map, as float64 rows."""
+    """The texel records (ENV_TEXEL) of an environment map and its tables
+    (ENV_PACKED: marginal cdf, the rows' guides, the marginal's guide), as
+    float64 rows."""
     h, w = image.shape[:2]
     cond = env_cell_weights(image)
     rows = cond.sum(axis=1)
@@ -260,14 +275,16 @@ def env_records(image: np.ndarray) -> np.ndarray:
     cond[:, -1] = 1.0
     marg = np.cumsum(rows) / rows.sum()
     marg[-1] = 1.0
-    n_marg = -(-(h - 1) // 4)
-    out = np.zeros((w * h + n_marg, 4))
+    tables = [marg, env_guides(cond).reshape(-1), env_guides(marg)]
+    sizes = [-(-len(t) // 4) for t in tables]
+    out = np.zeros((w * h + sum(sizes), 4))
     tex = layout.ENV_TEXEL.view(out[:w * h])["rgb_cdf"]
     tex[:, :3] = image.reshape(-1, 3)
     tex[:w * (h - 1), 3] = cond.reshape(-1)
-    m = layout.ENV_MARGINAL.view(out[w * h:])["cdf4"].reshape(-1)
-    m[:h - 1] = marg
-    m[h - 1:] = 1.0
+    first = w * h
+    for t, n in zip(tables, sizes):
+        layout.ENV_PACKED.view(out[first:first + n])["four"].reshape(-1)[:len(t)] = t
+        first += n
     return out
 
 

@@ -234,10 +234,10 @@ inline vreal infinite_dist(real4 c, real area, V3 x)
 #if CLPT_HAS_ENV_LIGHT
 #define ENV_LIGHT_REC (OFF_LIGHTS + LIGHT_STRIDE * (NUM_LIGHTS - 1u))
 
-// Component k % 4 of the environment's marginal cdf record (k: a row of cells).
-inline real env_marginal(const Scene *sc, uint mbase, uint k)
+// Entry k of an environment table (ENV_PACKED: 4 entries a record) starting at record tbase.
+inline real env_table(const Scene *sc, uint tbase, uint k)
 {
-    real4 q = scene_rec(sc, mbase + k / 4u);
+    real4 q = scene_rec(sc, tbase + k / 4u);
     uint c = k % 4u;
     return c == 0u ? q.x : c == 1u ? q.y : c == 2u ? q.z : q.w;
 }
@@ -253,7 +253,7 @@ inline real4 env_texels(const Scene *sc, uint base, uint w, uint h, uint x0, uin
     real4 t01 = scene_rec(sc, r1 + x0), t11 = scene_rec(sc, r1 + x1);
     real pc = t00.w - (x0 > 0u ? scene_rec(sc, r0 + x0 - 1u).w : R(0));
     uint mbase = base + w * h;
-    real pm = env_marginal(sc, mbase, y0) - (y0 > 0u ? env_marginal(sc, mbase, y0 - 1u) : R(0));
+    real pm = env_table(sc, mbase, y0) - (y0 > 0u ? env_table(sc, mbase, y0 - 1u) : R(0));
     *cell = pc * pm;
     real4 a = t00 * (R(1) - fx) + t10 * fx, b = t01 * (R(1) - fx) + t11 * fx;
     return a * (R(1) - fy) + b * fy;
@@ -316,33 +316,31 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
         *pdf_sa = (vreal)R(0.25 * M_1_PI);
         return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
     }
-    uint mbase = base + w * h;
+    uint mbase = base + w * h;                       // the marginal cdf (clpt/layout.py ENV_PACKED)
+    uint grows = mbase + (h + 2u) / 4u;              // the rows' guides
+    uint gmarg = grows + (w * (h - 1u) + 3u) / 4u;   // the marginal's guide
     V3 Le = v3_zero();
     vreal gx = (vreal)R(0), gy = (vreal)R(0), cell = (vreal)R(0);
     for (int k = 0; k < CLPT_LANES; k++) {
         if (VLANE_M(m, k) == 0)
             continue;
         real a = VLANE_R(u1, k), b = VLANE_R(u2, k);
-        // The first row whose cdf passes b, and the first cell of that row
-        // whose cdf passes a: binary searches whose steps do not depend on
-        // the data (a select, not a branch, picks the half).
-        uint lo = 0u;
-        for (uint n = h - 1u; n > 1u;) {
-            uint step = n / 2u;
-            lo = env_marginal(sc, mbase, lo + step - 1u) <= b ? lo + step : lo;
-            n -= step;
-        }
-        uint y0 = lo + (env_marginal(sc, mbase, lo) <= b ? 1u : 0u);
-        real m0 = y0 > 0u ? env_marginal(sc, mbase, y0 - 1u) : R(0);
-        real fy = fmin(fmax((b - m0) / (env_marginal(sc, mbase, y0) - m0), R(0)), R(1));
+        // The first row whose cdf passes b, then the first cell of that row
+        // whose cdf passes a, each from its guide table's entry (the first
+        // cell past that entry's value: fewer than 2 steps on average).
+        uint y0 = (uint)env_table(sc, gmarg, min((uint)(b * (real)(h - 1u)), h - 2u));
+        while (y0 > 0u && env_table(sc, mbase, y0 - 1u) > b)
+            y0--;
+        while (y0 < h - 2u && env_table(sc, mbase, y0) <= b)
+            y0++;
+        real m0 = y0 > 0u ? env_table(sc, mbase, y0 - 1u) : R(0);
+        real fy = fmin(fmax((b - m0) / (env_table(sc, mbase, y0) - m0), R(0)), R(1));
         uint row = base + w * y0;
-        lo = 0u;
-        for (uint n = w; n > 1u;) {
-            uint step = n / 2u;
-            lo = scene_rec(sc, row + lo + step - 1u).w <= a ? lo + step : lo;
-            n -= step;
-        }
-        uint x0 = lo + (scene_rec(sc, row + lo).w <= a ? 1u : 0u);
+        uint x0 = (uint)env_table(sc, grows, w * y0 + min((uint)(a * (real)w), w - 1u));
+        while (x0 > 0u && scene_rec(sc, row + x0 - 1u).w > a)
+            x0--;
+        while (x0 < w - 1u && scene_rec(sc, row + x0).w <= a)
+            x0++;
         real c = x0 > 0u ? scene_rec(sc, row + x0 - 1u).w : R(0);
         real fx = fmin(fmax((a - c) / (scene_rec(sc, row + x0).w - c), R(0)), R(1));
         real4 t = env_texels(sc, base, w, h, x0, y0, fx, fy, &VLANE_R(cell, k));
@@ -484,13 +482,13 @@ CLPT_INLINE void infinite_light_sample(const Scene *sc, uint r, int kind, real4 
 }
 #endif
 
-// A light picked by power and a point on it, into *out. With at_x (a
+// A light picked by power and a point on it, for the lanes in active, into *out. With at_x (a
 // constant where this is inlined), as seen from the shading point x, for
 // next event estimation: wi, dist, the solid-angle pdf and validity are
 // filled and p is recomputed as x + dist wi; without, for photon emission:
 // the point, its normal, the area pdf and err. (An always-inlined function
 // returns no struct: Oclgrind cannot run the noalias scope its inlining leaves.)
-CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, LightSample *out)
+CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, vmask active, LightSample *out)
 {
     LightSample ls;
     ls.p = ls.n = ls.Le = ls.wi = v3_zero();
@@ -503,7 +501,7 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, LightSa
 #if CLPT_HAS_DIRECTIONAL_LIGHTS
     ls.parallel = ls.valid;
 #endif
-    vreal li = light_pick_index(sc, u.pick);
+    vreal li = VSEL((vreal)R(INFINITY), light_pick_index(sc, u.pick), active);  // only the active lanes pick
     uint i, r;
     vmask pick;
     while (light_next(sc, &li, &i, &pick, &r)) {

@@ -229,7 +229,7 @@ inline uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, v
     if (!VANY(nee))
         return 0;
     LightSample ls;
-    light_sample(sc, v->x, sample_light(sp, ps->depth), 1, &ls);
+    light_sample(sc, v->x, sample_light(sp, ps->depth), 1, nee, &ls);
     vreal cos_x = v3_dot(v->n, ls.wi);
     nee = nee && ls.valid && cos_x > R(0) && v3_dot(v->ng, ls.wi) > R(0);
     if (!VANY(nee))

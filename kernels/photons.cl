@@ -41,7 +41,7 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
     // --- emission ---------------------------------------------------------------
     EmitU ue = sample_photon_emission(&sp);
     LightSample lp;
-    light_sample(sc, v3_zero(), ue.light, 0, &lp);
+    light_sample(sc, v3_zero(), ue.light, 0, live, &lp);
     AimSample aim = aim_at_casters(sc, lp.p, lp.n, lp.two_sided, L.aim, ue.caster, ue.u1, ue.u2);
     vreal cos_y = v3_dot(aim.w, lp.n);
 #if CLPT_HAS_DELTA_LIGHTS

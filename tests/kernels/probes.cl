@@ -210,7 +210,7 @@ __kernel void probe_light_sample(__global const real4 *rec, __constant SceneInfo
     LightU u;
     u.pick = LD(u0, i); u.u1 = LD(u1, i); u.u2 = LD(u2, i);
     LightSample ls;
-    light_sample(&s, LD3(px, py, pz, i), u, 1, &ls);
+    light_sample(&s, LD3(px, py, pz, i), u, 1, u.pick == u.pick, &ls);
     ST3(ls.wi, wx, wy, wz, i);
     ST(ls.dist, dist, i);
     ST(ls.Le.x, le, i);
@@ -267,7 +267,7 @@ __kernel void probe_light_pdf(__global const real4 *rec, __constant SceneInfo *i
     LightU u;
     u.pick = LD(u0, i); u.u1 = LD(u1, i); u.u2 = LD(u2, i);
     LightSample ls;
-    light_sample(&s, x, u, 1, &ls);
+    light_sample(&s, x, u, 1, u.pick == u.pick, &ls);
     Hit h = scene_intersect(&s, x, ls.wi);
     vreal p = light_pdf_hit(&s, h.light, x, v3_fma(ls.wi, h.t, x), h.ng, h.t);
     ST(VSEL((vreal)R(0), ls.pdf, ls.valid), pdf_sample, i);
