@@ -210,6 +210,7 @@ ENV_TEXEL = Rows("environment texel", "ENVT", _r4("rgb_cdf"),
                  "environment map texel (x, y) at record base + W y + x: its radiance r, g, b (linear, unscaled), "
                  "and (y < H - 1) the cumulative distribution of the sampling cells of row y up to and including "
                  "cell x (cell (x, y): texels x..x+1 by y..y+1, weight the mean of their luminance times sin theta)")
+ENV_PACKED_ENTRIES = 4  # entries of an environment table a record
 ENV_PACKED = Rows("environment table", "ENVP", _r4("four"),
                   "4 entries of an environment map's tables a record, after its texels (entry k of a table at "
                   "record table base + k / 4, component k % 4): the marginal cumulative distribution over its "
@@ -292,5 +293,6 @@ def c_source() -> str:
               f"#define KIND_ENV {KIND_ENV}", f"#define KIND_DIRECTIONAL {KIND_DIRECTIONAL}",
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
               f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define ITEM_EMPTY {ITEM_EMPTY}",
-              f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}", f"#define COAT_TABLE_ROWS {COAT_TABLE_ROWS}"]
+              f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}", f"#define COAT_TABLE_ROWS {COAT_TABLE_ROWS}",
+              f"#define ENVP_ENTRIES {ENV_PACKED_ENTRIES}"]
     return "\n".join(parts) + "\n"

@@ -24,8 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .scene import (ALPHA_RANGE, DISTRIBUTIONS, FILTER_MAX_RADIUS, Camera, DirectionalLight, EnvironmentLight, Material,
-                    Mesh, PixelFilter, PointLight, Quad, RenderSettings, Scene, SceneError, SceneWarning, Sphere, SpotLight, _suggest, read_file_bytes)
+from .scene import (ALPHA_RANGE, DISTRIBUTIONS, FILTER_MAX_RADIUS, Camera, Material, Mesh, PixelFilter, PointLight, Quad,
+                    RenderSettings, Scene, SceneError, SceneWarning, Sphere, SpotLight, _suggest, read_file_bytes)
+from .scene import DirectionalLight, EnvironmentLight
 from .errors import ImageError
 from .image import load_image
 from .meshio import read_mesh, transform_mesh, vertex_normals

@@ -276,7 +276,7 @@ def env_records(image: np.ndarray) -> np.ndarray:
     marg = np.cumsum(rows) / rows.sum()
     marg[-1] = 1.0
     tables = [marg, env_guides(cond).reshape(-1), env_guides(marg)]
-    sizes = [-(-len(t) // 4) for t in tables]
+    sizes = [-(-len(t) // layout.ENV_PACKED_ENTRIES) for t in tables]
     out = np.zeros((w * h + sum(sizes), 4))
     tex = layout.ENV_TEXEL.view(out[:w * h])["rgb_cdf"]
     tex[:, :3] = image.reshape(-1, 3)

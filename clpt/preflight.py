@@ -205,7 +205,8 @@ def check_scene_memory(scene, available: int | None = None):
     owner = "meshes" if meshes == len(items) else "environment map" if not meshes else "meshes and environment map"
     noun = "mesh" if meshes == len(items) else "item"
     count = f"{len(items)} {noun}{('es' if noun == 'mesh' else 's') if len(items) > 1 else ''}"
-    raise SceneError(f"{scene.source}: its {owner} need{'s' if owner.endswith('map') else ''} about {need / 2**30:.1f} GiB of memory to render "
+    verb = "needs" if owner.endswith("map") else "need"
+    raise SceneError(f"{scene.source}: its {owner} {verb} about {need / 2**30:.1f} GiB of memory to render "
                      f"({count}, the largest a {what}: {most / 2**30:.1f} GiB) and "
                      f"{max(avail, 0) / 2**30:.1f} GiB are available")
 

@@ -237,8 +237,8 @@ inline vreal infinite_dist(real4 c, real area, V3 x)
 // Entry k of an environment table (ENV_PACKED: 4 entries a record) starting at record tbase.
 inline real env_table(const Scene *sc, uint tbase, uint k)
 {
-    real4 q = scene_rec(sc, tbase + k / 4u);
-    uint c = k % 4u;
+    real4 q = scene_rec(sc, tbase + k / ENVP_ENTRIES);
+    uint c = k % ENVP_ENTRIES;
     return c == 0u ? q.x : c == 1u ? q.y : c == 2u ? q.z : q.w;
 }
 
@@ -251,7 +251,8 @@ inline real4 env_texels(const Scene *sc, uint base, uint w, uint h, uint x0, uin
     uint r0 = base + w * y0, r1 = r0 + w;
     real4 t00 = scene_rec(sc, r0 + x0), t10 = scene_rec(sc, r0 + x1);
     real4 t01 = scene_rec(sc, r1 + x0), t11 = scene_rec(sc, r1 + x1);
-    real pc = t00.w - (x0 > 0u ? scene_rec(sc, r0 + x0 - 1u).w : R(0));
+    uint xp = x0 - 1u;  // the cell before (when x0 > 0)
+    real pc = t00.w - (x0 > 0u ? scene_rec(sc, r0 + xp).w : R(0));
     uint mbase = base + w * h;
     real pm = env_table(sc, mbase, y0) - (y0 > 0u ? env_table(sc, mbase, y0 - 1u) : R(0));
     *cell = pc * pm;
@@ -317,8 +318,8 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
         return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
     }
     uint mbase = base + w * h;                       // the marginal cdf (clpt/layout.py ENV_PACKED)
-    uint grows = mbase + (h + 2u) / 4u;              // the rows' guides
-    uint gmarg = grows + (w * (h - 1u) + 3u) / 4u;   // the marginal's guide
+    uint grows = mbase + (h + ENVP_ENTRIES - 2u) / ENVP_ENTRIES;           // the rows' guides
+    uint gmarg = grows + (w * (h - 1u) + ENVP_ENTRIES - 1u) / ENVP_ENTRIES;  // the marginal's guide
     V3 Le = v3_zero();
     vreal gx = (vreal)R(0), gy = (vreal)R(0), cell = (vreal)R(0);
     for (int k = 0; k < CLPT_LANES; k++) {
@@ -337,11 +338,15 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
         real fy = fmin(fmax((b - m0) / (env_table(sc, mbase, y0) - m0), R(0)), R(1));
         uint row = base + w * y0;
         uint x0 = (uint)env_table(sc, grows, w * y0 + min((uint)(a * (real)w), w - 1u));
-        while (x0 > 0u && scene_rec(sc, row + x0 - 1u).w > a)
+        uint xp = x0 - 1u;  // the cell before x0 (when x0 > 0)
+        while (x0 > 0u && scene_rec(sc, row + xp).w > a) {
             x0--;
+            xp--;
+        }
         while (x0 < w - 1u && scene_rec(sc, row + x0).w <= a)
             x0++;
-        real c = x0 > 0u ? scene_rec(sc, row + x0 - 1u).w : R(0);
+        xp = x0 - 1u;
+        real c = x0 > 0u ? scene_rec(sc, row + xp).w : R(0);
         real fx = fmin(fmax((a - c) / (scene_rec(sc, row + x0).w - c), R(0)), R(1));
         real4 t = env_texels(sc, base, w, h, x0, y0, fx, fy, &VLANE_R(cell, k));
         VLANE_R(gx, k) = (real)x0 + fx;
