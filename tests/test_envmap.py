@@ -15,7 +15,8 @@
   the side Mitsuba's formula says), to_world.
 - Photons from a directional light: zero photons give the path tracer's
   image exactly; the caustic under a glass ball carries what a far point
-  light's (another emission path through the kernels) carries.
+  light's (another emission path through the kernels) carries; a glass ball
+  under an environment alone (which emits no photons) is path traced.
 - tests/data/env_spheres.xml against a stored Mitsuba 3 reference.
 """
 
@@ -384,3 +385,13 @@ def test_env_spheres_render_as_in_mitsuba(device_spec):
     mean_err, z = compare_to_reference(res, ref)
     assert mean_err < 0.005, f"image mean off by {mean_err:.2%}"
     assert np.abs(z).max() < 4, f"a block is {np.abs(z).max():.1f} sigma off"
+
+
+def test_environment_lit_glass_is_path_traced_by_default(device_spec):
+    """An environment emits no photons: a glass ball under one alone gets
+    no photon map from the pilot (its photons would carry nothing), so the
+    default render is the path tracer's image exactly."""
+    scene = _glass_ball(EnvironmentLight(image=sun_map(), scale=0.5, to_world=ROT), size=12)
+    pt = clpt.Renderer(scene, device=device_spec, photons=False).render(spp=8, seed=4, max_depth=6)
+    default = clpt.Renderer(scene, device=device_spec).render(spp=8, seed=4, max_depth=6)
+    assert np.array_equal(pt.image, default.image)
