@@ -57,6 +57,7 @@ class Features:
     glass: bool = True
     microfacet: bool = True    # the rough conductor's microfacet lobe
     plastic: bool = True       # Mitsuba's plastic and roughplastic (a coated diffuse base)
+    rough_dielectric: bool = True  # Mitsuba's roughdielectric (microfacet reflection and transmission)
     triangle_lights: bool = True
     sphere_lights: bool = True
     mesh_lights: bool = True
@@ -89,6 +90,7 @@ class Features:
             "CLPT_HAS_GLASS": int(self.glass),
             "CLPT_HAS_MICROFACET": int(self.microfacet),
             "CLPT_HAS_PLASTIC": int(self.plastic),
+            "CLPT_HAS_ROUGH_DIELECTRIC": int(self.rough_dielectric),
             "CLPT_HAS_TRIANGLE_LIGHTS": int(self.triangle_lights),
             "CLPT_HAS_SPHERE_LIGHTS": int(self.sphere_lights),
             "CLPT_HAS_MESH_LIGHTS": int(self.mesh_lights),
@@ -149,6 +151,7 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         glass=packed.has_glass,
         microfacet=packed.has_microfacet,
         plastic=packed.has_plastic,
+        rough_dielectric=packed.has_rough_dielectric,
         triangle_lights="triangle" in packed.light_kinds,
         sphere_lights="sphere" in packed.light_kinds,
         mesh_lights="mesh" in packed.light_kinds,

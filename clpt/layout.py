@@ -168,13 +168,16 @@ def _r4(*names):
 
 
 MATERIAL = Rows("material", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_sides", "params", "km_pm",
-                                      "eta_alpha", "k_dist", "kp_pp", "kps_w", "coat", "coat_tab"),
+                                      "eta_alpha", "k_dist", "kp_pp", "kps_w", "coat", "coat_tab", "gr_pg",
+                                      "gt", "glass_rough"),
                 "material: kd.rgb, p_diffuse | ks.rgb, p_phong | kr.rgb, p_mirror | kt.rgb, p_refract | "
                 "Le.rgb, two_sided | shininess, ior, nondelta, one_sided | km.rgb, p_microfacet | "
                 "eta.rgb, alpha | k.rgb, distribution (0 GGX, 1 Beckmann) | plastic (a coated diffuse base): "
                 "diffuse_reflectance.rgb, p_plastic | specular_reflectance.rgb, specular sampling weight | "
                 "eta, internal reflectance, alpha (0: smooth), distribution | record index of its "
-                "transmittance table (COAT_TABLE_ROWS rows after the triangles' records), nonlinear, 0, 0")
+                "transmittance table (COAT_TABLE_ROWS rows after the triangles' records), nonlinear, 0, 0 | "
+                "rough dielectric: specular_reflectance.rgb, p_rough_dielectric | specular_transmittance.rgb, 0 | "
+                "eta (inside over outside), alpha, distribution, sample_visible")
 SPHERE = Rows("sphere", "SPHERE", _r4("center_radius", "mat"),
               "sphere: center.xyz, radius | material, light + 1 (0: not a light), prim id, 0")
 PLANAR = Rows("planar", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "wv_kind"),

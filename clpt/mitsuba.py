@@ -752,10 +752,7 @@ class _Loader:
             # The microfacet lobe itself (kernels/microfacet.h), Fresnel from eta + i k per channel.
             spec = p.color("specular_reflectance", 1.0)
             eta, k = self._conductor_ior(p)
-            dist = p.string("distribution", "beckmann")  # Mitsuba 3's default
-            if dist not in DISTRIBUTIONS:
-                p.props["distribution"].fail(f"unknown distribution {dist!r}{_suggest(dist, DISTRIBUTIONS)}; "
-                                             f"known: {', '.join(DISTRIBUTIONS)}")
+            dist = self._distribution(p)
             p.boolean("sample_visible", True)  # either way the same expectation; clpt samples visible normals
             m = Material(km=tuple(spec), alpha=min(self._alpha(p), ALPHA_RANGE[1]), distribution=dist,
                          eta=eta, k=k, one_sided=True)
@@ -768,12 +765,14 @@ class _Loader:
                 # the hemisphere; the rest passes straight through (ior 1: no bending, no Fresnel).
                 r = _hemispherical(lambda mu: 2 * fresnel_dielectric(mu, eta) / (1 + fresnel_dielectric(mu, eta)))
                 m = Material(kr=tuple(refl * r), kt=tuple(trans * (1 - r)), ior=1.0)
+            elif t == "roughdielectric":
+                # The microfacet interface itself (kernels/bsdf.h rough_dielectric_*).
+                if abs(eta - 1.0) < 1e-6:
+                    node.fail(f"int_ior and ext_ior must differ (got eta {eta:g})")
+                m = Material(rough_dielectric_lobe=True, kgr=tuple(refl), kgt=tuple(trans), ior=eta,
+                             alpha=min(self._alpha(p), ALPHA_RANGE[1]), distribution=self._distribution(p),
+                             sample_visible=p.boolean("sample_visible", True))
             else:
-                if t == "roughdielectric":
-                    self._alpha(p)
-                    p.string("distribution")
-                    self.warn(node, "rough dielectrics are mapped to smooth ones (clpt has no rough "
-                                    "transmission)", key=("roughdielectric",))
                 if np.abs(refl - trans).max() > 1e-6:
                     self.warn(node, "specular_reflectance differs from specular_transmittance: clpt's "
                                     "dielectric has one colour for both; specular_transmittance is used",
@@ -789,10 +788,7 @@ class _Loader:
                 node.fail(f"int_ior and ext_ior must differ (got eta {eta:g})")
             alpha, dist = 0.0, "beckmann"
             if t == "roughplastic":
-                dist = p.string("distribution", "beckmann")  # Mitsuba 3's default
-                if dist not in DISTRIBUTIONS:
-                    p.props["distribution"].fail(f"unknown distribution {dist!r}{_suggest(dist, DISTRIBUTIONS)}; "
-                                                 f"known: {', '.join(DISTRIBUTIONS)}")
+                dist = self._distribution(p)
                 alpha = min(self._alpha(p), ALPHA_RANGE[1])
                 p.boolean("sample_visible", True)  # the same expectation either way; clpt samples visible normals
             if max(kd) + max(spec) == 0:
@@ -820,6 +816,11 @@ class _Loader:
                 self.warn(node, "blending a plastic: its diffuse + Phong approximation is blended",
                           key=("blend_plastic",))
                 a, b = plastic_approximation(a), plastic_approximation(b)
+            if a.rough_dielectric_lobe or b.rough_dielectric_lobe:
+                self.warn(node, "blending a rough dielectric: a smooth one of its transmittance is blended",
+                          key=("blend_roughdielectric",))
+                a, b = (replace(x, rough_dielectric_lobe=False, kt=x.kgt) if x.rough_dielectric_lobe else x
+                        for x in (a, b))
             if (a.shininess and b.shininess and a.shininess != b.shininess) or (
                     max(a.kt) > 0 and max(b.kt) > 0 and a.ior != b.ior):
                 self.warn(node, "blending lobes of different shininess or ior: the weighted mean is used",
@@ -837,6 +838,13 @@ class _Loader:
             m = Material(kd=(0.5, 0.5, 0.5), one_sided=True)
         p.finish()
         return m
+
+    def _distribution(self, p: _Props) -> str:
+        dist = p.string("distribution", "beckmann")  # Mitsuba 3's default
+        if dist not in DISTRIBUTIONS:
+            p.props["distribution"].fail(f"unknown distribution {dist!r}{_suggest(dist, DISTRIBUTIONS)}; "
+                                         f"known: {', '.join(DISTRIBUTIONS)}")
+        return dist
 
     def _alpha(self, p: _Props) -> float:
         if p.has("alpha_u") or p.has("alpha_v"):

@@ -108,6 +108,10 @@ class PackedScene:
         return any(m.plastic for m in self.materials)
 
     @property
+    def has_rough_dielectric(self) -> bool:
+        return any(m.rough_dielectric_lobe for m in self.materials)
+
+    @property
     def has_mirror(self) -> bool:
         return any(max(m.kr) > 0 for m in self.materials)
 
@@ -190,6 +194,15 @@ def _material_records(materials) -> np.ndarray:
             rec["km_pm"] = (*m.km, p_m)
             rec["eta_alpha"] = (*m.eta, m.alpha)
             rec["k_dist"] = (*m.k, 1.0 if m.distribution == "beckmann" else 0.0)
+        if m.rough_dielectric_lobe:
+            # Its weight is kgr or kgt times G1 <= 1 (radiance: kgt / eta^2 across,
+            # eta^2 back): the lobe's largest channel is its probability.
+            p_g = min(1.0, max(*m.kgr, *m.kgt))
+            rec["gr_pg"] = (*m.kgr, p_g)
+            rec["gt"] = (*m.kgt, 0.0)
+            rec["glass_rough"] = (m.ior, m.alpha, 1.0 if m.distribution == "beckmann" else 0.0,
+                                  1.0 if m.sample_visible else 0.0)
+            rec["params"][2] = 1.0 if p_g > 0 else 0.0
     return out
 
 
@@ -305,7 +318,7 @@ def is_caustic_caster(m: Material) -> bool:
     the surfaces photons pass through on their way to a caustic. Surfaces
     that mix in a diffuse or Phong part are left to the path tracer."""
     return (max(m.kr) > 0 or max(m.kt) > 0) and max(m.kd) == 0 and max(m.ks) == 0 and max(m.km) == 0 and \
-        not m.plastic
+        not m.plastic and not m.rough_dielectric_lobe
 
 
 def _caustic_objects(scene: Scene):

@@ -58,6 +58,11 @@ class Material:
     with specular_reflectance kps over a diffuse base of diffuse_reflectance
     kp, with its internal scattering (clpt/coating.py); the material's only
     lobe (`Material.rough_plastic`, `Material.smooth_plastic`).
+    rough_dielectric_lobe, kgr, kgt, sample_visible (with ior, alpha and
+    distribution): Mitsuba 3's `roughdielectric`, a microfacet interface of
+    relative index ior (inside over outside) that reflects (specular_reflectance
+    kgr) and refracts (specular_transmittance kgt) through the same microfacet
+    normal; the material's only lobe (`Material.rough_dielectric`).
     emission is radiance leaving the surface (on the side its normal points
     to, or both sides if two_sided). one_sided makes the surface black from
     behind (the side its normal points away from): no reflection, no
@@ -83,10 +88,14 @@ class Material:
     kps: Vec3 = (1.0, 1.0, 1.0)
     plastic_eta: float = 1.49 / 1.000277
     nonlinear: bool = False
+    rough_dielectric_lobe: bool = False
+    kgr: Vec3 = (1.0, 1.0, 1.0)
+    kgt: Vec3 = (1.0, 1.0, 1.0)
+    sample_visible: bool = True
 
     def __post_init__(self):
         # Types now (a clear TypeError at the mistake); ranges in check_material.
-        for key in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k", "kp", "kps"):
+        for key in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k", "kp", "kps", "kgr", "kgt"):
             v = getattr(self, key)
             if isinstance(v, (str, bytes)) or not hasattr(v, "__len__") or len(v) != 3 or \
                     not all(_is_number(c) for c in v):
@@ -97,7 +106,7 @@ class Material:
         for key in ("shininess", "ior", "alpha", "plastic_eta"):
             if not _is_number(getattr(self, key)):
                 raise TypeError(f"Material.{key} must be a number (got {getattr(self, key)!r})")
-        for key in ("two_sided", "plastic", "nonlinear"):
+        for key in ("two_sided", "plastic", "nonlinear", "rough_dielectric_lobe", "sample_visible"):
             if not isinstance(getattr(self, key), (bool, np.bool_)):
                 raise TypeError(f"Material.{key} must be True or False (got {getattr(self, key)!r})")
 
@@ -126,10 +135,7 @@ class Material:
                       **overrides) -> "Material":
         """Mitsuba 3's `roughplastic` (one-sided; its defaults: Beckmann,
         alpha 0.1, polypropylene in air). alpha=0 is the smooth `plastic`."""
-        for name, v in (("int_ior", int_ior), ("ext_ior", ext_ior)):
-            if not _is_number(v) or not IOR_RANGE[0] <= v <= IOR_RANGE[1]:
-                raise SceneError(f"rough_plastic: {name} must be a number in [{IOR_RANGE[0]:g}, "
-                                 f"{IOR_RANGE[1]:g}] (got {v!r})")
+        _check_iors("rough_plastic", int_ior, ext_ior)
         base = dict(plastic=True, kp=tuple(float(c) for c in diffuse_reflectance),
                     kps=tuple(float(c) for c in specular_reflectance), alpha=alpha, distribution=distribution,
                     plastic_eta=int_ior / ext_ior, nonlinear=nonlinear, one_sided=True)
@@ -139,6 +145,19 @@ class Material:
     def smooth_plastic(cls, diffuse_reflectance: Vec3 = (0.5, 0.5, 0.5), **kw) -> "Material":
         """Mitsuba 3's smooth `plastic` (the keywords of rough_plastic but alpha)."""
         return cls.rough_plastic(diffuse_reflectance, alpha=0.0, **kw)
+
+    @classmethod
+    def rough_dielectric(cls, alpha: float = 0.1, distribution: str = "beckmann", int_ior: float = 1.5046,
+                         ext_ior: float = 1.000277, specular_reflectance: Vec3 = (1.0, 1.0, 1.0),
+                         specular_transmittance: Vec3 = (1.0, 1.0, 1.0), sample_visible: bool = True,
+                         **overrides) -> "Material":
+        """Mitsuba 3's `roughdielectric` (its defaults: Beckmann, alpha 0.1,
+        BK7 glass in air)."""
+        _check_iors("rough_dielectric", int_ior, ext_ior)
+        base = dict(rough_dielectric_lobe=True, kgr=tuple(float(c) for c in specular_reflectance),
+                    kgt=tuple(float(c) for c in specular_transmittance), alpha=alpha, distribution=distribution,
+                    ior=int_ior / ext_ior, sample_visible=sample_visible)
+        return cls(**{**base, **overrides})
 
     @property
     def is_emissive(self) -> bool:
@@ -151,6 +170,12 @@ class Material:
 
 
 MaterialRef = Union[str, Material]
+
+
+def _check_iors(who: str, int_ior, ext_ior):
+    for name, v in (("int_ior", int_ior), ("ext_ior", ext_ior)):
+        if not _is_number(v) or not IOR_RANGE[0] <= v <= IOR_RANGE[1]:
+            raise SceneError(f"{who}: {name} must be a number in [{IOR_RANGE[0]:g}, {IOR_RANGE[1]:g}] (got {v!r})")
 
 
 def _is_number(x) -> bool:
@@ -948,6 +973,26 @@ def _length_in_range(source, path, size, extent):
                             f"split the scene")
 
 
+def _reflectances(source, path, m: Material, what: str, keys):
+    vals = [_finite_vec(source, f"{path}.{k}", getattr(m, k), nonneg=True) for k in keys]
+    if max(v.max() for v in vals) > 1:
+        _fail(source, path, f"{what} reflectances must be at most 1 ("
+                            + ", ".join(f"{k} {tuple(getattr(m, k))}" for k in keys) + ")")
+
+
+def _interface_eta(source, path, m: Material, key: str, what: str):
+    eta = getattr(m, key)
+    _finite(source, f"{path}.{key}", eta, lo=1.0 / 1e3, lo_open=False, hi=1e3, hi_open=False)
+    if abs(eta - 1.0) < 1e-6:
+        _fail(source, f"{path}.{key}", f"must differ from 1 ({what})")
+
+
+def _distribution(source, path, m: Material):
+    if m.distribution not in DISTRIBUTIONS:
+        _fail(source, f"{path}.distribution", f"must be one of {', '.join(DISTRIBUTIONS)} "
+                                               f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
+
+
 def check_material(source, path, m: Material):
     total = np.zeros(3)
     for key in ("kd", "ks", "km", "kr", "kt"):
@@ -955,29 +1000,31 @@ def check_material(source, path, m: Material):
     if max(m.km) > 0:
         _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
                 hi_open=False)
-        if m.distribution not in DISTRIBUTIONS:
-            _fail(source, f"{path}.distribution", f"must be one of {', '.join(DISTRIBUTIONS)} "
-                                                   f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
+        _distribution(source, path, m)
         _finite_vec(source, f"{path}.eta", m.eta, nonneg=True)
         _finite_vec(source, f"{path}.k", m.k, nonneg=True)
     if m.plastic:
         if total.max() > 0:
             _fail(source, path, "a plastic is the material's only lobe (kd, ks, km, kr and kt must be 0)")
-        _finite_vec(source, f"{path}.kp", m.kp, nonneg=True)
-        _finite_vec(source, f"{path}.kps", m.kps, nonneg=True)
-        if max(m.kp) > 1 or max(m.kps) > 1:
-            _fail(source, path, f"plastic reflectances must be at most 1 (kp {tuple(m.kp)}, kps {tuple(m.kps)})")
+        _reflectances(source, path, m, "plastic", ("kp", "kps"))
         if max(m.kp) + max(m.kps) == 0:
             _fail(source, path, "a plastic needs kp or kps above 0")
         if m.alpha != 0:
             _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
                     hi_open=False)
-        if m.distribution not in DISTRIBUTIONS:
-            _fail(source, f"{path}.distribution", f"must be one of {', '.join(DISTRIBUTIONS)} "
-                                                   f"(got {m.distribution!r}){_suggest(m.distribution, DISTRIBUTIONS)}")
-        _finite(source, f"{path}.plastic_eta", m.plastic_eta, lo=1.0 / 1e3, lo_open=False, hi=1e3, hi_open=False)
-        if abs(m.plastic_eta - 1.0) < 1e-6:
-            _fail(source, f"{path}.plastic_eta", "must differ from 1 (a coating of the index around it)")
+        _distribution(source, path, m)
+        _interface_eta(source, path, m, "plastic_eta", "a coating of the index around it")
+    if m.rough_dielectric_lobe:
+        if total.max() > 0 or m.plastic:
+            _fail(source, path, "a rough dielectric is the material's only lobe (kd, ks, km, kr and kt must be 0, "
+                                "plastic false)")
+        _reflectances(source, path, m, "rough dielectric", ("kgr", "kgt"))
+        _finite(source, f"{path}.alpha", m.alpha, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
+                hi_open=False)
+        _distribution(source, path, m)
+        _interface_eta(source, path, m, "ior", "an interface between media of one index")
+        if not isinstance(m.sample_visible, (bool, np.bool_)):
+            _fail(source, f"{path}.sample_visible", f"must be True or False (got {m.sample_visible!r})")
     _emission(source, f"{path}.emission", m.emission)
     _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False, hi=MAX_SHININESS, hi_open=False)
     _finite(source, f"{path}.ior", m.ior, lo=IOR_RANGE[0], lo_open=False, hi=IOR_RANGE[1], hi_open=False)
@@ -1176,7 +1223,7 @@ def _tname(v):
 
 
 _MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided", "one_sided",
-                  "km", "alpha", "distribution", "eta", "k"}
+                  "km", "alpha", "distribution", "eta", "k", "rough_dielectric", "kgr", "kgt", "sample_visible"}
 _COMMON_SHAPE_KEYS = {"type", "material", "emission", "two_sided", "name"}
 _SHAPE_KEYS = {
     "sphere": {"center", "radius"},
@@ -1198,7 +1245,7 @@ def _read_material(r: _Reader, d, path) -> Material:
             r.fail(f"{path}.preset", f"unknown preset {name!r}{_suggest(name, PRESETS)}; "
                                      f"presets: {', '.join(PRESETS)}")
         base = dict(PRESETS[name])
-    for k in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k"):
+    for k in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k", "kgr", "kgt"):
         if k in d:
             base[k] = r.vec3(d[k], f"{path}.{k}")
     for k in ("shininess", "ior", "alpha"):
@@ -1206,9 +1253,11 @@ def _read_material(r: _Reader, d, path) -> Material:
             base[k] = r.number(d[k], f"{path}.{k}")
     if "distribution" in d:
         base["distribution"] = r.string(d["distribution"], f"{path}.distribution")
-    for k in ("two_sided", "one_sided"):
+    for k in ("two_sided", "one_sided", "sample_visible"):
         if k in d:
             base[k] = r.boolean(d[k], f"{path}.{k}")
+    if "rough_dielectric" in d:
+        base["rough_dielectric_lobe"] = r.boolean(d["rough_dielectric"], f"{path}.rough_dielectric")
     m = Material(**base)
     check_material(r.source, path, m)
     return m

@@ -4,8 +4,9 @@
 // Russian roulette: diffuse (kd), modified Phong (ks, shininess), the rough
 // conductor's microfacet lobe (km, alpha, eta + i k; microfacet.h), mirror
 // (kr) and refraction (kt), or Mitsuba's plastic (a dielectric coating over a
-// diffuse base, smooth or rough; plastic_* below), the material's only lobe
-// then; absorption takes the rest. Before rr_depth the
+// diffuse base, smooth or rough; plastic_* below) or rough dielectric
+// (microfacet reflection and transmission; rough_dielectric_* below), the
+// material's only lobe then; absorption takes the rest. Before rr_depth the
 // absorption branch is left out (the lobe probabilities renormalized).
 // Directions follow pbrt: d is the incoming ray direction, wi points away
 // from the surface, n is the shading normal on the side of -d.
@@ -15,7 +16,7 @@
 // record and material_fetch (scene.h), and a CLPT_HAS_<lobe> flag.
 
 // Lobe probabilities of m at this depth (absorption allowed or not).
-typedef struct { vreal d, s, m, r, t, p; } LobeProbs;
+typedef struct { vreal d, s, m, r, t, p, g; } LobeProbs;
 
 inline LobeProbs lobe_probs(const Material *m, vmask no_absorb)
 {
@@ -28,6 +29,9 @@ inline LobeProbs lobe_probs(const Material *m, vmask no_absorb)
 #if CLPT_HAS_PLASTIC
     sum += m->p_p;
 #endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    sum += m->p_g;
+#endif
     vreal k = VSEL((vreal)R(1), R(1) / sum, no_absorb && sum > R(0));
     p.d = m->p_d * k; p.s = m->p_s * k; p.r = m->p_r * k; p.t = m->p_t * k;
     p.m = m->p_m * k;
@@ -35,6 +39,11 @@ inline LobeProbs lobe_probs(const Material *m, vmask no_absorb)
     p.p = m->p_p * k;
 #else
     p.p = (vreal)R(0);
+#endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    p.g = m->p_g * k;
+#else
+    p.g = (vreal)R(0);
 #endif
     return p;
 }
@@ -150,6 +159,58 @@ inline vreal plastic_pdf(const Material *m, V3 d, V3 n, V3 wi)
 }
 #endif
 
+#if CLPT_HAS_ROUGH_DIELECTRIC
+// --- rough dielectric ------------------------------------------------------------
+// Mitsuba 3's `roughdielectric`: one microfacet interface (GGX or Beckmann of
+// roughness g_alpha, microfacet.h) that reflects and refracts through the same
+// normal h (Walter et al. 2007). n faces the viewer (-d), e = g_eta is the
+// index beyond the surface over the viewer's side (material_face), cos_o =
+// -d.n, cos_i = wi.n, F = F(-d.h) for relative index e, G = G1(-d, h) G1(wi, h):
+//   reflection (cos_i > 0),   h = normalize(wi - d):
+//     f = gr F D G / (4 cos_o cos_i)
+//   transmission (cos_i < 0), h = normalize(-d + e wi) turned to n's side:
+//     f = gt (1 - F) D G |(-d.h)(wi.h)| / (cos_o |cos_i| (-d.h + e wi.h)^2)
+// That is radiance transport: Mitsuba's factor 1/e^2 for the solid-angle
+// compression cancels the e^2 of the Jacobian below (as the smooth
+// dielectric's weight is kt / e^2). Sampling draws h from the normals visible
+// from -d (or, g_visible 0, from D(h) cos h with Walter's widened roughness
+// (1.2 - 0.2 sqrt(cos_o)) alpha, as Mitsuba does), then reflection with
+// probability F, else refraction:
+//   pdf = p_h(h) (F or 1 - F) |dh/dwi|,  dh/dwi = 1 / (4 wi.h) or e^2 |wi.h| / (-d.h + e wi.h)^2
+// and visible normals give the weight f |cos_i| / pdf = gr G1(wi, h) or gt G1(wi, h) / e^2.
+
+// The roughness h is drawn with: alpha, or Walter's widened one without visible normals.
+inline vreal rough_dielectric_sample_alpha(const Material *m, vreal co)
+{
+    return VSEL(m->g_alpha * (R(1.2) - R(0.2) * vsafe_sqrt(co)), m->g_alpha, m->g_visible != R(0));
+}
+
+// f(d -> wi) of the rough dielectric, and in *pdf the solid-angle pdf of its sampling.
+inline V3 rough_dielectric_eval_pdf(const Material *m, V3 d, V3 n, V3 wi, vreal *pdf)
+{
+    vreal co = -v3_dot(d, n), ci = v3_dot(wi, n), e = m->g_eta;
+    vmask refl = ci > R(0);
+    V3 h = v3_normalize(v3_fma(wi, VSEL(e, (vreal)R(1), refl), v3_neg(d)));
+    h = v3_sel(h, v3_neg(h), v3_dot(h, n) < R(0));
+    vreal hn = v3_dot(h, n), oh = -v3_dot(d, h), ih = v3_dot(wi, h), ct;
+    vmask bk = m->g_beckmann != R(0);
+    vreal s2h = mf_sin2(h, n);
+    vreal D = mf_D(hn, s2h, m->g_alpha, bk);
+    vreal g1o = mf_G1(co, mf_sin2(d, n), oh, m->g_alpha, bk);
+    vreal G = g1o * mf_G1(ci, mf_sin2(wi, n), ih, m->g_alpha, bk);
+    vreal F = fresnel_dielectric(oh, e, &ct);
+    vreal den = oh + e * ih;
+    vreal fr = F * D * G / (R(4) * co * ci);
+    vreal ft = (R(1) - F) * D * G * fabs(oh * ih) / (co * fabs(ci) * den * den);
+    vmask ok = co > R(0) && ci != R(0) && oh > R(0) && ih * ci > R(0) && D > R(0);
+    vreal ph = VSEL(mf_D(hn, s2h, rough_dielectric_sample_alpha(m, co), bk) * hn, D * g1o * oh / co,
+                    m->g_visible != R(0));
+    vreal jac = VSEL(e * e * fabs(ih) / (den * den), R(1) / (R(4) * ih), refl);
+    *pdf = VSEL((vreal)R(0), ph * VSEL(R(1) - F, F, refl) * jac, ok);
+    return v3_sel(v3_zero(), v3_sel(v3_scale(m->gt, ft), v3_scale(m->gr, fr), refl), ok);
+}
+#endif
+
 // f(d -> wi) of the non-delta lobes.
 inline V3 bsdf_eval(const Material *m, V3 d, V3 n, V3 wi)
 {
@@ -178,12 +239,20 @@ inline V3 bsdf_eval(const Material *m, V3 d, V3 n, V3 wi)
     if (VANY(m->p_p > R(0)))
         f = v3_add(f, plastic_eval(m, d, n, wi));
 #endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    vmask g = m->p_g > R(0);
+    if (VANY(g)) {
+        vreal pdf;
+        f = v3_sel(f, v3_add(f, rough_dielectric_eval_pdf(m, d, n, wi, &pdf)), g);
+    }
+#endif
     return f;
 }
 
 // Solid-angle pdf with which scatter() draws the non-delta direction wi:
-// the mixture of the cosine and Phong lobes by their probabilities (directions
-// below the surface have none). 0 where only delta lobes could be chosen.
+// the mixture of the non-delta lobes by their probabilities (directions
+// below the surface have none but the rough dielectric's). 0 where only
+// delta lobes could be chosen.
 inline vreal bsdf_pdf(const Material *m, LobeProbs p, V3 d, V3 n, V3 wi)
 {
     vreal c = v3_dot(n, wi);
@@ -202,8 +271,39 @@ inline vreal bsdf_pdf(const Material *m, LobeProbs p, V3 d, V3 n, V3 wi)
     if (VANY(pp))
         pdf = VSEL(pdf, pdf + p.p * plastic_pdf(m, d, n, wi), pp);
 #endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    pdf = VSEL(pdf, (vreal)R(0), c <= R(0));
+    vmask g = p.g > R(0);
+    if (VANY(g)) {
+        vreal pg;
+        rough_dielectric_eval_pdf(m, d, n, wi, &pg);
+        pdf = VSEL(pdf, pdf + p.g * pg, g);
+    }
+    return pdf;
+#else
     return VSEL(pdf, (vreal)R(0), c <= R(0));
+#endif
 }
+
+#if CLPT_HAS_ROUGH_DIELECTRIC
+// bsdf_eval and, in *pdf, bsdf_pdf of wi, the rough dielectric evaluated once for both.
+inline V3 bsdf_eval_pdf(const Material *m, LobeProbs p, V3 d, V3 n, V3 wi, vreal *pdf)
+{
+    Material o = *m;
+    LobeProbs po = p;
+    o.p_g = po.g = (vreal)R(0);  // the other lobes
+    V3 f = bsdf_eval(&o, d, n, wi);
+    vreal pd = bsdf_pdf(&o, po, d, n, wi);
+    vmask g = m->p_g > R(0);
+    if (VANY(g)) {
+        vreal pg;
+        f = v3_sel(f, v3_add(f, rough_dielectric_eval_pdf(m, d, n, wi, &pg)), g);
+        pd = VSEL(pd, pd + p.g * pg, p.g > R(0));
+    }
+    *pdf = pd;
+    return f;
+}
+#endif
 
 // Power heuristic (beta = 2) weight of a technique with pdf a against one with pdf b.
 // Formed from b / a so that neither square can overflow.
@@ -246,7 +346,7 @@ typedef struct {
     vmask up;       // wi leaves on the side of n (not refracted through)
 } BsdfSample;
 
-#if CLPT_HAS_MICROFACET || CLPT_HAS_PLASTIC
+#if CLPT_HAS_MICROFACET || CLPT_HAS_PLASTIC || CLPT_HAS_ROUGH_DIELECTRIC
 // A half vector (world space) from the distribution of normals visible
 // from -d about the shading normal n (microfacet.h mf_sample_visible).
 inline V3 sample_half_vector(V3 d, V3 n, vreal alpha, vmask beckmann, vreal u1, vreal u2)
@@ -257,6 +357,23 @@ inline V3 sample_half_vector(V3 d, V3 n, vreal alpha, vmask beckmann, vreal u1, 
     V3 hl = mf_sample_visible(v3(v3_dot(o, t), v3_dot(o, b), v3_dot(o, n)), alpha, beckmann, u1, u2);
     return v3_normalize(v3(hl.x * t.x + hl.y * b.x + hl.z * n.x, hl.x * t.y + hl.y * b.y + hl.z * n.y,
                            hl.x * t.z + hl.y * b.z + hl.z * n.z));
+}
+#endif
+
+#if CLPT_HAS_PHONG
+// --- Phong lobe around the mirror direction --------------------------------------
+// f = ks (n+2)/(2 pi) cos^n(alpha), pdf = (n+1)/(2 pi) cos^n(alpha):
+// f cos_i / pdf = ks (n+2)/(n+1) cos_i; directions below the surface are lost.
+inline void sample_phong(const Material *m, LobeProbs pr, V3 d, V3 n, BsdfU u, V3 *wi, V3 *w, vmask *is_s)
+{
+    V3 rdir = v3_reflect(d, n);
+    V3 ll = sample_phong_lobe(u.u1, u.u2, m->shininess);
+    V3 ws = frame_to_world(rdir, ll.x, ll.y, ll.z);
+    vreal cos_i = v3_dot(ws, n);
+    vreal k = (m->shininess + R(2)) / (m->shininess + R(1)) * fmax(cos_i, R(0)) / pr.s;
+    *wi = v3_sel(*wi, ws, *is_s);
+    *w = v3_sel(*w, v3_scale(m->ks, k), *is_s);
+    *is_s = *is_s && cos_i > R(0);
 }
 #endif
 
@@ -310,6 +427,60 @@ inline void sample_plastic(const Material *m, LobeProbs pr, V3 d, V3 n, BsdfU u,
 }
 #endif
 
+#if CLPT_HAS_ROUGH_DIELECTRIC
+// --- rough dielectric: a microfacet normal h (visible normals of -d, or D cos
+// with the widened roughness), then reflection about h with probability F, else
+// refraction through it; *up cleared where refracted. Weight f cos / (pdf p_g)
+// (radiance: the transmitted one over e^2); lost (*is_g cleared) where -d is
+// below n or the direction leaves on the wrong side of n ---------------------
+inline void sample_rough_dielectric(const Material *m, LobeProbs pr, V3 d, V3 n, BsdfU u, int mode, V3 *wi,
+                                    V3 *w, vreal *pdf_g, vmask *is_g, vmask *up)
+{
+    vreal co = -v3_dot(d, n), e = m->g_eta;
+    vmask bk = m->g_beckmann != R(0), vis = m->g_visible != R(0);
+    V3 h = sample_half_vector(d, n, m->g_alpha, bk, u.u1, u.u2);
+    if (VANY(!vis && *is_g)) {
+        // D(h) cos h: tan^2 theta = a^2 u1 / (1 - u1) (GGX) or -a^2 log(1 - u1) (Beckmann).
+        vreal a = rough_dielectric_sample_alpha(m, co);
+        vreal t2 = a * a * VSEL(u.u1 / (R(1) - u.u1), -log(R(1) - u.u1), bk);
+        vreal c = rsqrt(R(1) + t2), s = vsafe_sqrt(R(1) - c * c), cp;
+        vreal sp = sincos(R(2 * M_PI) * u.u2, &cp);
+        h = v3_sel(h, frame_to_world(n, s * cp, s * sp, c), !vis);
+    }
+    vreal oh = -v3_dot(d, h), ct;
+    vreal F = fresnel_dielectric(oh, e, &ct);
+    vmask refl = u.fresnel <= F;
+    V3 wg = v3_normalize(v3_sel(refract_dir(d, h, oh, ct, e), v3_reflect(d, h), refl));
+    vreal cg = v3_dot(wg, n);
+    vreal g1 = mf_G1(cg, mf_sin2(wg, n), v3_dot(wg, h), m->g_alpha, bk);
+    // Importance (flux) crosses without the radiance's 1 / e^2.
+    vreal kt = mode == TRANSPORT_RADIANCE ? R(1) / (e * e) : (vreal)R(1);
+    V3 wv = v3_sel(v3_scale(m->gt, kt), m->gr, refl);
+    vreal k = g1 / pr.g;
+    vmask ok = co > R(0) && oh > R(0) && VSEL(cg < R(0), cg > R(0), refl) && g1 > R(0);
+    // The lobe's pdf of wg (rough_dielectric_eval_pdf's): visible normals' density of h, the lobe's
+    // choice, the Jacobian of the half-vector map.
+    vreal ih = v3_dot(wg, h), den = oh + e * ih;
+    vreal hn = v3_dot(h, n);
+    vreal ph = mf_D(hn, mf_sin2(h, n), m->g_alpha, bk) * mf_G1(co, mf_sin2(d, n), oh, m->g_alpha, bk) * oh / co;
+    vreal pdf = ph * VSEL(R(1) - F, F, refl) * VSEL(e * e * fabs(ih) / (den * den), R(1) / (R(4) * ih), refl);
+    if (VANY(!vis && *is_g)) {
+        vreal pn;
+        V3 f = rough_dielectric_eval_pdf(m, d, n, wg, &pn);
+        V3 wn = v3_scale(f, fabs(cg) / (pn * pr.g));
+        wv = v3_sel(wv, v3_scale(wn, VSEL(e * e * kt, (vreal)R(1), refl)), !vis);
+        k = VSEL(k, (vreal)R(1), !vis);
+        ok = ok && (vis || pn > R(0));
+        pdf = VSEL(pdf, pn, !vis);
+    }
+    *pdf_g = VSEL(*pdf_g, pdf, *is_g);
+    *wi = v3_sel(*wi, wg, *is_g);
+    *w = v3_sel(*w, v3_scale(wv, k), *is_g);
+    *up = *up && !(*is_g && !refl);
+    *is_g = *is_g && ok;
+}
+#endif
+
 // A lobe of m chosen by Russian roulette over pr (u.lobe), and a direction
 // in it, at a vertex with shading normal n facing -d (front: d arrives from
 // outside), into *out. `alive` masks the lanes sampled. With nondelta 0 (a
@@ -336,9 +507,18 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
 #else
     vmask is_p = is_d && !is_d;
 #endif
-    vmask is_r = !is_d && !is_s && !is_m && !is_p && c < c_m + pr.r;
-    vmask is_t = !is_d && !is_s && !is_m && !is_p && !is_r && c < c_m + pr.r + pr.t;
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    vmask is_g = !is_d && !is_s && !is_m && !is_p && c < c_m + pr.g;
+    c_m += pr.g;
+#else
+    vmask is_g = is_d && !is_d;
+#endif
+    vmask is_r = !is_d && !is_s && !is_m && !is_p && !is_g && c < c_m + pr.r;
+    vmask is_t = !is_d && !is_s && !is_m && !is_p && !is_g && !is_r && c < c_m + pr.r + pr.t;
     vmask p_delta = is_p && !is_p;  // the smooth plastic's specular reflection
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    vreal pdf_g = (vreal)R(0);  // the rough dielectric's pdf of the direction it drew
+#endif
     V3 wi = v3_reflect(d, n);
     V3 w = v3_scale(m->kr, R(1) / pr.r);
     bs.up = alive;
@@ -348,19 +528,8 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
         wi = frame_to_world(n, lc.x, lc.y, lc.z);
         w = v3_scale(m->kd, R(1) / pr.d);
 #if CLPT_HAS_PHONG
-        // --- Phong lobe around the mirror direction --------------------------------
-        // f = ks (n+2)/(2 pi) cos^n(alpha), pdf = (n+1)/(2 pi) cos^n(alpha):
-        // f cos_i / pdf = ks (n+2)/(n+1) cos_i; directions below the surface are lost.
-        if (VANY(is_s)) {
-            V3 rdir = v3_reflect(d, n);
-            V3 ll = sample_phong_lobe(u.u1, u.u2, m->shininess);
-            V3 ws = frame_to_world(rdir, ll.x, ll.y, ll.z);
-            vreal cos_i = v3_dot(ws, n);
-            vreal k = (m->shininess + R(2)) / (m->shininess + R(1)) * fmax(cos_i, R(0)) / pr.s;
-            wi = v3_sel(wi, ws, is_s);
-            w = v3_sel(w, v3_scale(m->ks, k), is_s);
-            is_s = is_s && cos_i > R(0);
-        }
+        if (VANY(is_s))
+            sample_phong(m, pr, d, n, u, &wi, &w, &is_s);
 #endif
 #if CLPT_HAS_MICROFACET
         if (VANY(is_m))
@@ -370,9 +539,14 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
         if (VANY(is_p))
             sample_plastic(m, pr, d, n, u, lc, &wi, &w, &is_p, &p_delta);
 #endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+        if (VANY(is_g))
+            sample_rough_dielectric(m, pr, d, n, u, mode, &wi, &w, &pdf_g, &is_g, &bs.up);
+#endif
     } else {
         is_m = is_m && !is_m;
         is_p = is_p && !is_p;
+        is_g = is_g && !is_g;
     }
 #if CLPT_HAS_MIRROR
     // --- perfect mirror ------------------------------------------------------------
@@ -392,13 +566,22 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
         bs.up = bs.up && !(is_t && !refl);
     }
 #endif
-    bs.chosen = is_d || is_s || is_m || is_p || is_r || is_t;
+    bs.chosen = is_d || is_s || is_m || is_p || is_g || is_r || is_t;
     bs.delta = is_r || is_t || p_delta;
     bs.wi = v3_normalize(wi);
     bs.weight = w;
     // The pdf of the direction under the whole non-delta mixture (what light
     // sampling's weight is measured against), not only the chosen lobe's.
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    // A rough dielectric is its material's only lobe: its lanes' pdf is the one it drew with.
+    LobeProbs po = pr;
+    po.g = (vreal)R(0);
+    bs.pdf = nondelta ? VSEL(VSEL((vreal)R(0), bsdf_pdf(m, po, d, n, bs.wi), is_d || is_s || is_m || (is_p && !p_delta)),
+                             pr.g * pdf_g, is_g)
+                      : (vreal)R(0);
+#else
     bs.pdf = nondelta ? VSEL((vreal)R(0), bsdf_pdf(m, pr, d, n, bs.wi), is_d || is_s || is_m || (is_p && !p_delta))
                       : (vreal)R(0);
+#endif
     *out = bs;
 }

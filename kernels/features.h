@@ -14,7 +14,7 @@
 #error "clpt: every CLPT_HAS_<shape> flag must be defined"
 #endif
 #if !defined(CLPT_HAS_PHONG) || !defined(CLPT_HAS_MIRROR) || !defined(CLPT_HAS_GLASS) \
-    || !defined(CLPT_HAS_MICROFACET) || !defined(CLPT_HAS_PLASTIC)
+    || !defined(CLPT_HAS_MICROFACET) || !defined(CLPT_HAS_PLASTIC) || !defined(CLPT_HAS_ROUGH_DIELECTRIC)
 #error "clpt: every CLPT_HAS_<lobe> flag must be defined"
 #endif
 #if !defined(CLPT_HAS_TRIANGLE_LIGHTS) || !defined(CLPT_HAS_SPHERE_LIGHTS) || !defined(CLPT_HAS_MESH_LIGHTS) \

@@ -260,6 +260,9 @@ inline vmask visible_add_vertex(VisibleSurface *v, vmask hit, vreal t, const Mat
 #if CLPT_HAS_PLASTIC
         surf = v3_add(surf, m->kp);
 #endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+        surf = v3_add(surf, m->gt);  // a rough dielectric: its transmittance
+#endif
         if (aux_specular != 0u) {  // a mirror or glass vertex is a surface of albedo kr + kt (at most 1)
             V3 spec = v3_add(m->kr, m->kt);
             surf = v3_sel(surf, v3(fmin(spec.x, R(1)), fmin(spec.y, R(1)), fmin(spec.z, R(1))),

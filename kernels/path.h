@@ -119,6 +119,7 @@ inline Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmask act
     v.front = v3_dot(h.ng, ps->d) < R(0);
     v.ng = v3_sel(v3_neg(h.ng), h.ng, v.front);  // faces the incoming ray
     v.n = hit_shading_normal(sc, &h, v.ng);      // smooth triangles: the interpolated normal
+    material_face(&v.m, v.front);
     v.pr = lobe_probs(&v.m, ps->depth < (real)rr_depth);
     v.nondelta = v.hit && v.m.nondelta != R(0);
     v.at_x = v.merge_here = v.hit && !v.hit;
@@ -231,11 +232,24 @@ inline uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, v
     LightSample ls;
     light_sample(sc, v->x, sample_light(sp, ps->depth), 1, nee, &ls);
     vreal cos_x = v3_dot(v->n, ls.wi);
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    // A rough dielectric also sees lights through itself (both normals agreeing).
+    vmask through = v->m.p_g > R(0) && cos_x < R(0) && v3_dot(v->ng, ls.wi) < R(0);
+    nee = nee && ls.valid && ((cos_x > R(0) && v3_dot(v->ng, ls.wi) > R(0)) || through);
+    cos_x = fabs(cos_x);
+#else
     nee = nee && ls.valid && cos_x > R(0) && v3_dot(v->ng, ls.wi) > R(0);
+#endif
     if (!VANY(nee))
         return 0;
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    vreal pdf_b;
+    V3 f = bsdf_eval_pdf(&v->m, v->pr, ps->d, v->n, ls.wi, &pdf_b);
+    vreal w = mis_power(ls.pdf, pdf_b);
+#else
     V3 f = bsdf_eval(&v->m, ps->d, v->n, ls.wi);
     vreal w = mis_power(ls.pdf, bsdf_pdf(&v->m, v->pr, ps->d, v->n, ls.wi));
+#endif
 #if CLPT_HAS_DELTA_LIGHTS
     w = VSEL(w, (vreal)R(1), ls.delta);  // no BSDF sample finds a point or spot light
 #endif
@@ -243,7 +257,11 @@ inline uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, v
     // The shadow ray runs from the offset origin to the light point itself:
     // aimed along wi from there instead, it would cut into a sphere light
     // near its silhouette and see the light block itself.
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    V3 so = offset_origin(sc, v->x, v3_sel(v->ng, v3_neg(v->ng), through), v->h.err);
+#else
     V3 so = offset_origin(sc, v->x, v->ng, v->h.err);
+#endif
     V3 to = v3_sub(ls.p, so);
     vreal len = sqrt(v3_dot(to, to));
     vmask blocked = scene_occluded(sc, so, v3_scale(to, R(1) / len), len * R(0.9999), nee);
@@ -282,9 +300,9 @@ inline void path_class_update(PathState *ps, const Vertex *v, vmask cont, real m
     vmask pure_delta = v->m.nondelta == R(0);
     vreal own = ps->own;
     own = VSEL(own, VSEL((vreal)R(OWN_NOT), (vreal)R(OWN_AFTER_D), !ps->specular), v->at_x);
-#if CLPT_HAS_MICROFACET || CLPT_HAS_PLASTIC
+#if CLPT_HAS_MICROFACET || CLPT_HAS_PLASTIC || CLPT_HAS_ROUGH_DIELECTRIC
     // A first non-delta vertex the photon map cannot estimate (a microfacet
-    // lobe or a plastic): the path is path tracing's alone.
+    // lobe, a plastic or a rough dielectric): the path is path tracing's alone.
     own = VSEL(own, (vreal)R(OWN_NOT), v->hit && ps->own == (real)OWN_BEFORE_X && v->nondelta &&
                                            !material_mergeable(&v->m));
 #endif

@@ -14,8 +14,8 @@
 // and absorption (bsdf.h bsdf_sample, the lobes camera paths sample), and are
 // stored at the first surface with a diffuse or Phong part after at least
 // one specular bounce (L S+ D), then stop; a surface with a microfacet lobe
-// (a rough conductor) ends them unstored, as camera paths do not merge
-// there (scene.h material_mergeable). Random numbers: sampler.h.
+// (a rough conductor or dielectric) or a plastic ends them unstored, as
+// camera paths do not merge there (scene.h material_mergeable). Random numbers: sampler.h.
 //
 // Launch: one work-item per CLPT_LANES photons (index gid * CLPT_LANES +
 // lane); any local size. Photon i is written to slot i, stored or not

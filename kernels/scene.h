@@ -402,6 +402,13 @@ typedef struct {
     vreal c_tab, c_nonlinear;  // ... record index of its transmittance table; nonlinear
     __global const real4 *rec; // the scene's records (the tables)
 #endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    V3 gr, gt;                 // rough dielectric: specular reflectance and transmittance
+    vreal p_g, g_eta;          // ... its lobe probability; index inside over outside (material_face:
+                               //     beyond the surface over the incoming ray's side)
+    vreal g_alpha, g_beckmann; // ... roughness, 1: Beckmann, 0: GGX
+    vreal g_visible;           // ... 1: sampled from the visible normals (Mitsuba's sample_visible)
+#endif
 } Material;
 
 // A vertex whose non-delta part photon merging and the photon map can
@@ -416,12 +423,24 @@ inline vmask material_mergeable(const Material *m)
 #if CLPT_HAS_PLASTIC
     r = r && m->p_p == R(0);  // a plastic too (its lobe is not in the gathers)
 #endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    r = r && m->p_g == R(0);  // and a rough dielectric
+#endif
     return r;
 }
 
-// Per-lane material by selecting over the (few) materials: cheaper on a CPU
-// than eight scattered loads per field.
-inline Material material_fetch(const Scene *sc, vreal id)
+// The material as seen by a ray arriving on the front (the normal's side)
+// or the back: the rough dielectric's relative index becomes the index
+// beyond the surface over the index on the ray's side.
+inline void material_face(Material *m, vmask front)
+{
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    m->g_eta = VSEL(R(1) / m->g_eta, m->g_eta, front);
+#endif
+}
+
+// A material with no lobe: every field at its neutral value (tables at rec).
+inline Material material_blank(__global const real4 *rec)
 {
     Material m;
     m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
@@ -434,8 +453,21 @@ inline Material material_fetch(const Scene *sc, vreal id)
     m.kp = m.kps = v3_zero();
     m.p_p = m.spec_w = m.c_fdr = m.c_alpha = m.c_beckmann = m.c_tab = m.c_nonlinear = (vreal)R(0);
     m.c_eta = (vreal)R(1.5);
-    m.rec = sc->rec;
+    m.rec = rec;
 #endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+    m.gr = m.gt = v3_zero();
+    m.p_g = m.g_beckmann = m.g_visible = (vreal)R(0);
+    m.g_eta = m.g_alpha = (vreal)R(1);
+#endif
+    return m;
+}
+
+// Per-lane material by selecting over the (few) materials: cheaper on a CPU
+// than eight scattered loads per field.
+inline Material material_fetch(const Scene *sc, vreal id)
+{
+    Material m = material_blank(sc->rec);
     for (uint i = 0; i < NUM_MATERIALS; i++) {
         uint r = MAT_STRIDE * i;
         vmask is = id == (real)i;
@@ -471,6 +503,13 @@ inline Material material_fetch(const Scene *sc, vreal id)
         m.c_eta = VSEL(m.c_eta, (vreal)pc.x, is); m.c_fdr = VSEL(m.c_fdr, (vreal)pc.y, is);
         m.c_alpha = VSEL(m.c_alpha, (vreal)pc.z, is); m.c_beckmann = VSEL(m.c_beckmann, (vreal)pc.w, is);
         m.c_tab = VSEL(m.c_tab, (vreal)pt.x, is); m.c_nonlinear = VSEL(m.c_nonlinear, (vreal)pt.y, is);
+#endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+        real4 ga = scene_rec(sc, r + MAT_GR_PG), gb = scene_rec(sc, r + MAT_GT), gc = scene_rec(sc, r + MAT_GLASS_ROUGH);
+        m.gr = v3_sel4(m.gr, ga, is); m.p_g = VSEL(m.p_g, (vreal)ga.w, is);
+        m.gt = v3_sel4(m.gt, gb, is);
+        m.g_eta = VSEL(m.g_eta, (vreal)gc.x, is); m.g_alpha = VSEL(m.g_alpha, (vreal)gc.y, is);
+        m.g_beckmann = VSEL(m.g_beckmann, (vreal)gc.z, is); m.g_visible = VSEL(m.g_visible, (vreal)gc.w, is);
 #endif
         m.Le = v3_sel4(m.Le, f, is); m.two_sided = VSEL(m.two_sided, (vreal)f.w, is);
         m.nondelta = VSEL(m.nondelta, (vreal)g.z, is);

@@ -85,8 +85,10 @@ def equal_time(device, size, times, ref_spp):
     return rows
 
 
-def speed(device, mitsuba_python, spp=256, res=64, xml=HERE / "data" / "spot_box.xml"):
-    """Samples/s of an XML scene (path traced) in clpt and, with mitsuba_python, in Mitsuba 3 LLVM."""
+def speed(device, mitsuba_python, spp=256, res=64, xml=None):
+    """Samples/s of clpt and of Mitsuba 3 LLVM (best of three renders each, in
+    this run) on an XML scene with a `res` parameter (spot_box.xml by default)."""
+    xml = xml or HERE / "data" / "spot_box.xml"
     scene = clpt.load_scene(xml, params={"res": res})
     r = clpt.Renderer(scene, device=device, photons=False)
     r.render(16, seed=0)  # builds

@@ -25,7 +25,7 @@ import clpt
 from clpt.mitsuba import plastic_approximation
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_microfacet import compare_plates  # noqa: E402
+from stats import compare_to_reference  # noqa: E402
 
 DATA = Path(__file__).parent / "data"
 MITSUBA = """
@@ -44,6 +44,20 @@ def approximated(scene):
     return clpt.Scene(camera=scene.camera, shapes=shapes, materials=scene.materials, render=scene.render)
 
 
+def accuracy(name, renderer, spp, ref):
+    """Render spp samples per pixel (after a build) and print the image's mean
+    colour over the Mitsuba reference's and its worst 16x16 block."""
+    renderer.render(spp=8, seed=0)  # builds
+    t = time.perf_counter()
+    res = renderer.render(spp=spp, seed=1)
+    dt = time.perf_counter() - t
+    err, z = compare_to_reference(res, ref)
+    ratio = res.image.reshape(-1, 3).mean(axis=0) / np.array(ref["mean_rgb"])
+    print(f"clpt, {name}: mean / Mitsuba's {np.round(ratio, 4).tolist()}, worst block "
+          f"{np.abs(z).max():.1f} sigma ({(np.abs(z) > 4).sum()} of {z.size} beyond 4), "
+          f"{spp} spp in {dt:.2f} s", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--device", default=None)
@@ -53,16 +67,7 @@ def main():
     ref = json.loads((DATA / "plastic_spheres_mitsuba.json").read_text())
     scene = clpt.load_scene(DATA / "plastic_spheres.xml")
     for name, sc in (("Phong/mirror approximation", approximated(scene)), ("plastic lobes", scene)):
-        r = clpt.Renderer(sc, device=a.device, photons=False)
-        r.render(spp=8, seed=0)  # builds
-        t = time.perf_counter()
-        res = r.render(spp=a.spp, seed=1)
-        dt = time.perf_counter() - t
-        err, z = compare_plates(res, ref)
-        ratio = res.image.reshape(-1, 3).mean(axis=0) / np.array(ref["mean_rgb"])
-        print(f"clpt, {name}: mean / Mitsuba's {np.round(ratio, 4).tolist()}, worst block "
-              f"{np.abs(z).max():.1f} sigma ({(np.abs(z) > 4).sum()} of {z.size} beyond 4), "
-              f"{a.spp} spp in {dt:.2f} s")
+        accuracy(name, clpt.Renderer(sc, device=a.device, photons=False), a.spp, ref)
     if a.mitsuba_python:
         env = {**os.environ, "DRJIT_LIBLLVM_PATH": os.environ.get("DRJIT_LIBLLVM_PATH",
                                                                     "/usr/lib/x86_64-linux-gnu/libLLVM-19.so")}

@@ -577,7 +577,16 @@ def _bsdf(v: _Values, depth=0, ident=None):
         if t.endswith("plastic"):
             body.append(_color(v, "diffuse_reflectance"))
     if t.startswith("rough"):
-        body.append(f'<float name="alpha" value="{v.num(0, 1)}"/>')
+        body.append(v.pick([f'<float name="alpha" value="{v.num(0, 1)}"/>',
+                            f'<float name="alpha_u" value="{v.num(0, 1)}"/><float name="alpha_v" value="{v.num(0, 1)}"/>',
+                            ""]))
+        body.append(v.pick(['<string name="distribution" value="ggx"/>',
+                            '<string name="distribution" value="beckmann"/>', ""], ['<string name="distribution" '
+                                                                                   'value="phong"/>']))
+        body.append(v.pick(['<boolean name="sample_visible" value="false"/>', ""]))
+    if t in ("dielectric", "roughdielectric"):
+        body.append(v.pick([_color(v, "specular_transmittance"), _color(v, "specular_reflectance"),
+                            '<string name="ext_ior" value="water"/>', ""]))
     if t in ("twosided", "mask"):
         body.append(_bsdf(v, depth + 1))
     if t == "blendbsdf":
@@ -634,6 +643,21 @@ def _shape(v: _Values, bsdf_ids, light=False):
     return f'<shape type="{t}">{"".join(body)}</shape>'
 
 
+def _delta_emitter(v: _Values):
+    """A point or spot light (Mitsuba's `point`, `spot`)."""
+    t = v.pick(["point", "spot"], ["bogus"])
+    body = [_color(v, "intensity", emitter=True)]
+    if t == "point":
+        body.append(v.pick([f'<point name="position" value="{v.vec()}"/>', _transform(v)]))
+    else:
+        body.append(f'<transform name="to_world"><lookat origin="{v.vec()}" target="{v.vec()}" up="0, 1, 0"/>'
+                    '</transform>')
+        body.append(v.pick([f'<float name="cutoff_angle" value="{v.num(1, 89)}"/>', ""], ['<float name='
+                                                                                         '"cutoff_angle" value="-5"/>']))
+        body.append(v.pick([f'<float name="beam_width" value="{v.num(0.5, 30)}"/>', ""]))
+    return f'<emitter type="{t}">{"".join(body)}</emitter>'
+
+
 def _top_emitter(v: _Values):
     """An emitter at the scene's top level: an environment (envmap, constant) or a directional light."""
     t = v.pick(["envmap", "constant", "directional"], ["bogus", "sunsky"])
@@ -653,9 +677,9 @@ def xml_scenes(draw):
     """A Mitsuba scene generated from the grammar of the elements clpt reads:
     an integrator, a sensor with film and sampler, BSDFs by id (nested in
     twosided, blendbsdf and mask), shapes of every supported type with
-    transforms, BSDFs, refs and area emitters, and top-level environment and
-    directional emitters. In one scene of two every value is sensible; in
-    the others a few are extreme or malformed."""
+    transforms, BSDFs, refs and area emitters, point and spot lights, and
+    top-level environment and directional emitters. In one scene of two
+    every value is sensible; in the others a few are extreme or malformed."""
     v = _Values(draw(st.integers(0, 2 ** 32 - 1)), draw(st.sampled_from([0.0, 0.0, 0.02, 0.1])))
     parts = [f'<scene version="{v.pick(["3.0.0", "3.0.0", "2.0.0", "0.6.0"], ["x", "9.0.0", ""])}">']
     spp = v.pick(["1", "2", "4"], ["0", "-1", "x", "1e3"])
@@ -680,6 +704,7 @@ def xml_scenes(draw):
     ids = [f"m{i}" for i in range(v.int(0, 3))]
     parts += [_bsdf(v, ident=i) for i in ids]
     parts += [_shape(v, ids, light=i == 0) for i in range(v.int(1, 5))]
+    parts += [_delta_emitter(v) for _ in range(v.int(0, 2))]
     parts += [_top_emitter(v) for _ in range(v.pick([0, 0, 1], [2]))]
     parts.append("</scene>")
     return "\n".join(parts).encode()

@@ -48,6 +48,21 @@ def bsdf_of(case):
     return mi.load_dict(d)
 
 
+def rows_of(bsdf, wi, wo):
+    """Mitsuba's eval (RGB) and pdf of each pair of local directions, +z the normal."""
+    rows = []
+    for a, b in zip(wi, wo):
+        si = mi.SurfaceInteraction3f()
+        si.wi = mi.Vector3f(*a)
+        si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
+        ctx = mi.BSDFContext()
+        f = bsdf.eval(ctx, si, mi.Vector3f(*b))
+        p = bsdf.pdf(ctx, si, mi.Vector3f(*b))
+        rows.append({"wi": [float(x) for x in a], "wo": [float(x) for x in b],
+                     "eval": [float(f[0]), float(f[1]), float(f[2])], "pdf": float(p)})
+    return rows
+
+
 def main(out_path):
     rng = np.random.default_rng(7)
     out = []
@@ -60,17 +75,7 @@ def main(out_path):
         near = mirror[:32] + rng.normal(0, 1.5 * case["alpha"], (32, 3))
         near[:, 2] = np.abs(near[:, 2]) + 0.02
         wo[:32] = near / np.linalg.norm(near, axis=1, keepdims=True)
-        rows = []
-        for a, b in zip(wi, wo):
-            si = mi.SurfaceInteraction3f()
-            si.wi = mi.Vector3f(*a)
-            si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
-            ctx = mi.BSDFContext()
-            f = bsdf.eval(ctx, si, mi.Vector3f(*b))
-            p = bsdf.pdf(ctx, si, mi.Vector3f(*b))
-            rows.append({"wi": [float(x) for x in a], "wo": [float(x) for x in b],
-                         "eval": [float(f[0]), float(f[1]), float(f[2])], "pdf": float(p)})
-        out.append({"bsdf": case, "rows": rows})
+        out.append({"bsdf": case, "rows": rows_of(bsdf, wi, wo)})
     with open(out_path, "w") as fh:
         json.dump({"mitsuba": mi.__version__, "cases": out}, fh, separators=(",", ":"))
 

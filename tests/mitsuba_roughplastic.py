@@ -11,12 +11,14 @@ Mitsuba's eval (f cos_o, RGB) and pdf (the smooth plastic's: its diffuse part).
 
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
 import mitsuba as mi
 
-mi.set_variant("scalar_rgb")
+sys.path.insert(0, str(Path(__file__).parent))
+from mitsuba_roughconductor import rows_of  # noqa: E402  (sets the scalar_rgb variant)
 
 CASES = [
     {"type": "roughplastic", "diffuse_reflectance": [0.8, 0.4, 0.2]},
@@ -59,17 +61,7 @@ def main(out_path):
         near = mirror[:32] + rng.normal(0, 1.5 * alpha, (32, 3))
         near[:, 2] = np.abs(near[:, 2]) + 0.02
         wo[:32] = near / np.linalg.norm(near, axis=1, keepdims=True)
-        rows = []
-        for a, b in zip(wi, wo):
-            si = mi.SurfaceInteraction3f()
-            si.wi = mi.Vector3f(*a)
-            si.sh_frame = mi.Frame3f(mi.Vector3f(0, 0, 1))
-            ctx = mi.BSDFContext()
-            f = bsdf.eval(ctx, si, mi.Vector3f(*b))
-            p = bsdf.pdf(ctx, si, mi.Vector3f(*b))
-            rows.append({"wi": [float(x) for x in a], "wo": [float(x) for x in b],
-                         "eval": [float(f[0]), float(f[1]), float(f[2])], "pdf": float(p)})
-        out.append({"bsdf": case, "rows": rows})
+        out.append({"bsdf": case, "rows": rows_of(bsdf, wi, wo)})
     with open(out_path, "w") as fh:
         json.dump({"mitsuba": mi.__version__, "cases": out}, fh, separators=(",", ":"))
 

@@ -124,17 +124,20 @@ def _reversed(r):
 @pytest.mark.parametrize("scene", ["cornell_box_caustics", "mesh_lights", "fig07_caustics_from_three_lights",
                                    str(Path(__file__).parent / "data" / "plates.xml"),
                                    str(Path(__file__).parent / "data" / "plastic_spheres.xml"),
+                                   str(Path(__file__).parent / "data" / "rough_glass.xml"),
                                    str(Path(__file__).parent / "data" / "env_spheres.xml")])
 def test_reordered_fields_render_the_same_image(device_spec, monkeypatch, scene):
     """Every record with its fields in reverse order, scene rows and launch
     structs alike: the host fills by name and the kernels read by name, so
     the image is the same to the bit (the BVH, mesh lights, sphere,
-    triangle and quad lights, photon mapping, rough conductors, plastics and an environment map included)."""
+    triangle and quad lights, photon mapping, rough conductors, plastics,
+    rough dielectrics and an environment map included)."""
     ref = clpt.Renderer(scene, device=device_spec, aux=True).render(2, width=16, height=16)
     for name in ("MATERIAL", "SPHERE", "PLANAR", "PLANE", "LIGHT", "CAUSTIC", "BVH_NODE", "BVH_LEAF", "NORMALS",
-                 "LIGHT_TRI", "ENV_TEXEL", "ENV_PACKED", "SCENE_INFO", "CAMERA", "PHOTON_LOOKUP", "TRACE_LAUNCH", "PHOTON_LAUNCH"):
+                 "LIGHT_TRI", "ENV_TEXEL", "ENV_PACKED", "SCENE_INFO", "CAMERA", "PHOTON_LOOKUP", "TRACE_LAUNCH",
+                 "PHOTON_LAUNCH"):
         monkeypatch.setattr(layout, name, _reversed(getattr(layout, name)))
-    assert "#define MAT_COAT_TAB 0" in layout.c_source()  # the last field first
+    assert "#define MAT_GLASS_ROUGH 0" in layout.c_source()  # the last field first
     r = clpt.Renderer(scene, device=device_spec, aux=True)
     assert r.packed.count("nodes") > 0 or scene != "mesh_lights"
     got = r.render(2, width=16, height=16)

@@ -127,6 +127,41 @@ def test_rough_vertices_are_left_to_path_tracing(device_spec, mode):
     assert rel.max() < 1e-4, f"differs by {rel.max():.2g} (relative) at pixel {np.unravel_index(rel.argmax(), rel.shape)}"
 
 
+def _photon_modes_render_the_path_tracer(device_spec, scene, mode):
+    """No photon is stored, and photon mode `mode` renders the path tracer's image exactly."""
+    pt = clpt.Renderer(scene, device=device_spec, photons=False).render(32, seed=1, max_depth=8)
+    pm = clpt.Renderer(scene, device=device_spec).render(
+        32, seed=1, max_depth=8, photons=PhotonSettings(mode=mode, count=20000, spp_per_map=8,
+                                                        progressive=True, pilot=False))
+    assert pm.stats.photon_maps and all(m["stored"] == 0 for m in pm.stats.photon_maps)
+    assert pm.stats.nonfinite == 0 and (pt.image > 0).mean() > 0.9
+    rel = np.abs(pm.image.astype(np.float64) - pt.image) / np.maximum(pt.image, 1e-3)
+    assert rel.max() < 1e-4, f"differs by {rel.max():.2g} (relative) at pixel {np.unravel_index(rel.argmax(), rel.shape)}"
+
+
+def _mis_matches_bsdf_sampling(device_spec, shapes, max_depth):
+    """Light and BSDF sampling by MIS against BSDF sampling alone (nee=False),
+    32x32 from inside a grey box lit by a square lamp and the given shapes,
+    within their noise in 8x8-pixel blocks."""
+    room = clpt.Box(center=(0, 0, 0), size=(2, 2, 2), inward=True, material=clpt.Material(kd=(0.5, 0.5, 0.5)))
+    lamp = clpt.Quad(corner=(-0.3, 0.99, -0.3), edge_u=(0.6, 0, 0), edge_v=(0, 0, 0.6), material=clpt.Material(),
+                     emission=(8, 8, 8))
+    cam = clpt.Camera(origin=(0, -0.1, 0.95), target=(0, -0.5, 0), fov=70, width=32, height=32)
+    scene = clpt.Scene(camera=cam, shapes=[room, lamp, *shapes])
+    mis = clpt.Renderer(scene, device=device_spec, photons=False).render(512, seed=3, max_depth=max_depth)
+    bs = clpt.Renderer(scene, device=device_spec, photons=False, nee=False).render(2048, seed=4, max_depth=max_depth)
+    assert mis.stats.nonfinite == 0 and bs.stats.nonfinite == 0
+
+    def blocks(r):
+        lum = r.image @ np.array([0.2126, 0.7152, 0.0722])
+        var = r.lum_var / r.sample_count
+        return lum.reshape(4, 8, 4, 8).mean(axis=(1, 3)), var.reshape(4, 8, 4, 8).sum(axis=(1, 3)) / 64 ** 2
+
+    (m1, v1), (m2, v2) = blocks(mis), blocks(bs)
+    z = (m1 - m2) / np.sqrt(v1 + v2)
+    assert np.abs(z).max() < 4.5, z.round(1)
+
+
 @pytest.mark.parametrize("mode", ["merge", "online"])
 def test_plastic_vertices_are_left_to_path_tracing(device_spec, mode):
     """The small-bulb box's diffuse walls made Mitsuba plastics (smooth and
@@ -142,15 +177,8 @@ def test_plastic_vertices_are_left_to_path_tracing(device_spec, mode):
                "green": clpt.Material.rough_plastic((0.1, 0.7, 0.1), alpha=0.05, nonlinear=True)}
     shapes = [dataclasses.replace(x, material=plastic[x.material]) if x.material in plastic else x for x in s.shapes]
     assert sum(isinstance(x.material, clpt.Material) and x.material.plastic for x in shapes) >= 5
-    scene = clpt.Scene(camera=s.camera, shapes=shapes, materials=s.materials, render=s.render)
-    pt = clpt.Renderer(scene, device=device_spec, photons=False).render(32, seed=1, max_depth=8)
-    pm = clpt.Renderer(scene, device=device_spec).render(
-        32, seed=1, max_depth=8, photons=PhotonSettings(mode=mode, count=20000, spp_per_map=8,
-                                                        progressive=True, pilot=False))
-    assert pm.stats.photon_maps and all(m["stored"] == 0 for m in pm.stats.photon_maps)
-    assert pm.stats.nonfinite == 0 and (pt.image > 0).mean() > 0.9
-    rel = np.abs(pm.image.astype(np.float64) - pt.image) / np.maximum(pt.image, 1e-3)
-    assert rel.max() < 1e-4, f"differs by {rel.max():.2g} (relative) at pixel {np.unravel_index(rel.argmax(), rel.shape)}"
+    _photon_modes_render_the_path_tracer(device_spec, clpt.Scene(camera=s.camera, shapes=shapes,
+                                                                 materials=s.materials, render=s.render), mode)
 
 
 def test_plastic_mis_is_unbiased(device_spec):
@@ -158,27 +186,45 @@ def test_plastic_mis_is_unbiased(device_spec):
     sampling and BSDF sampling combined by MIS (the plastic's bsdf_pdf in
     both weights) agree with BSDF sampling alone (nee=False) within their
     noise, block by block: the weights sum to one at plastic vertices."""
-    room = clpt.Box(center=(0, 0, 0), size=(2, 2, 2), inward=True, material=clpt.Material(kd=(0.5, 0.5, 0.5)))
-    lamp = clpt.Quad(corner=(-0.3, 0.99, -0.3), edge_u=(0.6, 0, 0), edge_v=(0, 0, 0.6), material=clpt.Material(),
-                     emission=(8, 8, 8))
     bulb = clpt.Sphere(center=(0.6, 0.6, 0.3), radius=0.08, material=clpt.Material(), emission=(60, 60, 60))
     a = clpt.Sphere(center=(-0.45, -0.6, 0), radius=0.4,
                     material=clpt.Material.rough_plastic((0.7, 0.3, 0.1), alpha=0.1, distribution="ggx"))
     b = clpt.Sphere(center=(0.45, -0.6, 0), radius=0.4, material=clpt.Material.smooth_plastic((0.1, 0.3, 0.7)))
-    cam = clpt.Camera(origin=(0, -0.1, 0.95), target=(0, -0.5, 0), fov=70, width=32, height=32)
-    scene = clpt.Scene(camera=cam, shapes=[room, lamp, bulb, a, b])
-    mis = clpt.Renderer(scene, device=device_spec, photons=False).render(512, seed=3, max_depth=5)
-    bs = clpt.Renderer(scene, device=device_spec, photons=False, nee=False).render(2048, seed=4, max_depth=5)
-    assert mis.stats.nonfinite == 0 and bs.stats.nonfinite == 0
+    _mis_matches_bsdf_sampling(device_spec, [bulb, a, b], max_depth=5)
 
-    def blocks(r):
-        lum = r.image @ np.array([0.2126, 0.7152, 0.0722])
-        var = r.lum_var / r.sample_count
-        return lum.reshape(4, 8, 4, 8).mean(axis=(1, 3)), var.reshape(4, 8, 4, 8).sum(axis=(1, 3)) / 64 ** 2
 
-    (m1, v1), (m2, v2) = blocks(mis), blocks(bs)
-    z = (m1 - m2) / np.sqrt(v1 + v2)
-    assert np.abs(z).max() < 4.5, z.round(1)
+@pytest.mark.parametrize("mode", ["merge", "online"])
+def test_rough_dielectric_vertices_are_left_to_path_tracing(device_spec, mode):
+    """The small-bulb box's diffuse walls and its glass ball made rough
+    dielectrics, the mirror ball kept: a rough dielectric vertex neither
+    merges nor gathers and photons end there unstored (kernels/scene.h
+    material_mergeable), so each photon mode renders the path tracer's
+    image exactly."""
+    import dataclasses
+    s = _caustic_scene(16)
+    rough = {"white": clpt.Material.rough_dielectric(alpha=0.2, distribution="ggx"),
+             "red": clpt.Material.rough_dielectric(alpha=0.05, specular_transmittance=(0.8, 0.2, 0.2)),
+             "green": clpt.Material.rough_dielectric(alpha=0.5, int_ior=1.0, ext_ior=1.33)}
+    shapes = [dataclasses.replace(x, material=rough[x.material]) if x.material in rough else x for x in s.shapes]
+    shapes = [dataclasses.replace(x, material=clpt.Material.rough_dielectric(alpha=0.1))
+              if isinstance(x, clpt.Sphere) and x.material == "glass" else x for x in shapes]
+    assert sum(isinstance(x.material, clpt.Material) and x.material.rough_dielectric_lobe for x in shapes) >= 6
+    _photon_modes_render_the_path_tracer(device_spec, clpt.Scene(camera=s.camera, shapes=shapes,
+                                                                 materials=s.materials, render=s.render), mode)
+
+
+def test_rough_dielectric_mis_is_unbiased(device_spec):
+    """Rough glass balls (GGX and Beckmann) under a small and a large light:
+    light sampling (also through the glass, from inside it and from the floor
+    beneath) and BSDF sampling combined by MIS agree with BSDF sampling
+    alone (nee=False) within their noise, block by block: the weights sum to
+    one at rough dielectric vertices, over both hemispheres."""
+    bulb = clpt.Sphere(center=(0.6, 0.6, 0.3), radius=0.12, material=clpt.Material(), emission=(30, 30, 30))
+    a = clpt.Sphere(center=(-0.45, -0.6, 0), radius=0.4,
+                    material=clpt.Material.rough_dielectric(alpha=0.2, distribution="ggx"))
+    b = clpt.Sphere(center=(0.45, -0.6, 0), radius=0.4,
+                    material=clpt.Material.rough_dielectric(alpha=0.4, specular_transmittance=(0.9, 0.6, 0.3)))
+    _mis_matches_bsdf_sampling(device_spec, [bulb, a, b], max_depth=6)
 
 
 @pytest.mark.parametrize("name", clpt.shipped_scenes())

@@ -306,6 +306,28 @@ __kernel void probe_pixel_filter(int kind, real radius, uint sample_border, real
     ST(filter_sample_offset(&f, kind, LD(u, i), LD(c, i), n), out, i);
 }
 
+// The lobe probes' outputs (probe_plastic, probe_rough_dielectric): sample bs
+// (direction, weight, pdf, chosen, and the mask `flag` into flag_out), then
+// f and pdf of w; the probe's names m, pr, d, n, i and buffers.
+#define PROBE_STORE(flag, flag_out) do {                                         \
+        ST3(bs.wi, sx, sy, sz, i);                                               \
+        ST3(bs.weight, fr, fg, fb, i);                                           \
+        ST(bs.pdf, spdf, i);                                                     \
+        ST(VSEL((vreal)R(0), (vreal)R(1), bs.chosen), chosen, i);               \
+        ST(VSEL((vreal)R(0), (vreal)R(1), flag), flag_out, i);                  \
+        V3 w = LD3(wx, wy, wz, i);                                               \
+        ST3(bsdf_eval(&m, d, n, w), er, eg, eb, i);                              \
+        ST(bsdf_pdf(&m, pr, d, n, w), epdf, i);                                  \
+    } while (0)
+
+// A material built by hand: no lobe but a non-delta one to come (tables at tab).
+inline Material probe_material_blank(__global const real4 *tab)
+{
+    Material m = material_blank(tab);
+    m.nondelta = (vreal)R(1);
+    return m;
+}
+
 // The rough conductor's lobe (bsdf.h, microfacet.h) at a vertex with normal
 // +z, alone in its material: for each incoming direction d, a sample from
 // (u1, u2) (its direction, weight f cos / pdf, mixture pdf and whether a lobe
@@ -321,19 +343,9 @@ __kernel void probe_microfacet(real4 par, real4 eta, real4 k, real4 km,
                                __global real *er, __global real *eg, __global real *eb, __global real *epdf)
 {
     size_t i = get_global_id(0);
-    Material m;
-    m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
-    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.one_sided = (vreal)R(0);
-    m.ior = (vreal)R(1);
-    m.nondelta = (vreal)R(1);
+    Material m = probe_material_blank(0);
     m.km = v3_splat(km); m.eta = v3_splat(eta); m.k = v3_splat(k);
     m.p_m = (vreal)R(1); m.alpha = (vreal)par.x; m.beckmann = (vreal)par.y;
-#if CLPT_HAS_PLASTIC
-    m.kp = m.kps = v3_zero();
-    m.p_p = m.spec_w = m.c_fdr = m.c_alpha = m.c_beckmann = m.c_tab = m.c_nonlinear = (vreal)R(0);
-    m.c_eta = (vreal)R(1.5);
-    m.rec = 0;
-#endif
     LobeProbs pr = lobe_probs(&m, (vmask)0);
     V3 n = v3((vreal)R(0), (vreal)R(0), (vreal)R(1));
     V3 d = LD3(dx, dy, dz, i);
@@ -369,18 +381,11 @@ __kernel void probe_plastic(__global const real4 *tab, real4 par, real4 kp, real
                             __global real *er, __global real *eg, __global real *eb, __global real *epdf)
 {
     size_t i = get_global_id(0);
-    Material m;
-    m.kd = m.ks = m.kr = m.kt = m.Le = v3_zero();
-    m.p_d = m.p_s = m.p_r = m.p_t = m.shininess = m.two_sided = m.one_sided = (vreal)R(0);
-    m.ior = (vreal)R(1);
-    m.nondelta = (vreal)R(1);
-    m.km = m.eta = m.k = v3_zero();
-    m.p_m = m.beckmann = (vreal)R(0); m.alpha = (vreal)R(1);
+    Material m = probe_material_blank(tab);
     m.kp = v3_splat(kp); m.kps = v3_splat(kps);
     m.p_p = (vreal)R(1); m.spec_w = (vreal)kps.w;
     m.c_eta = (vreal)par.x; m.c_fdr = (vreal)par.y; m.c_alpha = (vreal)par.z; m.c_beckmann = (vreal)par.w;
     m.c_tab = (vreal)R(0); m.c_nonlinear = (vreal)kp.w;
-    m.rec = tab;
     LobeProbs pr = lobe_probs(&m, (vmask)0);
     V3 n = v3((vreal)R(0), (vreal)R(0), (vreal)R(1));
     V3 d = LD3(dx, dy, dz, i);
@@ -389,14 +394,42 @@ __kernel void probe_plastic(__global const real4 *tab, real4 par, real4 kp, real
     vmask all = (vmask)(-1);
     BsdfSample bs;
     bsdf_sample(&m, pr, d, n, all, all, u, TRANSPORT_RADIANCE, 1, &bs);
-    ST3(bs.wi, sx, sy, sz, i);
-    ST3(bs.weight, fr, fg, fb, i);
-    ST(bs.pdf, spdf, i);
-    ST(VSEL((vreal)R(0), (vreal)R(1), bs.chosen), chosen, i);
-    ST(VSEL((vreal)R(0), (vreal)R(1), bs.delta), delta, i);
-    V3 w = LD3(wx, wy, wz, i);
-    V3 f = bsdf_eval(&m, d, n, w);
-    ST3(f, er, eg, eb, i);
-    ST(bsdf_pdf(&m, pr, d, n, w), epdf, i);
+    PROBE_STORE(bs.delta, delta);
+}
+#endif
+
+#if CLPT_HAS_ROUGH_DIELECTRIC
+// The rough dielectric's lobe (bsdf.h) at a vertex with normal +z, alone in
+// its material, as probe_microfacet: incoming directions d from above (front)
+// or below (the normal turned to face them, the index inverted, as
+// vertex_make does), a sample per d from (u1, u2, uf: reflection or
+// refraction), and f and pdf of w. par: alpha, 1 for Beckmann, eta (inside
+// over outside), sample_visible; kr, kt: specular reflectance and
+// transmittance, kt.w: 1 for importance transport (photons) instead of radiance.
+__kernel void probe_rough_dielectric(real4 par, real4 kr, real4 kt,
+                                     __global const real *dx, __global const real *dy, __global const real *dz,
+                                     __global const real *u1, __global const real *u2, __global const real *uf,
+                                     __global const real *wx, __global const real *wy, __global const real *wz,
+                                     __global real *sx, __global real *sy, __global real *sz,
+                                     __global real *fr, __global real *fg, __global real *fb,
+                                     __global real *spdf, __global real *chosen, __global real *up,
+                                     __global real *er, __global real *eg, __global real *eb, __global real *epdf)
+{
+    size_t i = get_global_id(0);
+    Material m = probe_material_blank(0);
+    m.gr = v3_splat(kr); m.gt = v3_splat(kt);
+    m.p_g = (vreal)R(1); m.g_alpha = (vreal)par.x; m.g_beckmann = (vreal)par.y; m.g_eta = (vreal)par.z;
+    m.g_visible = (vreal)par.w;
+    V3 d = LD3(dx, dy, dz, i);
+    vmask front = d.z < R(0);
+    material_face(&m, front);
+    LobeProbs pr = lobe_probs(&m, (vmask)0);
+    V3 n = v3((vreal)R(0), (vreal)R(0), VSEL((vreal)R(-1), (vreal)R(1), front));
+    BsdfU u;
+    u.lobe = (vreal)R(0.5); u.u1 = LD(u1, i); u.u2 = LD(u2, i); u.fresnel = LD(uf, i);
+    vmask all = (vmask)(-1);
+    BsdfSample bs;
+    bsdf_sample(&m, pr, d, n, front, all, u, kt.w > 0 ? TRANSPORT_IMPORTANCE : TRANSPORT_RADIANCE, 1, &bs);
+    PROBE_STORE(bs.up, up);
 }
 #endif
