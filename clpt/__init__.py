@@ -22,14 +22,14 @@ from .program import clear_cache  # noqa: E402
 from .render import Renderer, RenderUpdate, render, resume as render_resume  # noqa: E402
 from .resources import shipped_scenes  # noqa: E402
 from .result import RenderResult, RenderStats  # noqa: E402
-from .scene import (Box, Camera, Material, Mesh, PixelFilter, Plane, PointLight, Quad, RenderSettings, Scene,  # noqa: E402
+from .scene import (Box, Camera, DirectionalLight, EnvironmentLight, Material, Mesh, PixelFilter, Plane, PointLight, Quad, RenderSettings, Scene,  # noqa: E402
                     Sphere, SpotLight, Triangle, parse_scene)
 from .version import __version__  # noqa: E402
 
 __all__ = [
     "AdaptiveSettings", "FilterSettings", "OidnSettings", "PhotonSettings",
     "Box", "Camera", "DeviceError", "Features", "KernelBuildError", "Material", "Mesh", "PixelFilter", "Plane", "Quad", "RenderResult",
-    "RenderSettings", "RenderStats", "RenderUpdate", "Renderer", "Scene", "SceneError", "SettingsError", "Sphere", "Triangle", "clear_cache", "PointLight", "SpotLight",
+    "RenderSettings", "RenderStats", "RenderUpdate", "Renderer", "Scene", "SceneError", "SettingsError", "Sphere", "Triangle", "clear_cache", "PointLight", "SpotLight", "DirectionalLight", "EnvironmentLight",
     "list_devices", "load_image", "load_scene", "parse_scene", "render", "render_resume", "save_image", "scene_features",
     "shipped_scenes",
 ]

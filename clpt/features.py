@@ -63,6 +63,8 @@ class Features:
     mesh_lights: bool = True
     point_lights: bool = True
     spot_lights: bool = True
+    directional_lights: bool = True
+    env_light: bool = True     # an environment (envmap or constant)
     bvh: bool = True           # the scene's primitives are in a BVH
     bvh_walk: str = "hybrid"   # BVH traversal (Experimental): "hybrid" (packets for coherent rays) or "lane"
     smooth: bool = True        # some triangles have vertex normals
@@ -95,6 +97,8 @@ class Features:
             "CLPT_HAS_MESH_LIGHTS": int(self.mesh_lights),
             "CLPT_HAS_POINT_LIGHTS": int(self.point_lights),
             "CLPT_HAS_SPOT_LIGHTS": int(self.spot_lights),
+            "CLPT_HAS_DIRECTIONAL_LIGHTS": int(self.directional_lights),
+            "CLPT_HAS_ENV_LIGHT": int(self.env_light),
             "CLPT_HAS_BVH": int(self.bvh),
             "CLPT_BVH_PACKETS": int(self.bvh_walk == "hybrid"),
             "CLPT_HAS_SMOOTH": int(self.smooth),
@@ -157,6 +161,8 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         mesh_lights="mesh" in packed.light_kinds,
         point_lights="point" in packed.light_kinds,
         spot_lights="spot" in packed.light_kinds,
+        directional_lights="directional" in packed.light_kinds,
+        env_light="environment" in packed.light_kinds,
         bvh=packed.count("nodes") > 0,
         smooth=packed.smooth,
         textures=bool(packed.textures),

@@ -221,6 +221,18 @@ UV = Rows("surface coordinates", "UV", _r4("a", "b"),
           "a primitive's (u, v), one record per primitive id (scenes with textures): a quad or triangle: "
           "u, v at its corner, their change along edge u | their change along edge v, 0, UV_PLANAR; a sphere: "
           "the x row of its frame (world to its own), the frame's determinant | the y row, UV_SPHERE")
+# An environment map's texels (after every other record; its light record points to them): row y of
+# W texels, then its tables, 4 entries a record (ENV_PACKED).
+ENV_TEXEL = Rows("environment texel", "ENVT", _r4("rgb_cdf"),
+                 "environment map texel (x, y) at record base + W y + x: its radiance r, g, b (linear, unscaled), "
+                 "and (y < H - 1) the cumulative distribution of the sampling cells of row y up to and including "
+                 "cell x (cell (x, y): texels x..x+1 by y..y+1, weight the mean of their luminance times sin theta)")
+ENV_PACKED_ENTRIES = 4  # entries of an environment table a record
+ENV_PACKED = Rows("environment table", "ENVP", _r4("four"),
+                  "4 entries of an environment map's tables a record, after its texels (entry k of a table at "
+                  "record table base + k / 4, component k % 4): the marginal cumulative distribution over its "
+                  "H - 1 rows of cells; the guide tables of its rows, W (H - 1) entries (entry j of row y: the "
+                  "first cell whose cdf passes j / W); the marginal's guide, H - 1 entries")
 LIGHT_TRI = Rows("mesh-light triangle", "LTRI", _r4("p_alias", "u_prob", "v"),
                  "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
 
@@ -242,6 +254,14 @@ KIND_QUAD, KIND_TRIANGLE, KIND_SPHERE, KIND_MESH = 0, 1, 2, 3
 # width, 0 | 0, 0, 0, alias | 1, pick probability, alias probability, material (Le = the intensity).
 # A point light's u and v rows are 0, 0, 0, -2 | 0, 0, -2, 0: every direction inside the full beam.
 KIND_POINT, KIND_SPOT = 4, 5
+# Lights at infinity (after the other lights; at most one environment, the last light record):
+# an environment (Mitsuba's envmap or constant): bounding sphere center.xyz, kind | to_world's first column.xyz,
+# width W (0: constant) | second column.xyz, height H | first texel record (ENV_TEXEL), handedness (+-1, the
+# third column is that times first x second), 0, alias | pi R^2 (R the bounding sphere's radius), pick probability,
+# alias probability, material (Le: the scale, or the constant's radiance).
+# A directional light: bounding sphere center.xyz, kind | direction of travel.xyz, 0 | 0 | 0, 0, 0, alias | pi R^2,
+# pick probability, alias probability, material (Le: the irradiance).
+KIND_ENV, KIND_DIRECTIONAL = 6, 7
 # Primitive kinds in PLANAR.wv_kind.w (a smooth triangle has its normals' record index there instead).
 ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE = -1, -2, -3
 ITEM_EMPTY = -4  # an empty slot of a BVH leaf block
@@ -279,7 +299,8 @@ PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"),
 
 def scene_records() -> tuple:
     """The scene's records (Rows), as this module holds them now."""
-    return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI, TEXTURE_SLOTS, TEXTURE, UV)
+    return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI, TEXTURE_SLOTS, TEXTURE, UV,
+            ENV_TEXEL, ENV_PACKED)
 
 
 def launch_records() -> tuple:
@@ -294,9 +315,11 @@ def c_source() -> str:
     parts += [f"#define KIND_QUAD {KIND_QUAD}", f"#define KIND_TRIANGLE {KIND_TRIANGLE}",
               f"#define KIND_SPHERE {KIND_SPHERE}", f"#define KIND_MESH {KIND_MESH}",
               f"#define KIND_POINT {KIND_POINT}", f"#define KIND_SPOT {KIND_SPOT}",
+              f"#define KIND_ENV {KIND_ENV}", f"#define KIND_DIRECTIONAL {KIND_DIRECTIONAL}",
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
               f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define ITEM_EMPTY {ITEM_EMPTY}",
-              f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}", f"#define COAT_TABLE_ROWS {COAT_TABLE_ROWS}"]
+              f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}", f"#define COAT_TABLE_ROWS {COAT_TABLE_ROWS}",
+              f"#define ENVP_ENTRIES {ENV_PACKED_ENTRIES}"]
     parts += [f"#define {k} {v}" for k, v in (("TEX_BITMAP", TEX_BITMAP), ("TEX_CHECKERBOARD", TEX_CHECKERBOARD),
                                               ("TEX_REPEAT", TEX_REPEAT), ("TEX_MIRROR", TEX_MIRROR),
                                               ("TEX_CLAMP", TEX_CLAMP), ("TEX_BILINEAR", TEX_BILINEAR),

@@ -26,6 +26,7 @@ import numpy as np
 
 from .scene import (ALPHA_RANGE, DISTRIBUTIONS, FILTER_MAX_RADIUS, Camera, Material, Mesh, PixelFilter, PointLight, Quad,
                     RenderSettings, Scene, SceneError, SceneWarning, Sphere, SpotLight, _suggest, read_file_bytes)
+from .scene import DirectionalLight, EnvironmentLight
 from .errors import ImageError
 from .image import load_image
 from .meshio import read_mesh_uv, transform_mesh, vertex_normals
@@ -1355,12 +1356,33 @@ class _Loader:
         return scene
 
     def emitter(self, node: _Node, shapes: list):
-        """A top-level emitter: point and spot lights; other kinds are left out with a warning."""
+        """A top-level emitter: point, spot, directional, envmap and constant
+        lights; other kinds are left out with a warning."""
         p = self.props(node)
         t = p.type
-        if t not in ("point", "spot"):
-            self.warn(node, f"emitter '{t}' is not supported (only area emitters on shapes, point and spot); "
-                            "left out", key=("emitter", t))
+        if t not in ("point", "spot", "directional", "envmap", "constant"):
+            self.warn(node, f"emitter '{t}' is not supported (only area emitters on shapes, point, spot, directional, "
+                            "envmap and constant); left out", key=("emitter", t))
+            return
+        if t in ("envmap", "constant"):
+            if any(isinstance(s, EnvironmentLight) for s in shapes):
+                node.fail("only one environment emitter (envmap or constant) is allowed in a scene")
+            shapes.append(self.environment(node, p))
+            p.finish()
+            return
+        if t == "directional":
+            m = p.transform("to_world")
+            if p.has("direction"):
+                if p.has("to_world"):
+                    node.fail("give either direction or to_world, not both")
+                d = p.point("direction", (0.0, 0.0, 1.0))
+            else:
+                d = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
+            if not np.linalg.norm(d) > 0:
+                node.fail("the direction is zero (or to_world is singular)")
+            e = p.color("irradiance", 1.0, emitter=True)
+            shapes.append(DirectionalLight(direction=tuple(float(x) for x in d / np.linalg.norm(d)), irradiance=e))
+            p.finish()
             return
         intensity = p.color("intensity", 1.0, emitter=True)
         if t == "point":
@@ -1385,6 +1407,33 @@ class _Loader:
                                     direction=tuple(float(x) for x in d / np.linalg.norm(d)),
                                     cutoff_angle=float(cutoff), beam_width=float(beam)))
         p.finish()
+
+    def environment(self, node: _Node, p: _Props) -> EnvironmentLight:
+        """Mitsuba's envmap (filename, scale, to_world; an 8-bit image is
+        sRGB-decoded as Mitsuba decodes it) or constant (radiance)."""
+        if p.type == "constant":
+            return EnvironmentLight(radiance=p.color("radiance", 1.0, emitter=True))
+        name = p.string("filename") or node.fail("missing property 'filename'")
+        path = self.resolve(node, name)
+        try:
+            img = np.asarray(load_image(path), dtype=np.float32)
+        except (ImageError, OSError) as e:
+            node.fail(f"cannot read {path}: {e}")
+        if img.ndim == 2:
+            img = img[:, :, None]
+        img = img[:, :, :3] if img.shape[2] >= 3 else np.repeat(img[:, :, :1], 3, axis=2)
+        if path.suffix.lower() not in (".exr", ".hdr", ".pfm"):
+            img = np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4).astype(np.float32)
+        h, w = img.shape[:2]
+        if w < 2 or h < 3:
+            node.fail(f"{name}: the environment map must be at least 2x3 pixels (got {w}x{h})")
+        scale = p.float("scale", 1.0)
+        if not scale > 0:
+            node.fail(f"scale must be > 0 (got {scale:g})")
+        m = p.transform("to_world")
+        p.boolean("mis_compensation", False)  # changes Mitsuba's variance only, not its image
+        return EnvironmentLight(image=img, scale=float(scale), to_world=tuple(map(tuple, m.tolist())),
+                                filename=str(path))
 
     def top_shape(self, n: _Node, shapes: list, to_world=None):
         t = n.attrs.get("type", "")

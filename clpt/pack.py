@@ -26,10 +26,11 @@ import numpy as np
 
 from . import bvh as bvh_mod
 from . import coating, layout
-from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_MESH, KIND_POINT, KIND_QUAD,
-                     KIND_SPHERE, KIND_SPOT, KIND_TRIANGLE, Rows)
+from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_DIRECTIONAL, KIND_ENV, KIND_MESH,
+                     KIND_POINT, KIND_QUAD, KIND_SPHERE, KIND_SPOT, KIND_TRIANGLE, Rows)
 from .meshio import cross_rows
-from .scene import DEFAULT_UV, TEXTURE_SLOTS, Camera, Material, Scene, SceneError, Sphere, SpotLight, length_scale
+from .scene import (DEFAULT_UV, TEXTURE_SLOTS, Camera, EnvironmentLight, Material, Scene, SceneError, Sphere,
+                    SpotLight, length_scale)
 from .texture import FILTERS, KINDS, WRAP_MODES
 
 # Records are referred to as layout.NAME where they are filled (a test reorders their fields).
@@ -60,7 +61,7 @@ class PackedScene:
     light_kinds: frozenset       # {"quad", "triangle", "sphere", "mesh", "point", "spot"}
     extent: float                # diagonal of the scene's bounds, camera included
     size: float                  # diagonal of the geometry's bounds: the unit of relative photon radii
-    max_flux: float              # total emitted power (pi * area * max Le * sides), for photon sum scales
+    max_flux: float              # power the lights that emit photons emit (pi * area * max Le * sides), for the pilot
     max_radiance: float = 1.0    # the brightest emission's largest channel
     length_scale: float = 1.0    # the records' lengths are the scene's times this (see length_scale)
     smooth: bool = False         # some triangles have vertex normals
@@ -68,7 +69,8 @@ class PackedScene:
     primitives: int = 0          # bounded primitives (spheres, quads, triangles)
     pixel_filter: str = "box"    # the camera's pixel filter kind (its parameters go in each launch record)
     textures: tuple = ()         # the distinct clpt.texture.Texture objects the materials use
-    texel_rows: int = 0          # the records' last rows: texels (not indexed by reals)
+    texel_rows: int = 0          # the textures' texels, after the other records (not indexed by reals)
+    env_texels: int = 0          # the environment map's records, last (indexed by integers, not by reals)
 
     @property
     def lum_scale(self) -> float:
@@ -120,8 +122,8 @@ class PackedScene:
 
     @property
     def indexed_rows(self) -> int:
-        """The records indexed by reals (every one but the texels)."""
-        return len(self.records) - self.texel_rows
+        """The records indexed by reals (every one but the textures' and the environment map's texels)."""
+        return len(self.records) - self.texel_rows - self.env_texels
 
     @property
     def has_caustics(self) -> bool:
@@ -303,6 +305,74 @@ def alias_table(weights):
     return prob, alias
 
 
+def env_luminance(image: np.ndarray) -> np.ndarray:
+    """Per-pixel luminance of an H x W x 3 linear RGB image (Mitsuba's weights), float64."""
+    return image.astype(np.float64) @ np.array([0.212671, 0.715160, 0.072169])
+
+
+def env_cell_weights(image: np.ndarray) -> np.ndarray:
+    """The environment's sampling cells, (H - 1) x W: cell (x, y) spans
+    texels x..x+1 (x+1 wrapping to 0) and rows y..y+1, and weighs the mean of
+    its four corners' luminance times sin theta (theta = pi y / (H - 1)): the
+    integral of their bilinear interpolation, as the radiance is looked up."""
+    h = image.shape[0]
+    lum = env_luminance(image) * np.sin(np.pi * np.arange(h) / (h - 1))[:, None]
+    lum = np.maximum(lum, 0.0)
+    row = lum + np.roll(lum, -1, axis=1)
+    return 0.25 * (row[:-1] + row[1:])
+
+
+def env_guides(cdf: np.ndarray) -> np.ndarray:
+    """Guide tables of rows of cumulative distributions (..., n), each
+    ending at 1: entry j of a row is the first cell whose cdf (as float
+    kernels hold it) passes j / n, so a search for u starts at entry
+    floor(u n) and steps fewer than 2 cells on average whatever the
+    distribution (the cutpoint method)."""
+    c = np.atleast_2d(cdf).astype(np.float32)
+    n = c.shape[1]
+    q = (np.arange(n) / n).astype(np.float32)
+    first = np.stack([np.searchsorted(row, q, side="right") for row in c])
+    return np.minimum(first, n - 1).reshape(cdf.shape)
+
+
+def env_records(image: np.ndarray) -> np.ndarray:
+    """The texel records (ENV_TEXEL) of an environment map and its tables
+    (ENV_PACKED: marginal cdf, the rows' guides, the marginal's guide), as
+    float64 rows."""
+    h, w = image.shape[:2]
+    cond = env_cell_weights(image)
+    rows = cond.sum(axis=1)
+    np.cumsum(cond, axis=1, out=cond)
+    cond /= np.where(rows > 0, rows, 1.0)[:, None]
+    cond[rows == 0] = np.arange(1, w + 1) / w  # an empty row is never picked; its cdf stays valid
+    cond[:, -1] = 1.0
+    marg = np.cumsum(rows) / rows.sum()
+    marg[-1] = 1.0
+    tables = [marg, env_guides(cond).reshape(-1), env_guides(marg)]
+    sizes = [-(-len(t) // layout.ENV_PACKED_ENTRIES) for t in tables]
+    out = np.zeros((w * h + sum(sizes), 4))
+    tex = layout.ENV_TEXEL.view(out[:w * h])["rgb_cdf"]
+    tex[:, :3] = image.reshape(-1, 3)
+    tex[:w * (h - 1), 3] = cond.reshape(-1)
+    first = w * h
+    for t, n in zip(tables, sizes):
+        layout.ENV_PACKED.view(out[first:first + n])["four"].reshape(-1)[:len(t)] = t
+        first += n
+    return out
+
+
+def bounding_sphere(scene: Scene):
+    """Center and radius of the sphere around the scene's geometry (the
+    infinite lights' disk and distance); a scene of planes only gets its
+    extent's."""
+    lo, hi = scene.bounds(camera=False)
+    r = 0.5 * float(np.linalg.norm(hi - lo))
+    if not r > 0:
+        lo, hi = scene.bounds(camera=True)
+        r = max(0.5 * float(np.linalg.norm(hi - lo)), 1.0)
+    return 0.5 * (lo + hi), r
+
+
 def is_caustic_caster(m: Material) -> bool:
     """Purely specular (mirror and/or refraction, no diffuse, Phong or microfacet part):
     the surfaces photons pass through on their way to a caustic. Surfaces
@@ -343,6 +413,7 @@ class _Builder:
         self.planes = []    # (point, unit normal, material id, prim id)
         self.lights = []    # (sides, area, material, LIGHT fields {name: row}, material id, LIGHT_TRI records or None)
         self.delta_power = {}  # light index -> power of a point or spot light (area lights: pi area Le sides)
+        self.infinite = []  # (directional or environment light, material): packed after every other light
         self.n_prims = 0    # every primitive, planes included, has an id
         self.n_bounded = 0
         self.bounds = []    # (lo, hi) blocks of the bounded primitives, in prim order
@@ -404,6 +475,31 @@ class _Builder:
             fields = {"p_kind": (*pos, KIND_POINT), "u": (0.0, 0.0, 0.0, -2.0), "v": (0.0, 0.0, -2.0, 0.0)}
         self.delta_power[len(self.lights)] = p.power()
         self.lights.append((1.0, 1.0, m, fields, mid, None))
+
+    def infinite_light(self, p, mat):
+        self.infinite.append((p, mat))
+
+    def add_infinite_lights(self, center, radius: float, texel_base: int):
+        """The directional lights, then the environment (the last light
+        record), around the bounding sphere (center, radius); the environment
+        map's texels start at record texel_base. Returns its texel records."""
+        texels = np.zeros((0, 4))
+        area = math.pi * radius * radius
+        for p, (mid, m) in sorted(self.infinite, key=lambda pm: isinstance(pm[0], EnvironmentLight)):
+            self.delta_power[len(self.lights)] = p.power(radius)
+            if isinstance(p, EnvironmentLight):
+                r = p.rotation()
+                hand = 1.0 if np.linalg.det(r) > 0 else -1.0
+                w, h = (0, 0) if p.image is None else p.image.shape[1::-1]
+                fields = {"p_kind": (*center, KIND_ENV), "u": (*r[:, 0], w), "v": (*r[:, 1], h),
+                          "n": (float(texel_base), hand, 0.0, 0.0)}
+                if p.image is not None:
+                    texels = env_records(p.image)
+            else:
+                d = np.asarray(p.direction, dtype=np.float64)
+                fields = {"p_kind": (*center, KIND_DIRECTIONAL), "u": (*(d / np.linalg.norm(d)), 0.0)}
+            self.lights.append((1.0, area, m, fields, mid, None))
+        return texels
 
     def plane(self, p, mat):
         mid, _ = mat
@@ -505,8 +601,19 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
         rec["point_mat"] = (*point, mid)
         rec["n"] = (*n, prim)
 
+    # Lights at infinity last, around the geometry's bounding sphere; an
+    # environment map's texels after every other record.
+    env_texels = np.zeros((0, 4))
+    if b.infinite:
+        center, radius = bounding_sphere(scene)
+        env_texels = b.add_infinite_lights(center, radius, 0)
+
     # Pick lights in proportion to their power: pi * area * mean(Le) per side;
-    # a point or spot light's: its intensity's mean times its beam's solid angle.
+    # a point or spot light's: its intensity's mean times its beam's solid angle;
+    # a directional light's: its irradiance through the scene's cross-section
+    # pi R^2 (R: the bounding sphere's radius); an environment's: 4 pi^2 R^2
+    # times its mean radiance over directions, the power that crosses the
+    # bounding sphere inwards.
     lights = b.lights
     powers = np.array([b.delta_power[k] if k in b.delta_power else sides * math.pi * area * float(np.mean(m.emission))
                        for k, (sides, area, m, *_) in enumerate(lights)])
@@ -605,32 +712,31 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     coat_base = ltri_base + len(ltri_recs)
     coat_recs = _coat_tables(mat_recs, list(surfaces), coat_base)
 
-    # Textures: their records, the primitives' (u, v) and the texels (scenes with textures only).
-    tex_base = coat_base + len(coat_recs)
-    textures, slot_recs, tex_recs = _texture_records(mat_recs, list(surfaces), tex_base)
-    uv_recs = np.concatenate(b.uvs) if textures else layout.UV.zeros(0)
-    uv_base = tex_base + len(Rows.rows(slot_recs)) + len(Rows.rows(tex_recs))
-    slot_recs["slots"][:, 3] = uv_base
-    texel_base = uv_base + len(Rows.rows(uv_recs))
-    texels = _texel_rows(textures, tex_recs, texel_base)
-
-    records = np.concatenate([Rows.rows(x) for x in sections] +
-                             [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs, coat_recs, Rows.rows(slot_recs),
-                              Rows.rows(tex_recs), Rows.rows(uv_recs), texels])
+    parts = [Rows.rows(x) for x in sections] + [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs, coat_recs,
+                                                Rows.rows(slot_recs), Rows.rows(tex_recs), Rows.rows(uv_recs), texels]
+    if len(env_texels):
+        light_recs["n"][-1, 0] = sum(len(x) for x in parts)
+        parts = [Rows.rows(x) for x in sections] + parts[len(sections):] + [env_texels]
+    records = np.concatenate(parts)
     n_nodes = wide.n_nodes if use_bvh else 0
     counts = (n_mat, len(sphere_plain), len(quads), len(tris), len(planes), len(lights), len(caustics), n_nodes)
     kinds = {LIGHT_KIND_QUAD: "quad", LIGHT_KIND_TRIANGLE: "triangle", LIGHT_KIND_SPHERE: "sphere",
-             LIGHT_KIND_MESH: "mesh", KIND_POINT: "point", KIND_SPOT: "spot"}
+             LIGHT_KIND_MESH: "mesh", KIND_POINT: "point", KIND_SPOT: "spot", KIND_ENV: "environment",
+             KIND_DIRECTIONAL: "directional"}
     lo, hi = scene.bounds(camera=False)
+    # The power photons can carry (an environment emits none: its light is path traced alone).
     flux = sum(b.delta_power[k] / max(float(np.mean(m.emission)), 1e-300) * max(m.emission) if k in b.delta_power
-               else sides * math.pi * area * max(m.emission) for k, (sides, area, m, *_) in enumerate(lights))
+               else sides * math.pi * area * max(m.emission) for k, (sides, area, m, f, *_) in enumerate(lights)
+               if f["p_kind"][3] != KIND_ENV)
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
                        light_kinds=frozenset(kinds[int(f["p_kind"][3])] for _, _, _, f, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,
-                       max_radiance=max((max(m.emission) for _, _, m, *_ in lights), default=1.0),
+                       max_radiance=max([max(m.emission) for _, _, m, f, *_ in lights if f["p_kind"][3] != KIND_ENV] +
+                                        [p.max_radiance() for p, _ in b.infinite if isinstance(p, EnvironmentLight)],
+                                        default=1.0),
                        smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale,
                        pixel_filter=scene.camera.pixel_filter.kind, textures=tuple(textures),
-                       texel_rows=len(texels))
+                       texel_rows=len(texels), env_texels=len(env_texels))
 
 
 @dataclass(frozen=True)

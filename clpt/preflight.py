@@ -19,7 +19,7 @@ from .errors import ImageError, SceneError
 from .hostio import available_host_bytes
 from .image import save_image
 from .options import ADAPTIVE_OPTIONS, CONE_FILTER_OPTIONS, DENOISER_OPTIONS, OIDN_OPTIONS, PHOTON_OPTIONS, given
-from .scene import Mesh
+from .scene import EnvironmentLight, Mesh
 
 # Measured peak resident memory of `clpt render` (cornell_box, PoCL, 1 spp;
 # 1024^2 and 2048^2 against 256^2): bytes per pixel of the plain render, and
@@ -42,6 +42,11 @@ MESH_LIGHT_BYTES_PER_TRIANGLE = 300
 # decoded float32 image (12 bytes a texel), the packed float64 records (24) and the device's copy (12
 # in float builds; host memory on a CPU device).
 TEXTURE_BYTES_PER_TEXEL = 12 + 24 + 12
+# An environment map (Intel's CPU runtime): the 8192x4096 map's packed texels,
+# sampling tables and the device's copy raised the peak resident memory of a
+# 32x32 render by 2.84 GiB (3.6 GiB in all), 91 bytes a texel, with the file's
+# float pixels (12) on top.
+ENV_BYTES_PER_TEXEL = 104
 
 MAX_EXPOSURE = 64.0  # stops; 2^64 already saturates every float image
 
@@ -171,8 +176,9 @@ def host_bytes_needed(width: int, height: int, aux: bool = False, adaptive: bool
 
 def scene_resources(scene) -> list[tuple[str, int]]:
     """(what, bytes) of each of the scene's resources while it renders, from
-    the costs above: its meshes and its bitmap textures (their texels; an
-    8192 x 8192 bitmap takes 768 MiB on the device in float builds)."""
+    the costs above: its meshes, its bitmap textures (their texels; an 8192 x
+    8192 bitmap takes 768 MiB on the device in float builds) and its
+    environment map."""
     out = []
     seen = set()
     for _, p in scene.primitives():
@@ -182,6 +188,9 @@ def scene_resources(scene) -> list[tuple[str, int]]:
                 h, w = t.data.shape[:2]
                 out.append((f"{w}x{h} texture", t.texels * TEXTURE_BYTES_PER_TEXEL))
     for s in scene.shapes:
+        if isinstance(s, EnvironmentLight) and s.image is not None:
+            h, w = s.image.shape[:2]
+            out.append((f"{w}x{h} environment map", w * h * ENV_BYTES_PER_TEXEL))
         if isinstance(s, Mesh):
             light = scene.surface(s).is_emissive
             per = MESH_BYTES_PER_TRIANGLE + (MESH_LIGHT_BYTES_PER_TRIANGLE if light else 0)
@@ -204,12 +213,17 @@ def check_scene_memory(scene, available: int | None = None):
     if not items or avail is None or need <= avail:
         return
     what, most = max(items, key=lambda x: x[1])
-    n_tex = sum(1 for w, _ in items if w.endswith(" texture"))
-    kinds = f"{len(items) - n_tex} mesh{'es' if len(items) - n_tex != 1 else ''}" + \
-        (f" and {n_tex} texture{'s' if n_tex > 1 else ''}" if n_tex else "")
-    raise SceneError(f"{scene.source}: its {'meshes and textures' if n_tex else 'meshes'} need about "
-                     f"{need / 2**30:.1f} GiB of memory to render ({kinds}, the largest a {what}: "
-                     f"{most / 2**30:.1f} GiB) and {max(avail, 0) / 2**30:.1f} GiB are available")
+    n_mesh = sum(w.startswith("mesh") for w, _ in items)
+    n_tex = sum(w.endswith(" texture") for w, _ in items)
+    n_env = len(items) - n_mesh - n_tex
+    kinds = [f"{n} {noun}{plural if n != 1 else ''}" for n, noun, plural in
+             ((n_mesh, "mesh", "es"), (n_tex, "texture", "s"), (n_env, "environment map", "s")) if n]
+    owners = [o for n, o in ((n_mesh, "meshes"), (n_tex, "textures"), (n_env, "environment map")) if n]
+    owner = " and ".join(owners)
+    verb = "needs" if owners == ["environment map"] else "need"
+    raise SceneError(f"{scene.source}: its {owner} {verb} about {need / 2**30:.1f} GiB of memory to render "
+                     f"({', '.join(kinds)}, the largest a {what}: {most / 2**30:.1f} GiB) and "
+                     f"{max(avail, 0) / 2**30:.1f} GiB are available")
 
 
 def check_memory(width: int, height: int, aux: bool, adaptive: bool, photons: int, cpu_device: bool = True,

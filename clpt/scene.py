@@ -666,10 +666,160 @@ class SpotLight(PointLight):
         b.delta_light(self, mat)
 
 
-LIGHT_TYPES = (PointLight, SpotLight)
+def _rotation_part(src, path, to_world) -> np.ndarray:
+    """The 3x3 linear part of to_world (4x4 or 3x3), normalized to an
+    orthogonal matrix: a rotation, possibly with a reflection, times a
+    uniform scale (which does not change directions)."""
+    try:
+        m = np.asarray(to_world, dtype=np.float64)
+    except (TypeError, ValueError):
+        _fail(src, path, "must be a 3x3 or 4x4 matrix of numbers")
+    if m.shape not in ((3, 3), (4, 4)) or not np.isfinite(m).all():
+        _fail(src, path, f"must be a finite 3x3 or 4x4 matrix (got shape {m.shape})")
+    r = m[:3, :3]
+    g = r.T @ r
+    s2 = float(np.trace(g)) / 3
+    if not s2 > 0 or np.abs(g - s2 * np.eye(3)).max() > 1e-5 * s2:
+        _fail(src, path, "must be a rotation (a reflection and a uniform scale allowed): an environment's "
+                         "directions cannot be sheared or scaled unevenly")
+    return r / math.sqrt(s2)
 
 
-Shape = Union[Sphere, Triangle, Quad, Plane, Box, Mesh, PointLight, SpotLight]
+@dataclass(frozen=True, eq=False)
+class EnvironmentLight(_ShapeBase):
+    """Light from infinitely far away in every direction: Mitsuba 3's
+    ``envmap`` (``image``: an equirectangular H x W x 3 array of linear
+    radiance, times ``scale``) or ``constant`` (``image`` None: ``radiance``
+    from every direction). ``to_world`` (3x3 or 4x4; its rotation counts)
+    turns the map's frame into the world's. Mitsuba's orientation: the map's
+    +y is up (row 0 at theta = 0), and pixel (x, y) is seen along
+    (sin phi sin theta, cos theta, -cos phi sin theta) with phi = 2 pi (x +
+    1/2) / W and theta = pi y / (H - 1), looked up bilinearly between pixels.
+    A scene has at most one environment; it is sampled by its luminance times
+    sin theta (next event estimation) and seen by rays that leave the scene,
+    weighted against each other by multiple importance sampling. It has no
+    surface: ``material``, ``emission`` and ``two_sided`` do not apply."""
+
+    image: np.ndarray | None = None
+    scale: float = 1.0
+    radiance: Vec3 = (1.0, 1.0, 1.0)
+    to_world: tuple | None = None
+    filename: str | None = None
+
+    bounded = False
+    delta = False
+
+    def __post_init__(self):
+        if self.image is not None:
+            a = np.array(self.image, dtype=np.float32)
+            if a.ndim == 2:
+                a = a[:, :, None]
+            if a.ndim != 3 or a.shape[2] not in (1, 3, 4):
+                raise SceneError(f"environment image: must be H x W x 3 (got shape {a.shape})")
+            a = np.ascontiguousarray(a[:, :, :3] if a.shape[2] >= 3 else np.repeat(a, 3, axis=2))
+            a.setflags(write=False)
+            object.__setattr__(self, "image", a)
+
+    def check(self, src, path):
+        if self.emission is not None or self.two_sided is not None:
+            _fail(src, path, "an environment has a radiance or an image, not emission or two_sided")
+        if self.image is None:
+            _emission(src, f"{path}.radiance", self.radiance)
+        else:
+            h, w = self.image.shape[:2]
+            if w < 2 or h < 3:
+                _fail(src, f"{path}.image", f"the environment map must be at least 2x3 pixels (got {w}x{h})")
+            if w * h > MAX_ENV_PIXELS:
+                _fail(src, f"{path}.image", f"{w}x{h} pixels is more than the {MAX_ENV_PIXELS} an environment "
+                                            "map may have")
+            if not np.isfinite(self.image).all() or (self.image < 0).any():
+                _fail(src, f"{path}.image", "pixels must be finite and not negative")
+            if self.image.max() * abs(self.scale) > MAX_EMISSION:
+                _fail(src, f"{path}.image", f"radiance above {MAX_EMISSION:g}: lower scale")
+            _finite(src, f"{path}.scale", self.scale, lo=0.0)
+        if self.to_world is not None:
+            _rotation_part(src, f"{path}.to_world", self.to_world)
+
+    def rotation(self) -> np.ndarray:
+        """to_world's rotation (3x3, orthogonal)."""
+        return np.eye(3) if self.to_world is None else _rotation_part("", "to_world", self.to_world)
+
+    def area(self):
+        return 0.0
+
+    def points(self):
+        return np.zeros((0, 3))
+
+    def mean_radiance(self) -> float:
+        """The radiance averaged over directions and channels (the map's rows weighted by their solid angle)."""
+        if self.image is None:
+            return float(np.mean(self.radiance))
+        h = self.image.shape[0]
+        wt = np.sin(np.pi * np.arange(h) / (h - 1))
+        return float(self.scale) * float((self.image.mean(axis=(1, 2)) * wt).sum() / max(wt.sum(), 1e-300))
+
+    def max_radiance(self) -> float:
+        return float(max(self.radiance)) if self.image is None else float(self.scale) * float(self.image.max())
+
+    def power(self, radius: float = 1.0) -> float:
+        """The power through a sphere of this radius from outside: 4 pi^2 R^2 times the mean radiance."""
+        return 4 * math.pi ** 2 * radius ** 2 * self.mean_radiance()
+
+    def light_material(self) -> "Material":
+        e = self.radiance if self.image is None else (self.scale,) * 3
+        return Material(emission=tuple(float(c) for c in e))
+
+    def pack(self, b, mat):
+        b.infinite_light(self, mat)
+
+
+@dataclass(frozen=True)
+class DirectionalLight(_ShapeBase):
+    """Light from a direction at infinity (Mitsuba 3's ``directional``):
+    ``irradiance`` (W/m^2 per channel) on a surface facing it, arriving along
+    ``direction`` (the direction the light travels). A delta light: found by
+    next event estimation only (irradiance times cos), never by a BSDF-sampled
+    ray, and a source of caustic photons through a disk covering the scene."""
+
+    direction: Vec3 = (0.0, -1.0, 0.0)
+    irradiance: Vec3 = (1.0, 1.0, 1.0)
+
+    bounded = False
+    delta = True
+
+    def check(self, src, path):
+        if self.emission is not None or self.two_sided is not None:
+            _fail(src, path, "a directional light has an irradiance, not emission or two_sided")
+        d = _finite_vec(src, f"{path}.direction", self.direction)
+        if not np.linalg.norm(d) > 0:
+            _fail(src, f"{path}.direction", "must not be zero")
+        _emission(src, f"{path}.irradiance", self.irradiance)
+
+    def area(self):
+        return 0.0
+
+    def points(self):
+        return np.zeros((0, 3))
+
+    def power(self, radius: float = 1.0) -> float:
+        """The power through the scene's cross-section pi R^2 (per channel, averaged)."""
+        return math.pi * radius ** 2 * float(np.mean(self.irradiance))
+
+    def light_material(self) -> "Material":
+        return Material(emission=tuple(float(c) for c in self.irradiance))
+
+    def pack(self, b, mat):
+        b.infinite_light(self, mat)
+
+
+# An environment map's pixels: 8k x 4k and a little more (float scenes index records below 2^24, and the
+# map's texels follow them; clpt/layout.py ENV_TEXEL).
+MAX_ENV_PIXELS = 1 << 26
+INFINITE_LIGHTS = (EnvironmentLight, DirectionalLight)
+LIGHT_TYPES = (PointLight, SpotLight) + INFINITE_LIGHTS
+
+
+Shape = Union[Sphere, Triangle, Quad, Plane, Box, Mesh, PointLight, SpotLight, EnvironmentLight, DirectionalLight]
 SHAPE_TYPES = {"sphere": Sphere, "triangle": Triangle, "quad": Quad, "plane": Plane, "box": Box, "mesh": Mesh}
 
 
@@ -750,6 +900,8 @@ class Scene:
                 sh = replace(sh, center=pts(sh.center), size=pts(sh.size))
             elif isinstance(sh, Mesh):
                 sh = replace(sh, vertices=np.asarray(sh.vertices, dtype=np.float64) * k)
+            elif isinstance(sh, INFINITE_LIGHTS):  # directions and radiance: unchanged
+                pass
             elif isinstance(sh, LIGHT_TYPES):  # irradiance I / d^2: the intensity scales with the area
                 sh = replace(sh, position=pts(sh.position), intensity=tuple(float(c) * k * k for c in sh.intensity))
             else:
@@ -964,6 +1116,7 @@ def check_scene(scene: Scene):
     if not isinstance(scene.shapes, (list, tuple)) or not scene.shapes:
         _fail(src, "shapes", "the scene has no shapes")
     power = 0.0
+    envs = 0
     sizes = []  # (key path, length) of every shape's smallest size
     for i, s in enumerate(scene.shapes):
         path = _shape_path(i, s)
@@ -1003,6 +1156,10 @@ def check_scene(scene: Scene):
         if emissive and not s.can_emit:
             _fail(src, f"{path}.emission", f"an infinite {type(s).__name__.lower()} cannot be a light; use a quad")
         area = s.area()
+        if isinstance(s, EnvironmentLight):
+            envs += 1
+            if envs > 1:
+                _fail(src, path, "a scene has at most one environment (envmap or constant)")
         if isinstance(s, LIGHT_TYPES):
             power += s.power()
         elif emissive:
@@ -1021,7 +1178,7 @@ def check_scene(scene: Scene):
         _fail(src, "shapes", "the lights' total power overflows; lower their emission or size")
     if power <= 0.0:
         _fail(src, "shapes", "the scene has no light: give at least one shape (quad, triangle, sphere, "
-                             "box or mesh) a positive emission, or add a point or spot light")
+                             "box or mesh) a positive emission, or add a point, spot, directional or environment light")
 
 
 def _planar_area(src, path, u, v, what):

@@ -18,11 +18,12 @@
 #error "clpt: every CLPT_HAS_<lobe> flag must be defined"
 #endif
 #if !defined(CLPT_HAS_TRIANGLE_LIGHTS) || !defined(CLPT_HAS_SPHERE_LIGHTS) || !defined(CLPT_HAS_MESH_LIGHTS) \
-    || !defined(CLPT_HAS_POINT_LIGHTS) || !defined(CLPT_HAS_SPOT_LIGHTS)
-#error "clpt: every CLPT_HAS_<kind>_LIGHTS flag must be defined"
+    || !defined(CLPT_HAS_POINT_LIGHTS) || !defined(CLPT_HAS_SPOT_LIGHTS) || !defined(CLPT_HAS_DIRECTIONAL_LIGHTS) \
+    || !defined(CLPT_HAS_ENV_LIGHT)
+#error "clpt: every CLPT_HAS_<kind>_LIGHTS flag (and CLPT_HAS_ENV_LIGHT) must be defined"
 #endif
-// Point and spot lights: delta lights, found by next event estimation only.
-#define CLPT_HAS_DELTA_LIGHTS (CLPT_HAS_POINT_LIGHTS || CLPT_HAS_SPOT_LIGHTS)
+// Point, spot and directional lights: delta lights, found by next event estimation only.
+#define CLPT_HAS_DELTA_LIGHTS (CLPT_HAS_POINT_LIGHTS || CLPT_HAS_SPOT_LIGHTS || CLPT_HAS_DIRECTIONAL_LIGHTS)
 #if !defined(CLPT_LUMA_R) || !defined(CLPT_OFFSET_REL_FLOAT)
 #error "clpt: the generated constants (clpt/constants.py) must come first"
 #endif

@@ -18,6 +18,15 @@
 // x, and delta is set: no BSDF sample finds them, so their sample's MIS
 // weight is 1. For photon emission n is the spot's axis (0 for a point) and
 // the falloff of the direction chosen is delta_falloff's.
+// Lights at infinity come after the others (clpt/pack.py), the environment
+// last. A directional light (CLPT_HAS_DIRECTIONAL_LIGHTS) is a delta light
+// like a point light: Le = its irradiance, pdf = the pick probability, wi
+// against its direction of travel. An environment (CLPT_HAS_ENV_LIGHT, at
+// most one: an envmap or a constant) draws a direction by its texels'
+// luminance times sin theta (env_sample) or, a constant, uniformly; rays
+// that leave the scene see it (env_emission, with light_sample's pdf of
+// their direction for the weight). Both stand at dist beyond the scene's
+// bounding sphere from x (infinite_dist), where the shadow ray ends.
 // A new light kind is a case of light_point (and of light_pdf_hit, and of
 // the light records' packing in clpt/pack.py).
 
@@ -36,6 +45,9 @@ typedef struct {
 #if CLPT_HAS_DELTA_LIGHTS
     vmask delta;      // a point or spot light (a delta light)
     vreal cos_cut, cut, inv_tr, cos_beam;  // the spot's falloff (a point light's: -2, 0, 0, -2, 1 everywhere)
+#endif
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+    vmask parallel;   // (photon emission) a directional light's: the photon travels along n from p
 #endif
 } LightSample;
 
@@ -209,13 +221,279 @@ CLPT_INLINE void delta_light_sample(const Scene *sc, uint r, real4 info, real4 m
 }
 #endif
 
-// A light picked by power and a point on it, into *out. With at_x (a
+#if CLPT_HAS_ENV_LIGHT || CLPT_HAS_DIRECTIONAL_LIGHTS
+// A distance from x that stands for infinity: beyond the scene's bounding
+// sphere (center c.xyz, area = pi R^2 its disk).
+inline vreal infinite_dist(real4 c, real area, V3 x)
+{
+    V3 dc = v3_sub(x, v3_splat(c));
+    return sqrt(v3_dot(dc, dc)) + R(2) * sqrt(area * R(M_1_PI));
+}
+#endif
+
+#if CLPT_HAS_ENV_LIGHT
+#define ENV_LIGHT_REC (OFF_LIGHTS + LIGHT_STRIDE * (NUM_LIGHTS - 1u))
+
+// Entry k of an environment table (ENV_PACKED: 4 entries a record) starting at record tbase.
+inline real env_table(const Scene *sc, uint tbase, uint k)
+{
+    real4 q = scene_rec(sc, tbase + k / ENVP_ENTRIES);
+    uint c = k % ENVP_ENTRIES;
+    return c == 0u ? q.x : c == 1u ? q.y : c == 2u ? q.z : q.w;
+}
+
+// The map's radiance between texels (x0, y0) and (x0 + 1 (wrapping), y0 + 1),
+// bilinear at (fx, fy), as Mitsuba looks it up; *cell: the sampling
+// probability of cell (x0, y0).
+inline real4 env_texels(const Scene *sc, uint base, uint w, uint h, uint x0, uint y0, real fx, real fy, real *cell)
+{
+    uint x1 = x0 + 1u == w ? 0u : x0 + 1u;
+    uint r0 = base + w * y0, r1 = r0 + w;
+    real4 t00 = scene_rec(sc, r0 + x0), t10 = scene_rec(sc, r0 + x1);
+    real4 t01 = scene_rec(sc, r1 + x0), t11 = scene_rec(sc, r1 + x1);
+    uint xp = x0 - 1u;  // the cell before (when x0 > 0)
+    real pc = t00.w - (x0 > 0u ? scene_rec(sc, r0 + xp).w : R(0));
+    uint mbase = base + w * h;
+    real pm = env_table(sc, mbase, y0) - (y0 > 0u ? env_table(sc, mbase, y0 - 1u) : R(0));
+    *cell = pc * pm;
+    real4 a = t00 * (R(1) - fx) + t10 * fx, b = t01 * (R(1) - fx) + t11 * fx;
+    return a * (R(1) - fy) + b * fy;
+}
+
+// The frame of the environment whose record is at r: columns c0, c1, c2 of to_world's rotation.
+inline void env_frame(const Scene *sc, uint r, real4 *c0, real4 *c1, real4 *c2)
+{
+    *c0 = scene_rec(sc, r + LIGHT_U);
+    *c1 = scene_rec(sc, r + LIGHT_V);
+    real hand = scene_rec(sc, r + LIGHT_N).y;
+    real4 a = (real4)((*c0).xyz, R(0)), b = (real4)((*c1).xyz, R(0));
+    *c2 = hand * cross(a, b);
+}
+
+// The environment's radiance towards -d (d: a unit world direction leaving
+// the scene, unscaled) and, in *pdf_sa, the solid-angle pdf with which
+// env_sample draws d, for the lanes in m. A constant: Le 1, pdf 1 / (4 pi).
+// The angles are computed for all lanes at once; the texel fetches lane by lane.
+inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
+{
+    real4 c0, c1, c2;
+    env_frame(sc, r, &c0, &c1, &c2);
+    uint w = (uint)c0.w, h = (uint)c1.w, base = (uint)scene_rec(sc, r + LIGHT_N).x;
+    if (w == 0u) {
+        *pdf_sa = (vreal)R(0.25 * M_1_PI);
+        return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
+    }
+    V3 l = v3(v3_dot4(d, c0), v3_dot4(d, c1), v3_dot4(d, c2));
+    vreal u = atan2(l.x, -l.z) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
+    vreal gx = (u - floor(u)) * (real)w;
+    vreal gy = acos(fmin(fmax(l.y, (vreal)R(-1)), (vreal)R(1))) * (R(M_1_PI) * (real)(h - 1u));
+    V3 Le = v3_zero();
+    vreal cell = (vreal)R(0);
+    for (int k = 0; k < CLPT_LANES; k++) {
+        if (VLANE_M(m, k) == 0)
+            continue;
+        real x = VLANE_R(gx, k), y = VLANE_R(gy, k);
+        uint x0 = min((uint)x, w - 1u), y0 = min((uint)y, h - 2u);
+        real4 t = env_texels(sc, base, w, h, x0, y0, x - (real)x0, y - (real)y0, &VLANE_R(cell, k));
+        VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
+    }
+    vreal sin_t = sqrt(fmax(l.x * l.x + l.z * l.z, (vreal)(REAL_EPS * REAL_EPS)));
+    *pdf_sa = cell * ((real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI)) / sin_t;
+    return Le;
+}
+
+// A direction d (unit, world) from the environment at r for the lanes in m:
+// a row of cells by the marginal cdf (u2), a cell in it by the row's cdf
+// (u1), a uniform point in the cell; its radiance (unscaled) and solid-angle
+// pdf. A constant: a uniform direction. The searches and fetches go lane by
+// lane, the angles for all lanes at once.
+inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d, vreal *pdf_sa)
+{
+    real4 c0, c1, c2;
+    env_frame(sc, r, &c0, &c1, &c2);
+    uint w = (uint)c0.w, h = (uint)c1.w, base = (uint)scene_rec(sc, r + LIGHT_N).x;
+    if (w == 0u) {
+        *d = sample_uniform_sphere(u1, u2);
+        *pdf_sa = (vreal)R(0.25 * M_1_PI);
+        return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
+    }
+    uint mbase = base + w * h;                       // the marginal cdf (clpt/layout.py ENV_PACKED)
+    uint grows = mbase + (h + ENVP_ENTRIES - 2u) / ENVP_ENTRIES;           // the rows' guides
+    uint gmarg = grows + (w * (h - 1u) + ENVP_ENTRIES - 1u) / ENVP_ENTRIES;  // the marginal's guide
+    V3 Le = v3_zero();
+    vreal gx = (vreal)R(0), gy = (vreal)R(0), cell = (vreal)R(0);
+    for (int k = 0; k < CLPT_LANES; k++) {
+        if (VLANE_M(m, k) == 0)
+            continue;
+        real a = VLANE_R(u1, k), b = VLANE_R(u2, k);
+        // The first row whose cdf passes b, then the first cell of that row
+        // whose cdf passes a, each from its guide table's entry (the first
+        // cell past that entry's value: fewer than 2 steps on average).
+        uint y0 = (uint)env_table(sc, gmarg, min((uint)(b * (real)(h - 1u)), h - 2u));
+        while (y0 > 0u && env_table(sc, mbase, y0 - 1u) > b)
+            y0--;
+        while (y0 < h - 2u && env_table(sc, mbase, y0) <= b)
+            y0++;
+        real m0 = y0 > 0u ? env_table(sc, mbase, y0 - 1u) : R(0);
+        real fy = fmin(fmax((b - m0) / (env_table(sc, mbase, y0) - m0), R(0)), R(1));
+        uint row = base + w * y0;
+        uint x0 = (uint)env_table(sc, grows, w * y0 + min((uint)(a * (real)w), w - 1u));
+        uint xp = x0 - 1u;  // the cell before x0 (when x0 > 0)
+        while (x0 > 0u && scene_rec(sc, row + xp).w > a) {
+            x0--;
+            xp--;
+        }
+        while (x0 < w - 1u && scene_rec(sc, row + x0).w <= a)
+            x0++;
+        xp = x0 - 1u;
+        real c = x0 > 0u ? scene_rec(sc, row + xp).w : R(0);
+        real fx = fmin(fmax((a - c) / (scene_rec(sc, row + x0).w - c), R(0)), R(1));
+        real4 t = env_texels(sc, base, w, h, x0, y0, fx, fy, &VLANE_R(cell, k));
+        VLANE_R(gx, k) = (real)x0 + fx;
+        VLANE_R(gy, k) = (real)y0 + fy;
+        VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
+    }
+    vreal phi = (gx + R(0.5)) * (R(2 * M_PI) / (real)w);
+    vreal theta = gy * (R(M_PI) / (real)(h - 1u));
+    vreal st = sin(theta), ct = cos(theta), sp = sin(phi), cp = cos(phi);
+    V3 l = v3(sp * st, ct, -cp * st);
+    *d = v3(l.x * c0.x + l.y * c1.x + l.z * c2.x, l.x * c0.y + l.y * c1.y + l.z * c2.y,
+            l.x * c0.z + l.y * c1.z + l.z * c2.z);
+    *pdf_sa = cell * ((real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI)) / fmax(st, (vreal)REAL_EPS);
+    return Le;
+}
+
+// What a ray leaving the scene along unit d sees of the environment (Le,
+// scaled) for the lanes in m, and (*pdf) the solid-angle pdf with which
+// light_sample picks the environment and draws d. Zero where the scene has
+// no environment (a generic build's).
+inline V3 env_emission(const Scene *sc, V3 d, vmask m, vreal *pdf)
+{
+    *pdf = (vreal)R(0);
+    if (NUM_LIGHTS == 0)
+        return v3_zero();
+    uint r = ENV_LIGHT_REC;
+    if ((int)scene_rec(sc, r + LIGHT_P_KIND).w != LIGHT_KIND_ENV)
+        return v3_zero();
+    real4 info = scene_rec(sc, r + LIGHT_INFO);
+    real4 s = scene_rec(sc, MAT_STRIDE * (uint)info.w + MAT_LE_SIDES);
+    vreal pdf_sa;
+    V3 Le = env_eval(sc, r, d, m, &pdf_sa);
+    *pdf = pdf_sa * info.y;
+    return v3_mul(Le, v3_splat(s));
+}
+#endif
+
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+// Where a directional light's photon starts (lanes in pick; records at r,
+// c its bounding-sphere row, info and m as light_sample's), into *ls: on the
+// disk of radius R across the scene's bounding sphere, at R before its
+// center along the light's direction d, aimed at the caustic casters: a
+// caster picked in equal shares (u1), a uniform point in the disk its
+// bounding sphere casts along d (u1 rescaled, u2; an unbounded caster's:
+// the whole disk). pdf_area = the pick probability times the mixture of
+// those disks' uniform densities at the point; n = d, Le = the irradiance,
+// delta and parallel set (the photon leaves p along n).
+CLPT_INLINE void directional_photon_start(const Scene *sc, uint r, real4 c, real4 info, real4 m, vmask pick,
+                                          LightU u, LightSample *ls)
+{
+    real4 d4 = scene_rec(sc, r + LIGHT_U);
+    V3 d = v3((vreal)d4.x, (vreal)d4.y, (vreal)d4.z), t, b;
+    frame_from_z(d, &t, &b);
+    real big = sqrt(info.x * R(M_1_PI));
+    vreal uk = u.u1 * (real)NUM_CAUSTICS;
+    vreal kf = fmin(floor(uk), (vreal)(real)(NUM_CAUSTICS - 1));
+    vreal ur = fmin(uk - kf, (vreal)R(1));
+    V3 q = v3_zero();
+    vreal rad = (vreal)big;
+    for (uint k = 0; k < NUM_CAUSTICS; k++) {
+        real4 s = scene_rec(sc, OFF_CAUSTICS + CAUSTIC_STRIDE * k + CAUSTIC_SPHERE);
+        vmask is = kf == (real)k;
+        q = v3_sel(q, s.w < R(0) ? v3_splat(c) : v3_splat(s), is);
+        rad = VSEL(rad, (vreal)(s.w < R(0) ? big : s.w), is);
+    }
+    // The point in the plane through c across d, then moved back by R.
+    q = v3_fma(d, -v3_dot(v3_sub(q, v3_splat(c)), d), q);
+    vreal pr = rad * sqrt(ur), phi = u.u2 * R(2 * M_PI);
+    V3 p = v3_fma(t, pr * cos(phi), v3_fma(b, pr * sin(phi), q));
+    // The density: every caster's disk that holds the point.
+    vreal dens = (vreal)R(0);
+    for (uint k = 0; k < NUM_CAUSTICS; k++) {
+        real4 s = scene_rec(sc, OFF_CAUSTICS + CAUSTIC_STRIDE * k + CAUSTIC_SPHERE);
+        real rk = s.w < R(0) ? big : s.w;
+        V3 qk = s.w < R(0) ? v3_splat(c) : v3_splat(s);
+        qk = v3_fma(d, -v3_dot(v3_sub(qk, v3_splat(c)), d), qk);
+        V3 e = v3_sub(p, qk);
+        dens += VSEL((vreal)R(0), (vreal)(R(1) / (R(M_PI) * rk * rk)), v3_dot(e, e) <= rk * rk * R(1.000001));
+    }
+    dens *= R(1) / (real)NUM_CAUSTICS;
+    p = v3_fma(d, (vreal)(-big * R(1.001)), p);
+    ls->p = v3_sel(ls->p, p, pick);
+    ls->n = v3_sel(ls->n, d, pick);
+    ls->Le = v3_sel(ls->Le, v3_splat(m), pick);
+    ls->err = VSEL(ls->err, fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z))), pick);
+    ls->pdf_area = VSEL(ls->pdf_area, dens * info.y, pick);
+    ls->delta = ls->delta || pick;
+    ls->parallel = ls->parallel || pick;
+    ls->cos_cut = VSEL(ls->cos_cut, (vreal)R(-2), pick);  // no falloff
+    ls->cos_beam = VSEL(ls->cos_beam, (vreal)R(-2), pick);
+}
+#endif
+
+#if CLPT_HAS_ENV_LIGHT || CLPT_HAS_DIRECTIONAL_LIGHTS
+// light_sample's light at infinity (records at r; info and m its LIGHT_INFO
+// and material's Le row) for the lanes in pick, into *ls. At x: an
+// environment's direction and pdf (env_sample), or a directional light's
+// (delta: pdf = the pick probability), at a point beyond the scene. For
+// photon emission: a directional light's start (directional_photon_start);
+// an environment's photons are not traced (pdf_area 0).
+CLPT_INLINE void infinite_light_sample(const Scene *sc, uint r, int kind, real4 info, real4 m, vmask pick, V3 x,
+                                       int at_x, LightU u, LightSample *ls)
+{
+    real4 c = scene_rec(sc, r + LIGHT_P_KIND);
+    if (!at_x) {
+        ls->pdf_area = VSEL(ls->pdf_area, (vreal)R(0), pick);  // an environment: no photons
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+        if (kind == LIGHT_KIND_DIRECTIONAL)
+            directional_photon_start(sc, r, c, info, m, pick, u, ls);
+#endif
+        return;
+    }
+    V3 wi = v3_zero(), Le = v3_splat(m);
+    vreal pdf = (vreal)info.y;
+#if CLPT_HAS_ENV_LIGHT
+    if (kind == LIGHT_KIND_ENV) {
+        vreal pdf_sa;
+        Le = v3_mul(env_sample(sc, r, pick, u.u1, u.u2, &wi, &pdf_sa), Le);
+        pdf = pdf_sa * info.y;
+    }
+#endif
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+    if (kind == LIGHT_KIND_DIRECTIONAL) {
+        real4 d = scene_rec(sc, r + LIGHT_U);
+        wi = v3((vreal)-d.x, (vreal)-d.y, (vreal)-d.z);
+        ls->delta = ls->delta || pick;
+        ls->cos_cut = VSEL(ls->cos_cut, (vreal)R(-2), pick);  // no falloff
+        ls->cos_beam = VSEL(ls->cos_beam, (vreal)R(-2), pick);
+    }
+#endif
+    vreal dist = infinite_dist(c, info.x, x);
+    ls->Le = v3_sel(ls->Le, Le, pick);
+    ls->wi = v3_sel(ls->wi, wi, pick);
+    ls->dist = VSEL(ls->dist, dist, pick);
+    ls->p = v3_sel(ls->p, v3_fma(wi, dist, x), pick);
+    ls->pdf = VSEL(ls->pdf, pdf, pick);
+    ls->valid = ls->valid || (pick && pdf > R(0) && pdf < R(INFINITY));
+}
+#endif
+
+// A light picked by power and a point on it, for the lanes in active, into *out. With at_x (a
 // constant where this is inlined), as seen from the shading point x, for
 // next event estimation: wi, dist, the solid-angle pdf and validity are
 // filled and p is recomputed as x + dist wi; without, for photon emission:
 // the point, its normal, the area pdf and err. (An always-inlined function
 // returns no struct: Oclgrind cannot run the noalias scope its inlining leaves.)
-CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, LightSample *out)
+CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, vmask active, LightSample *out)
 {
     LightSample ls;
     ls.p = ls.n = ls.Le = ls.wi = v3_zero();
@@ -225,7 +503,10 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, LightSa
     ls.delta = ls.valid;
     ls.cos_cut = ls.cut = ls.inv_tr = ls.cos_beam = (vreal)R(0);
 #endif
-    vreal li = light_pick_index(sc, u.pick);
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+    ls.parallel = ls.valid;
+#endif
+    vreal li = VSEL((vreal)R(INFINITY), light_pick_index(sc, u.pick), active);  // only the active lanes pick
     uint i, r;
     vmask pick;
     while (light_next(sc, &li, &i, &pick, &r)) {
@@ -235,6 +516,12 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, LightSa
 #if CLPT_HAS_DELTA_LIGHTS
         if (kind == LIGHT_KIND_POINT || kind == LIGHT_KIND_SPOT) {
             delta_light_sample(sc, r, info, m, pick, x, at_x, &ls);
+            continue;
+        }
+#endif
+#if CLPT_HAS_ENV_LIGHT || CLPT_HAS_DIRECTIONAL_LIGHTS
+        if (kind == LIGHT_KIND_ENV || kind == LIGHT_KIND_DIRECTIONAL) {
+            infinite_light_sample(sc, r, kind, info, m, pick, x, at_x, u, &ls);
             continue;
         }
 #endif

@@ -77,6 +77,9 @@ typedef struct {
     vmask nondelta;    // the surface has a diffuse, Phong or microfacet part
     vmask at_x;        // (photons) the first vertex with a non-delta part
     vmask merge_here;  // (photons) a vertex where merging may happen
+#if CLPT_HAS_ENV_LIGHT
+    vmask escaped;     // the ray left the scene (it sees the environment)
+#endif
 } Vertex;
 
 inline PathState path_state_make(vmask active)
@@ -123,12 +126,17 @@ inline Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmask act
     v.pr = lobe_probs(&v.m, ps->depth < (real)rr_depth);
     v.nondelta = v.hit && v.m.nondelta != R(0);
     v.at_x = v.merge_here = v.hit && !v.hit;
+#if CLPT_HAS_ENV_LIGHT
+    v.escaped = active && !(h.t < R(INFINITY));
+#endif
     return v;
 }
 
 // Emission at the vertex towards the path, times the throughput and its
 // multiple-importance weight; *sees: the lanes it reaches (an emitter's
-// side that emits; not a path the photon map owns).
+// side that emits; not a path the photon map owns). A ray that left the
+// scene sees the environment, weighted against light sampling as an
+// emitter's hit is (the photon map has no paths from it).
 inline V3 path_emission(const Scene *sc, const PhotonLookup *pl, const PathState *ps, const Vertex *v,
                              vmask *sees)
 {
@@ -153,8 +161,25 @@ inline V3 path_emission(const Scene *sc, const PhotonLookup *pl, const PathState
         w = VSEL(w, mis_power((vreal)R(1), pf * ps->chain_k), merged_path);
     }
 #endif
+    V3 Le = v3_scale(v3_mul(ps->beta, v->m.Le), w);
+#if CLPT_HAS_ENV_LIGHT
+    vmask esc = v->escaped;
+#if CLPT_PHOTONS
+    esc = esc && !pl->stop_at_x;
+#endif
+    if (VANY(esc)) {
+        vreal pdf_l;
+        V3 Lenv = env_emission(sc, ps->d, esc, &pdf_l);
+        vreal we = (vreal)R(1);
+#if CLPT_NEE
+        we = VSEL(we, mis_power(ps->pdf_prev, pdf_l), ps->pdf_prev > R(0));
+#endif
+        Le = v3_sel(Le, v3_scale(v3_mul(ps->beta, Lenv), we), esc);
+        s = s || esc;
+    }
+#endif
     *sees = s;
-    return v3_scale(v3_mul(ps->beta, v->m.Le), w);
+    return Le;
 }
 
 #if CLPT_PHOTONS
@@ -208,7 +233,7 @@ inline uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, v
     if (!VANY(nee))
         return 0;
     LightSample ls;
-    light_sample(sc, v->x, sample_light(sp, ps->depth), 1, &ls);
+    light_sample(sc, v->x, sample_light(sp, ps->depth), 1, nee, &ls);
     vreal cos_x = v3_dot(v->n, ls.wi);
 #if CLPT_HAS_ROUGH_DIELECTRIC
     // A rough dielectric also sees lights through itself (both normals agreeing).

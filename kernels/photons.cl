@@ -41,7 +41,7 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
     // --- emission ---------------------------------------------------------------
     EmitU ue = sample_photon_emission(&sp);
     LightSample lp;
-    light_sample(sc, v3_zero(), ue.light, 0, &lp);
+    light_sample(sc, v3_zero(), ue.light, 0, live, &lp);
     AimSample aim = aim_at_casters(sc, lp.p, lp.n, lp.two_sided, L.aim, ue.caster, ue.u1, ue.u2);
     vreal cos_y = v3_dot(aim.w, lp.n);
 #if CLPT_HAS_DELTA_LIGHTS
@@ -50,6 +50,12 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
     cos_y = VSEL(cos_y, (vreal)R(1), lp.delta);
     lp.Le = v3_sel(lp.Le, v3_scale(lp.Le, delta_falloff(lp.n, lp.cos_cut, lp.cut, lp.inv_tr, lp.cos_beam, aim.w)),
                    lp.delta);
+#endif
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+    // A directional light's photon leaves its disk along the light's direction (lights.h).
+    aim.w = v3_sel(aim.w, lp.n, lp.parallel);
+    aim.pdf = VSEL(aim.pdf, (vreal)R(1), lp.parallel);
+    aim.valid = aim.valid || lp.parallel;
 #endif
     vmask emits = cos_y > R(0) || (lp.two_sided && cos_y < R(0));
     live = live && aim.valid && emits && lp.pdf_area > R(0);

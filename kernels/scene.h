@@ -30,6 +30,8 @@
 #define LIGHT_KIND_POINT KIND_POINT
 #define LIGHT_KIND_SPOT KIND_SPOT
 #define LIGHT_KIND_MESH KIND_MESH
+#define LIGHT_KIND_ENV KIND_ENV
+#define LIGHT_KIND_DIRECTIONAL KIND_DIRECTIONAL
 
 typedef struct {
     __global const real4 *rec;

@@ -674,14 +674,28 @@ def _delta_emitter(v: _Values):
     return f'<emitter type="{t}">{"".join(body)}</emitter>'
 
 
+def _top_emitter(v: _Values):
+    """An emitter at the scene's top level: an environment (envmap, constant) or a directional light."""
+    t = v.pick(["envmap", "constant", "directional"], ["bogus", "sunsky"])
+    if t == "envmap":
+        body = (f'<string name="filename" value="cbox/{v.pick(["sky.exr"], ["nope.exr", "light.obj"])}"/>'
+                f'<float name="scale" value="{v.pick([v.num(0.1, 4)], ["0", "-1", "x"])}"/>' + _transform(v))
+    elif t == "directional":
+        body = (f'<vector name="direction" value="{v.pick([v.vec(-1, 1)], ["0, 0, 0", "x"])}"/>'
+                + _color(v, "irradiance", emitter=True))
+    else:
+        body = _color(v, "radiance", emitter=True)
+    return f'<emitter type="{t}">{body}</emitter>'
+
+
 @st.composite
 def xml_scenes(draw):
     """A Mitsuba scene generated from the grammar of the elements clpt reads:
     an integrator, a sensor with film and sampler, BSDFs by id (nested in
     twosided, blendbsdf and mask), shapes of every supported type with
-    transforms, BSDFs, refs and area emitters, and point and spot lights. In
-    one scene of two every value is sensible; in the others a few are
-    extreme or malformed."""
+    transforms, BSDFs, refs and area emitters, point and spot lights, and
+    top-level environment and directional emitters. In one scene of two
+    every value is sensible; in the others a few are extreme or malformed."""
     v = _Values(draw(st.integers(0, 2 ** 32 - 1)), draw(st.sampled_from([0.0, 0.0, 0.02, 0.1])))
     parts = [f'<scene version="{v.pick(["3.0.0", "3.0.0", "2.0.0", "0.6.0"], ["x", "9.0.0", ""])}">']
     spp = v.pick(["1", "2", "4"], ["0", "-1", "x", "1e3"])
@@ -707,6 +721,7 @@ def xml_scenes(draw):
     parts += [_bsdf(v, ident=i) for i in ids]
     parts += [_shape(v, ids, light=i == 0) for i in range(v.int(1, 5))]
     parts += [_delta_emitter(v) for _ in range(v.int(0, 2))]
+    parts += [_top_emitter(v) for _ in range(v.pick([0, 0, 1], [2]))]
     parts.append("</scene>")
     return "\n".join(parts).encode()
 
@@ -717,14 +732,16 @@ def xml_inputs():
 
 
 def xml_workspace() -> Path:
-    """A folder holding what the XML scenes refer to (tests/data/cbox and textures, a
-    shipped PLY as cbox/bunny.ply and a serialized seed as
-    cbox/shapes.serialized); inputs are written beside it."""
+    """A folder holding what the XML scenes refer to (tests/data/cbox and
+    textures, a shipped PLY as cbox/bunny.ply, a serialized seed as
+    cbox/shapes.serialized and an environment map as cbox/sky.exr); inputs
+    are written beside it."""
     d = Path(tempfile.mkdtemp(prefix="clpt-fuzz-xml-"))
     shutil.copytree(DATA / "cbox", d / "cbox")
     shutil.copytree(DATA / "textures", d / "textures")
     shutil.copy(MESHES / "ring.ply", d / "cbox" / "bunny.ply")
     shutil.copy(DATA / "serialized" / "shapes_v4.serialized", d / "cbox" / "shapes.serialized")
+    shutil.copy(DATA / "env_sky.exr", d / "cbox" / "sky.exr")
     return d
 
 

@@ -47,9 +47,20 @@ def _lit_box():
     return dataclasses.replace(s, shapes=list(s.shapes) + lights)
 
 
+def _sky_scene():
+    sky = np.full((8, 16, 3), 0.5, dtype=np.float32)
+    sky[2, 3] = 40.0
+    return clpt.Scene(camera=clpt.Camera(origin=(0, 1, 3), target=(0, 0.3, 0)), shapes=[
+        clpt.Sphere(center=(0, 0.5, 0), radius=0.5, material=clpt.Material(kd=(0.6, 0.5, 0.4))),
+        clpt.Quad(corner=(-2, 0, 2), edge_u=(4, 0, 0), edge_v=(0, 0, -4)),
+        clpt.EnvironmentLight(image=sky, scale=0.8, to_world=((0, 0, 1), (0, 1, 0), (-1, 0, 0))),
+        clpt.DirectionalLight(direction=(0.3, -1, 0.2), irradiance=(2, 2, 1.5))])
+
+
 CASES = {
     "plain": ("cornell_box", {}, {}),
     "delta_lights": (_lit_box(), {}, {}),  # point and spot lights travel in the checkpoint
+    "infinite_lights": (_sky_scene(), {}, {}),  # an environment map and a directional light too
     "pixel_filter": (_gaussian_box(), {}, {}),  # the camera's filter travels in the checkpoint
     "kahan": ("cornell_box", {"accumulate": "kahan"}, {}),
     "progressive": ("cornell_box_caustics", {}, {"photons": PhotonSettings(count=20_000, progressive=True,

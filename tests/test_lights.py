@@ -195,8 +195,8 @@ def test_scene_lit_only_by_a_point_light_is_not_refused(tmp_path):
 def test_unsupported_emitters_still_warn(tmp_path):
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
-        clpt.load_scene(_xml(tmp_path, '<emitter type="point"/><emitter type="constant"/>'))
-    assert any("emitter 'constant' is not supported" in str(x.message) for x in w)
+        clpt.load_scene(_xml(tmp_path, '<emitter type="point"/><emitter type="sunsky"/>'))
+    assert any("emitter 'sunsky' is not supported" in str(x.message) for x in w)
 
 
 @pytest.mark.parametrize("light, message", [

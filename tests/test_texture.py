@@ -329,7 +329,7 @@ def test_textures_are_weighed_against_memory():
     assert preflight.scene_resources(scene) == [("16x32 texture", 512 * preflight.TEXTURE_BYTES_PER_TEXEL)]
     room = preflight.HOST_BASE_BYTES + 512 * preflight.TEXTURE_BYTES_PER_TEXEL
     preflight.check_scene_memory(scene, available=room)
-    with pytest.raises(SceneError, match=r"its meshes and textures need about .* \(0 meshes and 1 texture, "
+    with pytest.raises(SceneError, match=r"its textures need about .* \(1 texture, "
                                          r"the largest a 16x32 texture"):
         preflight.check_scene_memory(scene, available=room - 1)
 

@@ -36,8 +36,8 @@ from ..denoise import FilterSettings, OidnSettings
 from ..errors import CheckpointError, SceneError
 from ..hostio import open_regular_file
 from ..photons import PhotonSettings
-from ..scene import (Box, Camera, Material, Mesh, PixelFilter, Plane, PointLight, Quad, RenderSettings, Scene, Sphere,
-                     SpotLight, Triangle)
+from ..scene import (Box, Camera, DirectionalLight, EnvironmentLight, Material, Mesh, PixelFilter, Plane, PointLight,
+                     Quad, RenderSettings, Scene, Sphere, SpotLight, Triangle)
 from ..texture import Texture
 from ..version import __version__
 from .accum import WIDTHS, Accumulator
@@ -91,7 +91,8 @@ def _job_types() -> dict:
     """The classes a job is made of, by name: the only ones reading builds."""
     return {c.__name__: c for c in (RenderJob, DeviceOptions, PhotonSettings, AdaptiveSettings, FilterSettings,
                                     OidnSettings, Scene, Camera, PixelFilter, RenderSettings, Material, Sphere,
-                                    Triangle, Quad, Plane, Box, Mesh, PointLight, SpotLight, Texture)}
+                                    Triangle, Quad, Plane, Box, Mesh, PointLight, SpotLight, DirectionalLight,
+                                    EnvironmentLight, Texture)}
 
 
 def _encode(obj, arrays: list):

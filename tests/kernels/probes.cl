@@ -210,7 +210,7 @@ __kernel void probe_light_sample(__global const real4 *rec, __constant SceneInfo
     LightU u;
     u.pick = LD(u0, i); u.u1 = LD(u1, i); u.u2 = LD(u2, i);
     LightSample ls;
-    light_sample(&s, LD3(px, py, pz, i), u, 1, &ls);
+    light_sample(&s, LD3(px, py, pz, i), u, 1, u.pick == u.pick, &ls);
     ST3(ls.wi, wx, wy, wz, i);
     ST(ls.dist, dist, i);
     ST(ls.Le.x, le, i);
@@ -267,12 +267,31 @@ __kernel void probe_light_pdf(__global const real4 *rec, __constant SceneInfo *i
     LightU u;
     u.pick = LD(u0, i); u.u1 = LD(u1, i); u.u2 = LD(u2, i);
     LightSample ls;
-    light_sample(&s, x, u, 1, &ls);
+    light_sample(&s, x, u, 1, u.pick == u.pick, &ls);
     Hit h = scene_intersect(&s, x, ls.wi);
     vreal p = light_pdf_hit(&s, h.light, x, v3_fma(ls.wi, h.t, x), h.ng, h.t);
     ST(VSEL((vreal)R(0), ls.pdf, ls.valid), pdf_sample, i);
     // Only where the ray's first hit is the sampled point (not another light in the way).
     ST(VSEL((vreal)R(0), p, fabs(h.t - ls.dist) < R(1e-4) * ls.dist), pdf_hit, i);
+}
+
+// What a ray leaving the scene along each unit direction d sees of the
+// environment (lights.h env_emission, as path.h's escape event calls it):
+// its radiance (r, g, b) and the pdf light_sample draws d with.
+__kernel void probe_env_emission(__global const real4 *rec, __constant SceneInfo *info,
+                                 __global const real *dx, __global const real *dy, __global const real *dz,
+                                 __global real *r, __global real *g, __global real *b, __global real *pdf)
+{
+    size_t i = get_global_id(0);
+    Scene s = probe_scene(rec, info);
+    V3 d = LD3(dx, dy, dz, i);
+    vreal p = (vreal)R(0);
+    V3 Le = v3_zero();
+#if CLPT_HAS_ENV_LIGHT
+    Le = env_emission(&s, d, d.x == d.x, &p);
+#endif
+    ST(Le.x, r, i); ST(Le.y, g, i); ST(Le.z, b, i);
+    ST(p, pdf, i);
 }
 
 // The pixel filter's offset (camera.h filter_sample_offset) for filter `kind`
