@@ -712,6 +712,16 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     coat_base = ltri_base + len(ltri_recs)
     coat_recs = _coat_tables(mat_recs, list(surfaces), coat_base)
 
+    # Textures: their records, the primitives' (u, v) and the texels (scenes with textures only).
+    tex_base = coat_base + len(coat_recs)
+    textures, slot_recs, tex_recs = _texture_records(mat_recs, list(surfaces), tex_base)
+    uv_recs = np.concatenate(b.uvs) if textures else layout.UV.zeros(0)
+    uv_base = tex_base + len(Rows.rows(slot_recs)) + len(Rows.rows(tex_recs))
+    slot_recs["slots"][:, 3] = uv_base
+    texel_base = uv_base + len(Rows.rows(uv_recs))
+    texels = _texel_rows(textures, tex_recs, texel_base)
+
+    # The environment map's texels and tables last (its light record points to them).
     parts = [Rows.rows(x) for x in sections] + [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs, coat_recs,
                                                 Rows.rows(slot_recs), Rows.rows(tex_recs), Rows.rows(uv_recs), texels]
     if len(env_texels):

@@ -26,6 +26,27 @@
 
 #define PHOTON_MAX_BOUNCES 64
 
+// The emission cosine of the photon's direction at the light, after what
+// the light kinds without a surface change: a point or spot light has no
+// cosine, and the spot's falloff in the direction taken scales its
+// intensity; a directional light's photon leaves its disk along the light's
+// direction (lights.h).
+inline vreal photon_light_kinds(LightSample *lp, AimSample *aim)
+{
+    vreal cos_y = v3_dot(aim->w, lp->n);
+#if CLPT_HAS_DELTA_LIGHTS
+    cos_y = VSEL(cos_y, (vreal)R(1), lp->delta);
+    lp->Le = v3_sel(lp->Le, v3_scale(lp->Le, delta_falloff(lp->n, lp->cos_cut, lp->cut, lp->inv_tr, lp->cos_beam,
+                                                           aim->w)), lp->delta);
+#endif
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+    aim->w = v3_sel(aim->w, lp->n, lp->parallel);
+    aim->pdf = VSEL(aim->pdf, (vreal)R(1), lp->parallel);
+    aim->valid = aim->valid || lp->parallel;
+#endif
+    return cos_y;
+}
+
 __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch *launch, __global float4 *ph_pos,
                             __global float4 *ph_dir, __global float4 *ph_pow, __global uint *n_stored)
 {
@@ -43,20 +64,7 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
     LightSample lp;
     light_sample(sc, v3_zero(), ue.light, 0, live, &lp);
     AimSample aim = aim_at_casters(sc, lp.p, lp.n, lp.two_sided, L.aim, ue.caster, ue.u1, ue.u2);
-    vreal cos_y = v3_dot(aim.w, lp.n);
-#if CLPT_HAS_DELTA_LIGHTS
-    // A point or spot light has no surface: no cosine, and the spot's falloff
-    // in the direction taken scales its intensity.
-    cos_y = VSEL(cos_y, (vreal)R(1), lp.delta);
-    lp.Le = v3_sel(lp.Le, v3_scale(lp.Le, delta_falloff(lp.n, lp.cos_cut, lp.cut, lp.inv_tr, lp.cos_beam, aim.w)),
-                   lp.delta);
-#endif
-#if CLPT_HAS_DIRECTIONAL_LIGHTS
-    // A directional light's photon leaves its disk along the light's direction (lights.h).
-    aim.w = v3_sel(aim.w, lp.n, lp.parallel);
-    aim.pdf = VSEL(aim.pdf, (vreal)R(1), lp.parallel);
-    aim.valid = aim.valid || lp.parallel;
-#endif
+    vreal cos_y = photon_light_kinds(&lp, &aim);
     vmask emits = cos_y > R(0) || (lp.two_sided && cos_y < R(0));
     live = live && aim.valid && emits && lp.pdf_area > R(0);
     // pf = p_area p_dir / |cos|, the light-side pdf factor of the photon's
