@@ -54,7 +54,9 @@ print(json.dumps(out))
 def child(python: str, scenes, device: str, reps: int, spp: dict, cache: str) -> dict:
     env = dict(os.environ, CLPT_TUNE="query", CLPT_CACHE_DIR=cache)
     cmd = [python, "-c", CHILD, device, str(reps), json.dumps(spp), *scenes]
-    p = subprocess.run(cmd, env=env, capture_output=True, text=True)
+    # From a neutral folder: python -c puts the working directory first on sys.path, and a
+    # checkout there would be imported by both trees.
+    p = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=tempfile.gettempdir())
     if p.returncode != 0:
         sys.exit(f"{python} failed:\n{p.stderr[-3000:]}")
     return json.loads(p.stdout.strip().splitlines()[-1])
