@@ -297,7 +297,7 @@ def test_lane_group_max():
 
 def _kernel_params(file, kernel):
     src = (kernel_dir() / file).read_text()
-    sig = src[src.index(f"__kernel void {kernel}("):]
+    sig = src[src.index(f" void {kernel}("):]  # (after __kernel and any attributes)
     sig = sig[:sig.index(")\n{")]
     sig = re.sub(r"#if \w+|#endif", "", sig)
     return tuple(re.findall(r"(\w+)\s*$", p.strip())[0] for p in sig[sig.index("(") + 1:].split(",") if p.strip())

@@ -483,7 +483,7 @@ def test_missing_version_and_file(tmp_path):
 def test_unsupported_reported_once_with_count(tmp_path):
     body = ('<shape type="rectangle" id="a"><bsdf type="principled"/></shape>\n'
             '<shape type="rectangle" id="b"><bsdf type="principled"/></shape>\n'
-            '<emitter type="envmap"/>\n<shape type="rectangle" id="c"><bsdf type="diffuse">'
+            '<emitter type="sunsky"/>\n<shape type="rectangle" id="c"><bsdf type="diffuse">'
             '<float name="roughness" value="0.2"/></bsdf></shape>')
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
@@ -492,7 +492,7 @@ def test_unsupported_reported_once_with_count(tmp_path):
     assert len(msgs) == 3, msgs
     assert any(m.startswith(f"{tmp_path / 's.xml'}:5: <bsdf type=\"principled\">: BSDF 'principled' is not "
                             "supported") and m.endswith("(and 1 more like it)") for m in msgs)
-    assert any(":7: <emitter type=\"envmap\">" in m and "left out" in m for m in msgs)
+    assert any(":7: <emitter type=\"sunsky\">" in m and "left out" in m for m in msgs)
     assert any("property 'roughness' of bsdf 'diffuse' is not supported; ignored" in m for m in msgs)
     assert material(s, "a").kd == (0.5, 0.5, 0.5)
     with pytest.raises(SceneError, match=r"BSDF 'principled' is not supported.*\(strict mode\)"):
