@@ -169,7 +169,7 @@ def _r4(*names):
 
 MATERIAL = Rows("material", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_sides", "params", "km_pm",
                                       "eta_alpha", "k_dist", "kp_pp", "kps_w", "coat", "coat_tab", "gr_pg",
-                                      "gt", "glass_rough"),
+                                      "gt", "glass_rough", "aniso"),
                 "material: kd.rgb, p_diffuse | ks.rgb, p_phong | kr.rgb, p_mirror | kt.rgb, p_refract | "
                 "Le.rgb, two_sided | shininess, ior, nondelta, one_sided | km.rgb, p_microfacet | "
                 "eta.rgb, alpha | k.rgb, distribution (0 GGX, 1 Beckmann) | plastic (a coated diffuse base): "
@@ -178,7 +178,9 @@ MATERIAL = Rows("material", "MAT", _r4("kd_pd", "ks_ps", "kr_pr", "kt_pt", "le_s
                 "transmittance table (COAT_TABLE_ROWS rows after the triangles' records), nonlinear, record "
                 "index of its TEXTURE_SLOTS (0: no textures), 0 | "
                 "rough dielectric: specular_reflectance.rgb, p_rough_dielectric | specular_transmittance.rgb, 0 | "
-                "eta (inside over outside), alpha, distribution, sample_visible")
+                "eta (inside over outside), alpha, distribution, sample_visible | "
+                "anisotropy (scenes with an anisotropic material): alpha_v of the rough conductor or rough "
+                "dielectric (alpha above is alpha_u), record index of the TANGENT section (0: isotropic), 0, 0")
 SPHERE = Rows("sphere", "SPHERE", _r4("center_radius", "mat"),
               "sphere: center.xyz, radius | material, light + 1 (0: not a light), prim id, 0")
 PLANAR = Rows("planar", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "wv_kind"),
@@ -221,6 +223,10 @@ UV = Rows("surface coordinates", "UV", _r4("a", "b"),
           "a primitive's (u, v), one record per primitive id (scenes with textures): a quad or triangle: "
           "u, v at its corner, their change along edge u | their change along edge v, 0, UV_PLANAR; a sphere: "
           "the x row of its frame (world to its own), the frame's determinant | the y row, UV_SPHERE")
+TANGENT = Rows("surface tangent", "TAN", _r4("dpdu"),
+               "a primitive's dp/du, one record per primitive id (scenes with an anisotropic material): a quad "
+               "or triangle: dp/du.xyz (0: none, the shading frame's own tangent), TAN_PLANAR; a sphere: its "
+               "frame's z axis.xyz (dp/du is z x n), TAN_SPHERE")
 # An environment map's texels (after every other record; its light record points to them): row y of
 # W texels, then its tables, 4 entries a record (ENV_PACKED).
 ENV_TEXEL = Rows("environment texel", "ENVT", _r4("rgb_cdf"),
@@ -243,6 +249,7 @@ TEX_REPEAT, TEX_MIRROR, TEX_CLAMP = 0, 1, 2
 TEX_BILINEAR, TEX_NEAREST = 0, 1
 TEX_ROW_SPLIT = 4096
 UV_PLANAR, UV_SPHERE = 0, 1
+TAN_PLANAR, TAN_SPHERE = 0, 1
 
 # A rough plastic's transmittance table: clpt/coating.py TABLE_RES reals, COAT_TABLE_ROWS rows of 4.
 COAT_TABLE_ROWS = 16
@@ -300,7 +307,7 @@ PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"),
 def scene_records() -> tuple:
     """The scene's records (Rows), as this module holds them now."""
     return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI, TEXTURE_SLOTS, TEXTURE, UV,
-            ENV_TEXEL, ENV_PACKED)
+            TANGENT, ENV_TEXEL, ENV_PACKED)
 
 
 def launch_records() -> tuple:
@@ -324,5 +331,6 @@ def c_source() -> str:
                                               ("TEX_REPEAT", TEX_REPEAT), ("TEX_MIRROR", TEX_MIRROR),
                                               ("TEX_CLAMP", TEX_CLAMP), ("TEX_BILINEAR", TEX_BILINEAR),
                                               ("TEX_NEAREST", TEX_NEAREST), ("TEX_ROW_SPLIT", TEX_ROW_SPLIT),
-                                              ("UV_PLANAR", UV_PLANAR), ("UV_SPHERE", UV_SPHERE))]
+                                              ("UV_PLANAR", UV_PLANAR), ("UV_SPHERE", UV_SPHERE),
+                                              ("TAN_PLANAR", TAN_PLANAR), ("TAN_SPHERE", TAN_SPHERE))]
     return "\n".join(parts) + "\n"

@@ -853,8 +853,9 @@ class _Loader:
             dist = self._distribution(p)
             p.boolean("sample_visible", True)  # either way the same expectation; clpt samples visible normals
             alpha_tex = p.texture("alpha")  # the texture's luminance, as Mitsuba's eval_1
-            alpha = float(np.dot(alpha_tex.mean(), LUMA)) if alpha_tex else self._alpha(p)
-            m = Material(km=tuple(spec), alpha=float(np.clip(alpha, *ALPHA_RANGE)), distribution=dist,
+            au, av = (float(np.dot(alpha_tex.mean(), LUMA)),) * 2 if alpha_tex else self._alphas(p)
+            m = Material(km=tuple(spec), alpha=float(np.clip(au, *ALPHA_RANGE)),
+                         alpha_v=None if av == au else float(np.clip(av, *ALPHA_RANGE)), distribution=dist,
                          eta=eta, k=k, one_sided=True, textures=_slots(specular=spec_tex, alpha=alpha_tex))
         elif t in ("dielectric", "roughdielectric", "thindielectric"):
             eta = p.ior("int_ior", "bk7") / p.ior("ext_ior", "air")
@@ -869,8 +870,9 @@ class _Loader:
                 # The microfacet interface itself (kernels/bsdf.h rough_dielectric_*).
                 if abs(eta - 1.0) < 1e-6:
                     node.fail(f"int_ior and ext_ior must differ (got eta {eta:g})")
+                au, av = (min(a, ALPHA_RANGE[1]) for a in self._alphas(p))
                 m = Material(rough_dielectric_lobe=True, kgr=tuple(refl), kgt=tuple(trans), ior=eta,
-                             alpha=min(self._alpha(p), ALPHA_RANGE[1]), distribution=self._distribution(p),
+                             alpha=au, alpha_v=None if av == au else av, distribution=self._distribution(p),
                              sample_visible=p.boolean("sample_visible", True))
             else:
                 if np.abs(refl - trans).max() > 1e-6:
@@ -946,11 +948,24 @@ class _Loader:
                                          f"known: {', '.join(DISTRIBUTIONS)}")
         return dist
 
+    def _alphas(self, p: _Props) -> tuple:
+        """(alpha_u, alpha_v) of a microfacet BSDF: both given, or alpha for both (as Mitsuba 3)."""
+        if p.has("alpha_u") or p.has("alpha_v"):
+            if not (p.has("alpha_u") and p.has("alpha_v")):
+                p.node.fail("alpha_u and alpha_v must be given together")
+            if p.has("alpha"):
+                p.node.fail("alpha and alpha_u/alpha_v must not be given together")
+            au, av = p.float("alpha_u", 0.1, lo=0.0), p.float("alpha_v", 0.1, lo=0.0)
+            return max(au, 1e-4), max(av, 1e-4)
+        a = max(p.float("alpha", 0.1, lo=0.0), 1e-4)
+        return a, a
+
     def _alpha(self, p: _Props) -> float:
+        """A roughplastic's alpha (isotropic in Mitsuba: an anisotropic pair is averaged, with a warning)."""
         if p.has("alpha_u") or p.has("alpha_v"):
             au, av = p.float("alpha_u", 0.1, lo=0.0), p.float("alpha_v", 0.1, lo=0.0)
             if au != av:
-                self.warn(p.node, "anisotropic roughness is not supported: the mean of alpha_u and alpha_v is "
+                self.warn(p.node, "roughplastic's roughness is isotropic: the mean of alpha_u and alpha_v is "
                                   "used", key=("aniso",))
             a = 0.5 * (au + av)
         else:

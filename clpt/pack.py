@@ -71,6 +71,7 @@ class PackedScene:
     textures: tuple = ()         # the distinct clpt.texture.Texture objects the materials use
     texel_rows: int = 0          # the textures' texels, after the other records (not indexed by reals)
     env_texels: int = 0          # the environment map's records, last (indexed by integers, not by reals)
+    anisotropic: bool = False    # some microfacet lobe has alpha_v != alpha (a TANGENT section after the texels)
 
     @property
     def lum_scale(self) -> float:
@@ -201,14 +202,17 @@ def _material_records(materials) -> np.ndarray:
             rec["km_pm"] = (*m.km, p_m)
             rec["eta_alpha"] = (*m.eta, m.alpha)
             rec["k_dist"] = (*m.k, 1.0 if m.distribution == "beckmann" else 0.0)
+            rec["aniso"][0] = m.alpha if m.alpha_v is None else m.alpha_v
         if m.rough_dielectric_lobe:
             # Its weight is kgr or kgt times G1 <= 1 (radiance: kgt / eta^2 across,
             # eta^2 back): the lobe's largest channel is its probability.
             p_g = min(1.0, max(*m.kgr, *m.kgt))
             rec["gr_pg"] = (*m.kgr, p_g)
             rec["gt"] = (*m.kgt, 0.0)
+            # Anisotropic: always from the visible normals (the same expected image; kernels/bsdf.h).
             rec["glass_rough"] = (m.ior, m.alpha, 1.0 if m.distribution == "beckmann" else 0.0,
-                                  1.0 if m.sample_visible else 0.0)
+                                  1.0 if m.sample_visible or m.anisotropic else 0.0)
+            rec["aniso"][0] = m.alpha if m.alpha_v is None else m.alpha_v
             rec["params"][2] = 1.0 if p_g > 0 else 0.0
     return out
 
@@ -263,6 +267,37 @@ def _planar_uv(uv, m: int) -> np.ndarray:
     out["a"] = np.concatenate([a[:, 0], a[:, 1]], axis=1)
     out["b"][:, :2] = a[:, 2]
     out["b"][:, 3] = layout.UV_PLANAR
+    return out
+
+
+def coordinate_system(n: np.ndarray) -> np.ndarray:
+    """The first tangent of the orthonormal basis about unit normals n (..., 3)
+    that Mitsuba 3's coordinate_system builds (Duff et al. 2017)."""
+    n = np.asarray(n, dtype=np.float64)
+    x, y, z = n[..., 0], n[..., 1], n[..., 2]
+    sign = np.where(z >= 0, 1.0, -1.0)
+    a = -1.0 / (sign + z)
+    return np.stack([x * x * a * sign + 1.0, x * y * a * sign, -x * sign], axis=-1)
+
+
+def _planar_tangents(u, v, uv, fallback) -> np.ndarray:
+    """TANGENT records of planar primitives with edges u, v (M, 3) and (u, v)
+    ((u0, v0), change along edge u, change along edge v) (M, 3, 2): dp/du as
+    Mitsuba's mesh computes it; where the (u, v) are degenerate (or fallback,
+    a mesh without them), Mitsuba's coordinate_system of the face normal."""
+    u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
+    uv = np.broadcast_to(np.asarray(uv, dtype=np.float64), (len(u), 3, 2))
+    d0, d1 = uv[:, 1], uv[:, 2]
+    det = d0[:, 0] * d1[:, 1] - d0[:, 1] * d1[:, 0]
+    ok = (det != 0) & (not fallback)
+    inv = np.where(ok, 1.0 / np.where(det != 0, det, 1.0), 0.0)
+    dpdu = (d1[:, 1:2] * u - d0[:, 1:2] * v) * inv[:, None]
+    n = np.cross(u, v)
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    cs = coordinate_system(n / np.where(ln > 0, ln, 1.0))
+    out = layout.TANGENT.zeros(len(u))
+    out["dpdu"][:, :3] = np.where(ok[:, None], dpdu, np.where(ln > 0, cs, 0.0))
+    out["dpdu"][:, 3] = layout.TAN_PLANAR
     return out
 
 
@@ -418,6 +453,7 @@ class _Builder:
         self.n_bounded = 0
         self.bounds = []    # (lo, hi) blocks of the bounded primitives, in prim order
         self.uvs = None     # UV record blocks in prim order (a list, when the scene has textures)
+        self.tangents = None  # TANGENT record blocks in prim order (a list, when a material is anisotropic)
 
     def _light1(self, m):
         """The light record index + 1 a primitive of material m will have (0: none)."""
@@ -440,6 +476,11 @@ class _Builder:
             rec["a"] = (*f[0], 1.0 if np.linalg.det(f) >= 0 else -1.0)
             rec["b"] = (*f[1], layout.UV_SPHERE)
             self.uvs.append(rec)
+        if self.tangents is not None:  # dp/du = z x n, z the sphere's own axis (Mitsuba's (-y, x, 0))
+            f = np.asarray(p.uv_frame, dtype=np.float64)
+            rec = layout.TANGENT.zeros(1)
+            rec["dpdu"] = (*np.cross(f[0], f[1]), layout.TAN_SPHERE)
+            self.tangents.append(rec)
         self.bounds.append((c[None] - p.radius, c[None] + p.radius))
         if m.is_emissive:
             self.lights.append((_sides(m), p.area(), m, {"p_kind": (*c, LIGHT_KIND_SPHERE),
@@ -449,6 +490,8 @@ class _Builder:
         mid, m = mat
         if self.uvs is not None:
             self.uvs.append(_planar_uv(uv, 1))
+        if self.tangents is not None:
+            self.tangents.append(_planar_tangents(u[None], v[None], uv, fallback=False))
         kind = KIND_TRIANGLE if triangle else KIND_QUAD
         recs, n, ln = _planar_array(c[None], u[None], v[None], mid, ITEM_FLAT_TRIANGLE if triangle else ITEM_QUAD,
                                     self._prims(1), self._light1(m) if light else 0.0)
@@ -507,6 +550,8 @@ class _Builder:
         self.planes.append((p.point, n / np.linalg.norm(n), mid, self._prims(1, bounded=False)[0]))
         if self.uvs is not None:
             self.uvs.append(_planar_uv(((0.0, 0.0), (0.0, 0.0), (0.0, 0.0)), 1))  # no parametrisation
+        if self.tangents is not None:
+            self.tangents.append(layout.TANGENT.zeros(1))
 
     def mesh(self, p, mat):
         mid, m = mat
@@ -521,6 +566,13 @@ class _Builder:
             else:
                 t0 = p.uvs[t[:, 0]]
                 self.uvs.append(_planar_uv(np.stack([t0, p.uvs[t[:, 1]] - t0, p.uvs[t[:, 2]] - t0], axis=1), len(t)))
+        if self.tangents is not None:
+            if p.uvs is None:
+                self.tangents.append(_planar_tangents(u, w, DEFAULT_UV, fallback=True))
+            else:
+                t0 = p.uvs[t[:, 0]]
+                self.tangents.append(_planar_tangents(u, w, np.stack([t0, p.uvs[t[:, 1]] - t0, p.uvs[t[:, 2]] - t0],
+                                                                     axis=1), fallback=False))
         self.bounds.append((np.minimum(np.minimum(v0, v1), v2), np.maximum(np.maximum(v0, v1), v2)))
         if p.normals is not None:
             self.normals.append((recs, p.normals[t]))
@@ -585,6 +637,9 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     b = _Builder()
     if any(scene.surface(p).textures for _, p in scene.primitives()):
         b.uvs = []
+    anisotropic = any(scene.surface(p).anisotropic for _, p in scene.primitives())
+    if anisotropic:
+        b.tangents = []
     for _, p in scene.primitives():
         m = scene.surface(p)
         p.pack(b, (float(surfaces.setdefault(m, len(surfaces))), m))
@@ -718,12 +773,19 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     uv_recs = np.concatenate(b.uvs) if textures else layout.UV.zeros(0)
     uv_base = tex_base + len(Rows.rows(slot_recs)) + len(Rows.rows(tex_recs))
     slot_recs["slots"][:, 3] = uv_base
-    texel_base = uv_base + len(Rows.rows(uv_recs))
+    # The primitives' dp/du (scenes with an anisotropic material), pointed to by those materials' records.
+    tan_base = uv_base + len(Rows.rows(uv_recs))
+    tan_recs = np.concatenate(b.tangents) if anisotropic else layout.TANGENT.zeros(0)
+    for rec, m in zip(mat_recs, surfaces):
+        if m.anisotropic:
+            rec["aniso"][1] = tan_base
+    texel_base = tan_base + len(Rows.rows(tan_recs))
     texels = _texel_rows(textures, tex_recs, texel_base)
 
     # The environment map's texels and tables last (its light record points to them).
     parts = [Rows.rows(x) for x in sections] + [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs, coat_recs,
-                                                Rows.rows(slot_recs), Rows.rows(tex_recs), Rows.rows(uv_recs), texels]
+                                                Rows.rows(slot_recs), Rows.rows(tex_recs), Rows.rows(uv_recs),
+                                                Rows.rows(tan_recs), texels]
     if len(env_texels):
         light_recs["n"][-1, 0] = sum(len(x) for x in parts)
         parts = [Rows.rows(x) for x in sections] + parts[len(sections):] + [env_texels]
@@ -746,7 +808,7 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
                                         default=1.0),
                        smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale,
                        pixel_filter=scene.camera.pixel_filter.kind, textures=tuple(textures),
-                       texel_rows=len(texels), env_texels=len(env_texels))
+                       texel_rows=len(texels), env_texels=len(env_texels), anisotropic=anisotropic)
 
 
 @dataclass(frozen=True)

@@ -78,6 +78,10 @@ class Material:
     channel (the bound lobe probabilities and energy checks use). "alpha"
     varies a rough conductor's roughness (the texture's luminance, within
     ALPHA_RANGE; alpha holds its mean).
+    alpha_v: a rough conductor's or rough dielectric's roughness along the
+    shading frame's bitangent, alpha then being its roughness along the
+    tangent (Mitsuba's alpha_u), the surface's dp/du as Mitsuba's shapes
+    parametrise it (None: alpha_v = alpha, isotropic).
     emission is radiance leaving the surface (on the side its normal points
     to, or both sides if two_sided). one_sided makes the surface black from
     behind (the side its normal points away from): no reflection, no
@@ -95,6 +99,7 @@ class Material:
     one_sided: bool = False
     km: Vec3 = (0.0, 0.0, 0.0)
     alpha: float = 0.1
+    alpha_v: float | None = None
     distribution: str = "beckmann"
     eta: Vec3 = (0.0, 0.0, 0.0)
     k: Vec3 = (1.0, 1.0, 1.0)
@@ -122,6 +127,8 @@ class Material:
         for key in ("shininess", "ior", "alpha", "plastic_eta"):
             if not _is_number(getattr(self, key)):
                 raise TypeError(f"Material.{key} must be a number (got {getattr(self, key)!r})")
+        if self.alpha_v is not None and not _is_number(self.alpha_v):
+            raise TypeError(f"Material.alpha_v must be a number or None (got {self.alpha_v!r})")
         for key in ("two_sided", "plastic", "nonlinear", "rough_dielectric_lobe", "sample_visible"):
             if not isinstance(getattr(self, key), (bool, np.bool_)):
                 raise TypeError(f"Material.{key} must be True or False (got {getattr(self, key)!r})")
@@ -131,6 +138,12 @@ class Material:
                 not all(isinstance(t, Texture) for _, t in self.textures):
             raise TypeError(f"Material.textures must be ((slot, clpt.texture.Texture), ...) with slots among "
                             f"{', '.join(TEXTURE_SLOTS)}, each once (got {self.textures!r})")
+
+    @property
+    def anisotropic(self) -> bool:
+        """A microfacet lobe (rough conductor or rough dielectric) with alpha_v != alpha."""
+        return self.alpha_v is not None and self.alpha_v != self.alpha and \
+            (max(self.km) > 0 or self.rough_dielectric_lobe)
 
     def texture(self, slot: str):
         """The Texture in a slot ("reflectance": kd, or kp of a plastic; "specular": km, or kr; "alpha": a
@@ -1047,6 +1060,13 @@ def check_material(source, path, m: Material):
         _distribution(source, path, m)
         _finite_vec(source, f"{path}.eta", m.eta, nonneg=True)
         _finite_vec(source, f"{path}.k", m.k, nonneg=True)
+    if m.alpha_v is not None and m.alpha_v != m.alpha:
+        if m.plastic:
+            _fail(source, f"{path}.alpha_v", "a plastic's roughness is isotropic (alpha_v must be None)")
+        _finite(source, f"{path}.alpha_v", m.alpha_v, lo=ALPHA_RANGE[0], lo_open=False, hi=ALPHA_RANGE[1],
+                hi_open=False)
+        if m.texture("alpha") is not None:
+            _fail(source, f"{path}.alpha_v", "an alpha texture is isotropic (alpha_v must be None)")
     if m.plastic:
         if total.max() > 0:
             _fail(source, path, "a plastic is the material's only lobe (kd, ks, km, kr and kt must be 0)")
@@ -1267,7 +1287,8 @@ def _tname(v):
 
 
 _MATERIAL_KEYS = {"preset", "kd", "ks", "shininess", "kr", "kt", "ior", "emission", "two_sided", "one_sided",
-                  "km", "alpha", "distribution", "eta", "k", "rough_dielectric", "kgr", "kgt", "sample_visible"}
+                  "km", "alpha", "alpha_v", "distribution", "eta", "k", "rough_dielectric", "kgr", "kgt",
+                  "sample_visible"}
 _COMMON_SHAPE_KEYS = {"type", "material", "emission", "two_sided", "name"}
 _SHAPE_KEYS = {
     "sphere": {"center", "radius"},
@@ -1292,7 +1313,7 @@ def _read_material(r: _Reader, d, path) -> Material:
     for k in ("kd", "ks", "kr", "kt", "emission", "km", "eta", "k", "kgr", "kgt"):
         if k in d:
             base[k] = r.vec3(d[k], f"{path}.{k}")
-    for k in ("shininess", "ior", "alpha"):
+    for k in ("shininess", "ior", "alpha", "alpha_v"):
         if k in d:
             base[k] = r.number(d[k], f"{path}.{k}")
     if "distribution" in d:

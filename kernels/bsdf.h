@@ -15,6 +15,17 @@
 // in bsdf_sample alone (delta), its parameters in clpt/layout.py's MATERIAL
 // record and material_fetch (scene.h), and a CLPT_HAS_<lobe> flag.
 
+// The microfacet lobes' shading-frame tangent and roughness along n x s
+// (microfacet.h mf_D_w, mf_G1_w): the material's with CLPT_HAS_ANISOTROPY,
+// else unused (isotropic: n and alpha_u stand in).
+#if CLPT_HAS_ANISOTROPY
+#define MF_S(m, n) ((m)->s)
+#define MF_AV(m, au) ((m)->alpha_v)
+#else
+#define MF_S(m, n) (n)
+#define MF_AV(m, au) (au)
+#endif
+
 // Lobe probabilities of m at this depth (absorption allowed or not).
 typedef struct { vreal d, s, m, r, t, p, g; } LobeProbs;
 
@@ -56,9 +67,12 @@ inline vreal microfacet_pdf(const Material *m, V3 d, V3 n, V3 wi)
 {
     vreal co = -v3_dot(d, n), ci = v3_dot(wi, n);
     V3 h = v3_normalize(v3_sub(wi, d));
-    vreal hn = v3_dot(h, n), oh = -v3_dot(d, h);
-    vreal D = mf_D(hn, mf_sin2(h, n), m->alpha, m->beckmann != R(0));
-    vreal pdf = D * mf_G1(co, mf_sin2(d, n), oh, m->alpha, m->beckmann != R(0)) / (R(4) * co);
+    vreal oh = -v3_dot(d, h);
+    vmask bk = m->beckmann != R(0);
+    V3 s = MF_S(m, n);
+    vreal av = MF_AV(m, m->alpha);
+    vreal D = mf_D_w(h, n, s, m->alpha, av, bk);
+    vreal pdf = D * mf_G1_w(co, d, n, s, oh, m->alpha, av, bk) / (R(4) * co);
     return VSEL((vreal)R(0), pdf, co > R(0) && ci > R(0) && oh > R(0) && v3_dot(wi, h) > R(0) && D > R(0));
 }
 #endif
@@ -195,9 +209,11 @@ inline V3 rough_dielectric_eval_pdf(const Material *m, V3 d, V3 n, V3 wi, vreal 
     vreal hn = v3_dot(h, n), oh = -v3_dot(d, h), ih = v3_dot(wi, h), ct;
     vmask bk = m->g_beckmann != R(0);
     vreal s2h = mf_sin2(h, n);
-    vreal D = mf_D(hn, s2h, m->g_alpha, bk);
-    vreal g1o = mf_G1(co, mf_sin2(d, n), oh, m->g_alpha, bk);
-    vreal G = g1o * mf_G1(ci, mf_sin2(wi, n), ih, m->g_alpha, bk);
+    V3 s = MF_S(m, n);
+    vreal av = MF_AV(m, m->g_alpha);
+    vreal D = mf_D_w(h, n, s, m->g_alpha, av, bk);
+    vreal g1o = mf_G1_w(co, d, n, s, oh, m->g_alpha, av, bk);
+    vreal G = g1o * mf_G1_w(ci, wi, n, s, ih, m->g_alpha, av, bk);
     vreal F = fresnel_dielectric(oh, e, &ct);
     vreal den = oh + e * ih;
     vreal fr = F * D * G / (R(4) * co * ci);
@@ -225,10 +241,12 @@ inline V3 bsdf_eval(const Material *m, V3 d, V3 n, V3 wi)
     if (VANY(mf)) {
         vreal co = -v3_dot(d, n), ci = v3_dot(wi, n);
         V3 h = v3_normalize(v3_sub(wi, d));
-        vreal hn = v3_dot(h, n), oh = -v3_dot(d, h);
-        vreal D = mf_D(hn, mf_sin2(h, n), m->alpha, m->beckmann != R(0));
-        vreal G = mf_G1(co, mf_sin2(d, n), oh, m->alpha, m->beckmann != R(0)) *
-                  mf_G1(ci, mf_sin2(wi, n), v3_dot(wi, h), m->alpha, m->beckmann != R(0));
+        vreal oh = -v3_dot(d, h);
+        vmask bk = m->beckmann != R(0);
+        V3 s = MF_S(m, n);
+        vreal av = MF_AV(m, m->alpha);
+        vreal D = mf_D_w(h, n, s, m->alpha, av, bk);
+        vreal G = mf_G1_w(co, d, n, s, oh, m->alpha, av, bk) * mf_G1_w(ci, wi, n, s, v3_dot(wi, h), m->alpha, av, bk);
         vreal k = D * G / (R(4) * co * ci);
         k = VSEL((vreal)R(0), k, mf && co > R(0) && ci > R(0) && D > R(0));
         V3 F = fresnel_conductor3(oh, m->eta, m->k);
@@ -348,13 +366,20 @@ typedef struct {
 
 #if CLPT_HAS_MICROFACET || CLPT_HAS_PLASTIC || CLPT_HAS_ROUGH_DIELECTRIC
 // A half vector (world space) from the distribution of normals visible
-// from -d about the shading normal n (microfacet.h mf_sample_visible).
-inline V3 sample_half_vector(V3 d, V3 n, vreal alpha, vmask beckmann, vreal u1, vreal u2)
+// from -d about the shading normal n (microfacet.h mf_sample_visible), of
+// roughness au along the tangent s and av along n x s (CLPT_HAS_ANISOTROPY;
+// else isotropic au in any frame, s and av unused).
+inline V3 sample_half_vector(V3 d, V3 n, V3 s, vreal au, vreal av, vmask beckmann, vreal u1, vreal u2)
 {
     V3 t, b;
+#if CLPT_HAS_ANISOTROPY
+    t = s;
+    b = v3_cross(n, s);
+#else
     frame_from_z(n, &t, &b);
+#endif
     V3 o = v3_neg(d);
-    V3 hl = mf_sample_visible(v3(v3_dot(o, t), v3_dot(o, b), v3_dot(o, n)), alpha, beckmann, u1, u2);
+    V3 hl = mf_sample_visible(v3(v3_dot(o, t), v3_dot(o, b), v3_dot(o, n)), au, av, beckmann, u1, u2);
     return v3_normalize(v3(hl.x * t.x + hl.y * b.x + hl.z * n.x, hl.x * t.y + hl.y * b.y + hl.z * n.y,
                            hl.x * t.z + hl.y * b.z + hl.z * n.z));
 }
@@ -385,11 +410,13 @@ inline void sample_rough_conductor(const Material *m, LobeProbs pr, V3 d, V3 n, 
 {
     vreal oz = -v3_dot(d, n);
     vmask bk = m->beckmann != R(0);
-    V3 h = sample_half_vector(d, n, m->alpha, bk, u.u1, u.u2);
+    V3 s = MF_S(m, n);
+    vreal av = MF_AV(m, m->alpha);
+    V3 h = sample_half_vector(d, n, s, m->alpha, av, bk, u.u1, u.u2);
     vreal oh = -v3_dot(d, h);
     V3 wm = v3_reflect(d, h);
     vreal cos_i = v3_dot(wm, n);
-    vreal g1 = mf_G1(cos_i, mf_sin2(wm, n), v3_dot(wm, h), m->alpha, bk);
+    vreal g1 = mf_G1_w(cos_i, wm, n, s, v3_dot(wm, h), m->alpha, av, bk);
     V3 F = fresnel_conductor3(oh, m->eta, m->k);
     *wi = v3_sel(*wi, wm, *is_m);
     *w = v3_sel(*w, v3_scale(v3_mul(m->km, F), g1 / pr.m), *is_m);
@@ -411,7 +438,8 @@ inline void sample_plastic(const Material *m, LobeProbs pr, V3 d, V3 n, BsdfU u,
     V3 wp = frame_to_world(n, lc.x, lc.y, lc.z);
     vmask rs = spec && rough;
     if (VANY(rs && *is_p)) {
-        V3 h = sample_half_vector(d, n, VSEL((vreal)R(1), m->c_alpha, rough), m->c_beckmann != R(0), u.u1, u.u2);
+        vreal a = VSEL((vreal)R(1), m->c_alpha, rough);
+        V3 h = sample_half_vector(d, n, MF_S(m, n), a, a, m->c_beckmann != R(0), u.u1, u.u2);
         wp = v3_sel(wp, v3_reflect(d, h), rs);
     }
     vmask sd = spec && !rough;  // smooth: the mirror direction, a delta lobe
@@ -438,7 +466,9 @@ inline void sample_rough_dielectric(const Material *m, LobeProbs pr, V3 d, V3 n,
 {
     vreal co = -v3_dot(d, n), e = m->g_eta;
     vmask bk = m->g_beckmann != R(0), vis = m->g_visible != R(0);
-    V3 h = sample_half_vector(d, n, m->g_alpha, bk, u.u1, u.u2);
+    V3 s = MF_S(m, n);
+    vreal av = MF_AV(m, m->g_alpha);
+    V3 h = sample_half_vector(d, n, s, m->g_alpha, av, bk, u.u1, u.u2);
     if (VANY(!vis && *is_g)) {
         // D(h) cos h: tan^2 theta = a^2 u1 / (1 - u1) (GGX) or -a^2 log(1 - u1) (Beckmann).
         vreal a = rough_dielectric_sample_alpha(m, co);
@@ -452,7 +482,7 @@ inline void sample_rough_dielectric(const Material *m, LobeProbs pr, V3 d, V3 n,
     vmask refl = u.fresnel <= F;
     V3 wg = v3_normalize(v3_sel(refract_dir(d, h, oh, ct, e), v3_reflect(d, h), refl));
     vreal cg = v3_dot(wg, n);
-    vreal g1 = mf_G1(cg, mf_sin2(wg, n), v3_dot(wg, h), m->g_alpha, bk);
+    vreal g1 = mf_G1_w(cg, wg, n, s, v3_dot(wg, h), m->g_alpha, av, bk);
     // Importance (flux) crosses without the radiance's 1 / e^2.
     vreal kt = mode == TRANSPORT_RADIANCE ? R(1) / (e * e) : (vreal)R(1);
     V3 wv = v3_sel(v3_scale(m->gt, kt), m->gr, refl);
@@ -461,8 +491,7 @@ inline void sample_rough_dielectric(const Material *m, LobeProbs pr, V3 d, V3 n,
     // The lobe's pdf of wg (rough_dielectric_eval_pdf's): visible normals' density of h, the lobe's
     // choice, the Jacobian of the half-vector map.
     vreal ih = v3_dot(wg, h), den = oh + e * ih;
-    vreal hn = v3_dot(h, n);
-    vreal ph = mf_D(hn, mf_sin2(h, n), m->g_alpha, bk) * mf_G1(co, mf_sin2(d, n), oh, m->g_alpha, bk) * oh / co;
+    vreal ph = mf_D_w(h, n, s, m->g_alpha, av, bk) * mf_G1_w(co, d, n, s, oh, m->g_alpha, av, bk) * oh / co;
     vreal pdf = ph * VSEL(R(1) - F, F, refl) * VSEL(e * e * fabs(ih) / (den * den), R(1) / (R(4) * ih), refl);
     if (VANY(!vis && *is_g)) {
         vreal pn;

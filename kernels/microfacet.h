@@ -1,37 +1,47 @@
-// microfacet.h: the rough conductor's microfacet lobe, as Mitsuba 3 defines
-// its `roughconductor` (isotropic GGX or Beckmann, Smith shadowing-masking
-// with Mitsuba's rational approximation of Beckmann's G1, conductor Fresnel
-// with a complex index per channel, sampling of the distribution of visible
-// normals). Directions follow bsdf.h: d is the incoming ray direction (so
-// -d points to the viewer), wi the scattered one, n the unit shading normal
-// on the side of -d. Isotropic roughness makes D and G1 functions of cosines
-// alone, so eval and pdf need no tangent frame; sampling draws the half
-// vector in any frame around n.
+// microfacet.h: the microfacet lobes' distribution, as Mitsuba 3 defines
+// its `roughconductor` (GGX or Beckmann, isotropic or anisotropic, Smith
+// shadowing-masking with Mitsuba's rational approximation of Beckmann's G1,
+// conductor Fresnel with a complex index per channel, sampling of the
+// distribution of visible normals). Directions follow bsdf.h: d is the
+// incoming ray direction (so -d points to the viewer), wi the scattered
+// one, n the unit shading normal on the side of -d. Isotropic roughness
+// makes D and G1 functions of cosines alone, so eval and pdf need no
+// tangent frame and sampling draws the half vector in any frame around n;
+// anisotropic roughness (alpha_u along the shading frame's tangent s, the
+// surface's dp/du made normal to n, alpha_v along n x s) needs s: builds
+// with CLPT_HAS_ANISOTROPY carry it in the material (scene.h
+// material_tangent) and use the mf_*_w forms below.
 //
 //   f(d -> wi) = km F(-d.h) D(h) G1(-d, h) G1(wi, h) / (4 cos_o cos_i),  h = normalize(wi - d)
 //   pdf(wi)    = D(h) G1(-d, h) / (4 cos_o)                  (visible normals, reflected)
 //   f cos_i / pdf = km F(-d.h) G1(wi, h)
 // where cos_o = -d.n and cos_i = wi.n.
 
-// D(h) of a half vector with cos theta = c and sin^2 theta = s2; 0 where
-// c <= 0 (Mitsuba: D cos > 1e-20).
-inline vreal mf_D(vreal c, vreal s2, vreal alpha, vmask beckmann)
+// D(h) of a half vector with cos theta = c and t = (x / alpha_u)^2 + (y /
+// alpha_v)^2 (its tangent-plane components over the roughness along them),
+// a2 = alpha_u alpha_v; 0 where c <= 0 (Mitsuba: D cos > 1e-20).
+inline vreal mf_D_core(vreal c, vreal t, vreal a2, vmask beckmann)
 {
-    vreal a2 = alpha * alpha;
     vreal c2 = c * c;
-    vreal t = s2 / a2;
     vreal ggx = R(1) / (R(M_PI) * a2 * (t + c2) * (t + c2));
     vreal beck = exp(-t / c2) / (R(M_PI) * a2 * c2 * c2);
     vreal r = VSEL(ggx, beck, beckmann);
     return VSEL((vreal)R(0), r, r * c > R(1e-20));
 }
 
-// Smith's G1 for a direction with cos theta = cv and sin^2 theta = s2,
-// whose cosine with the half vector is vh: 0 where v sees the microfacet
-// from behind (vh cv <= 0), 1 at normal incidence.
-inline vreal mf_G1(vreal cv, vreal s2, vreal vh, vreal alpha, vmask beckmann)
+// Isotropic D of a half vector with cos theta = c and sin^2 theta = s2.
+inline vreal mf_D(vreal c, vreal s2, vreal alpha, vmask beckmann)
 {
-    vreal xy = alpha * alpha * s2;
+    vreal a2 = alpha * alpha;
+    return mf_D_core(c, s2 / a2, a2, beckmann);
+}
+
+// Smith's G1 for a direction with cos theta = cv and xy = (alpha_u x)^2 +
+// (alpha_v y)^2 (its tangent-plane components times the roughness along
+// them), whose cosine with the half vector is vh: 0 where v sees the
+// microfacet from behind (vh cv <= 0), 1 at normal incidence.
+inline vreal mf_G1_core(vreal cv, vreal xy, vreal vh, vmask beckmann)
+{
     vreal tan2 = xy / (cv * cv);
     vreal ggx = R(2) / (R(1) + sqrt(R(1) + tan2));
     vreal a = rsqrt(tan2);
@@ -40,6 +50,12 @@ inline vreal mf_G1(vreal cv, vreal s2, vreal vh, vreal alpha, vmask beckmann)
     vreal r = VSEL(ggx, beck, beckmann);
     r = VSEL(r, (vreal)R(1), xy == R(0));
     return VSEL(r, (vreal)R(0), vh * cv <= R(0));
+}
+
+// Isotropic G1 of a direction with cos theta = cv and sin^2 theta = s2.
+inline vreal mf_G1(vreal cv, vreal s2, vreal vh, vreal alpha, vmask beckmann)
+{
+    return mf_G1_core(cv, alpha * alpha * s2, vh, beckmann);
 }
 
 // sin^2 of the angle between unit v and unit n, without the cancellation of 1 - (v.n)^2.
@@ -151,17 +167,45 @@ inline void mf_sample_slopes(vreal ci, vreal u1, vreal u2, vmask beckmann, vreal
 }
 
 // A half vector from the distribution of normals visible from wo (local,
-// z along the normal, wo.z > 0): stretch wo, draw a slope, rotate it to
-// wo's azimuth, unstretch (Mitsuba's sample_visible).
-inline V3 mf_sample_visible(V3 wo, vreal alpha, vmask beckmann, vreal u1, vreal u2)
+// z along the normal, x along the roughness au, y along av, wo.z > 0):
+// stretch wo, draw a slope, rotate it to wo's azimuth, unstretch
+// (Mitsuba's sample_visible).
+inline V3 mf_sample_visible(V3 wo, vreal au, vreal av, vmask beckmann, vreal u1, vreal u2)
 {
-    V3 ws = v3_normalize(v3(alpha * wo.x, alpha * wo.y, wo.z));
+    V3 ws = v3_normalize(v3(au * wo.x, av * wo.y, wo.z));
     vreal sxy = sqrt(ws.x * ws.x + ws.y * ws.y);
     vreal cphi = VSEL(ws.x / sxy, (vreal)R(1), sxy == R(0));
     vreal sphi = VSEL(ws.y / sxy, (vreal)R(0), sxy == R(0));
     vreal sx, sy;
     mf_sample_slopes(ws.z, u1, u2, beckmann, &sx, &sy);
-    vreal mx = (cphi * sx - sphi * sy) * alpha;
-    vreal my = (sphi * sx + cphi * sy) * alpha;
+    vreal mx = (cphi * sx - sphi * sy) * au;
+    vreal my = (sphi * sx + cphi * sy) * av;
     return v3_normalize(v3(-mx, -my, (vreal)R(1)));
 }
+
+// D and G1 of world-space vectors about the shading normal n: anisotropic
+// (roughness au along the unit tangent s, av along n x s) with
+// CLPT_HAS_ANISOTROPY, else isotropic in au (s and av unused).
+#if CLPT_HAS_ANISOTROPY
+inline vreal mf_D_w(V3 h, V3 n, V3 s, vreal au, vreal av, vmask beckmann)
+{
+    vreal x = v3_dot(h, s) / au, y = v3_dot(h, v3_cross(n, s)) / av;
+    return mf_D_core(v3_dot(h, n), x * x + y * y, au * av, beckmann);
+}
+
+inline vreal mf_G1_w(vreal cv, V3 v, V3 n, V3 s, vreal vh, vreal au, vreal av, vmask beckmann)
+{
+    vreal x = v3_dot(v, s) * au, y = v3_dot(v, v3_cross(n, s)) * av;
+    return mf_G1_core(cv, x * x + y * y, vh, beckmann);
+}
+#else
+inline vreal mf_D_w(V3 h, V3 n, V3 s, vreal au, vreal av, vmask beckmann)
+{
+    return mf_D(v3_dot(h, n), mf_sin2(h, n), au, beckmann);
+}
+
+inline vreal mf_G1_w(vreal cv, V3 v, V3 n, V3 s, vreal vh, vreal au, vreal av, vmask beckmann)
+{
+    return mf_G1(cv, mf_sin2(v, n), vh, au, beckmann);
+}
+#endif

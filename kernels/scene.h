@@ -409,6 +409,10 @@ typedef struct {
     vreal g_alpha, g_beckmann; // ... roughness, 1: Beckmann, 0: GGX
     vreal g_visible;           // ... 1: sampled from the visible normals (Mitsuba's sample_visible)
 #endif
+#if CLPT_HAS_ANISOTROPY
+    vreal alpha_v;             // rough conductor or dielectric: roughness along n x s (alpha, g_alpha: along s)
+    V3 s;                      // unit tangent of the shading frame (material_tangent)
+#endif
 } Material;
 
 // A vertex whose non-delta part photon merging and the photon map can
@@ -459,6 +463,10 @@ inline Material material_blank(__global const real4 *rec)
     m.gr = m.gt = v3_zero();
     m.p_g = m.g_beckmann = m.g_visible = (vreal)R(0);
     m.g_eta = m.g_alpha = (vreal)R(1);
+#endif
+#if CLPT_HAS_ANISOTROPY
+    m.alpha_v = (vreal)R(1);
+    m.s = v3_zero();
 #endif
     return m;
 }
@@ -511,9 +519,45 @@ inline Material material_fetch(const Scene *sc, vreal id)
         m.g_eta = VSEL(m.g_eta, (vreal)gc.x, is); m.g_alpha = VSEL(m.g_alpha, (vreal)gc.y, is);
         m.g_beckmann = VSEL(m.g_beckmann, (vreal)gc.z, is); m.g_visible = VSEL(m.g_visible, (vreal)gc.w, is);
 #endif
+#if CLPT_HAS_ANISOTROPY
+        m.alpha_v = VSEL(m.alpha_v, (vreal)scene_rec(sc, r + MAT_ANISO).x, is);
+#endif
         m.Le = v3_sel4(m.Le, f, is); m.two_sided = VSEL(m.two_sided, (vreal)f.w, is);
         m.nondelta = VSEL(m.nondelta, (vreal)g.z, is);
         m.one_sided = VSEL(m.one_sided, (vreal)g.w, is);
     }
     return m;
 }
+
+#if CLPT_HAS_ANISOTROPY
+// The shading frame's tangent m->s at the hits h of the lanes in `hit`, n
+// their shading normal: as Mitsuba's initialize_sh_frame, the primitive's
+// dp/du (its TANGENT record; a sphere's z x n) made normal to n. Where the
+// material is isotropic (no TANGENT section) or dp/du is 0 (a sphere's
+// poles, a plane), the tangent of frame_from_z(n): any serves there.
+inline void material_tangent(const Scene *sc, Material *m, const Hit *h, V3 n, vmask hit)
+{
+    V3 t, b;
+    frame_from_z(n, &t, &b);
+    V3 g = v3_zero();
+    for (int l = 0; l < CLPT_LANES; l++) {
+        if (!VLANE_M(hit, l))
+            continue;
+        vreal mat = h->mat, prim = h->prim;
+        real base = scene_rec(sc, MAT_STRIDE * (uint)VLANE_R(mat, l) + MAT_ANISO).y;
+        if (base == R(0))
+            continue;
+        real4 r = scene_rec(sc, (uint)base + TAN_STRIDE * (uint)VLANE_R(prim, l) + TAN_DPDU);
+        if ((int)r.w == TAN_SPHERE) {
+            vreal nx = h->ng.x, ny = h->ng.y, nz = h->ng.z;
+            r = cross(r, (real4)(VLANE_R(nx, l), VLANE_R(ny, l), VLANE_R(nz, l), R(0)));
+        }
+        VLANE_R(g.x, l) = r.x;
+        VLANE_R(g.y, l) = r.y;
+        VLANE_R(g.z, l) = r.z;
+    }
+    V3 p = v3_fma(n, -v3_dot(n, g), g);
+    vreal len2 = v3_dot(p, p);
+    m->s = v3_sel(t, v3_scale(p, rsqrt(fmax(len2, (vreal)R(1e-30)))), len2 > R(0));
+}
+#endif

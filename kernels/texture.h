@@ -155,6 +155,9 @@ inline void material_textures(const Scene *sc, Material *m, const Hit *h, vmask 
             real4 c = texture_eval(sc, (uint)slots.z, uv.x, uv.y);
             real a = R(CLPT_LUMA_R) * c.x + R(CLPT_LUMA_G) * c.y + R(CLPT_LUMA_B) * c.z;
             VLANE_R(m->alpha, l) = clamp(a, R(TEX_ALPHA_MIN), R(TEX_ALPHA_MAX));
+#if CLPT_HAS_ANISOTROPY
+            VLANE_R(m->alpha_v, l) = VLANE_R(m->alpha, l);  // an alpha texture is isotropic
+#endif
         }
 #endif
     }

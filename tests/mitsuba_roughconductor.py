@@ -4,7 +4,7 @@ tests/data/roughconductor_mitsuba.json was made:
 
     python tests/mitsuba_roughconductor.py tests/data/roughconductor_mitsuba.json
 
-Each case is a BSDF (distribution, alpha, material or eta/k,
+Each case is a BSDF (distribution, alpha or alpha_u/alpha_v, material or eta/k,
 specular_reflectance) and pairs of local directions (Mitsuba's wi towards the
 viewer, wo the scattered one, +z the normal) with Mitsuba's eval (f cos_o, RGB)
 and pdf.
@@ -25,7 +25,17 @@ CASES = [
     {"distribution": "ggx", "alpha": 0.7, "material": "Cu", "specular_reflectance": [0.9, 0.6, 0.3]},
     {"distribution": "beckmann", "alpha": 0.1, "material": "Al"},
     {"distribution": "beckmann", "alpha": 0.5, "eta": [0.2, 0.9, 1.1], "k": [3.9, 2.4, 1.9]},
+    # Anisotropic: alpha_u along the shading frame's x (Mitsuba's sh_frame.s), alpha_v along y.
+    {"distribution": "ggx", "alpha_u": 0.05, "alpha_v": 0.4, "material": "Al"},
+    {"distribution": "ggx", "alpha_u": 0.6, "alpha_v": 0.15, "material": "Cu"},
+    {"distribution": "beckmann", "alpha_u": 0.3, "alpha_v": 0.08, "material": "Au"},
+    {"distribution": "beckmann", "alpha_u": 0.1, "alpha_v": 0.5, "eta": [0.2, 0.9, 1.1], "k": [3.9, 2.4, 1.9]},
 ]
+
+
+def roughness(case):
+    """(alpha_u, alpha_v) of a case."""
+    return (case["alpha_u"], case["alpha_v"]) if "alpha_u" in case else (case["alpha"], case["alpha"])
 
 
 def directions(rng, n):
@@ -37,7 +47,11 @@ def directions(rng, n):
 
 
 def bsdf_of(case):
-    d = {"type": "roughconductor", "distribution": case["distribution"], "alpha": case["alpha"]}
+    d = {"type": "roughconductor", "distribution": case["distribution"]}
+    if "alpha_u" in case:
+        d["alpha_u"], d["alpha_v"] = case["alpha_u"], case["alpha_v"]
+    else:
+        d["alpha"] = case["alpha"]
     if "eta" in case:
         d["eta"] = {"type": "rgb", "value": case["eta"]}
         d["k"] = {"type": "rgb", "value": case["k"]}
@@ -72,7 +86,7 @@ def main(out_path):
         # Half the outgoing directions near the mirror direction (where the lobe is), half anywhere.
         wo = directions(rng, 64)
         mirror = wi * np.array([-1, -1, 1])
-        near = mirror[:32] + rng.normal(0, 1.5 * case["alpha"], (32, 3))
+        near = mirror[:32] + rng.normal(0, 1.5 * max(roughness(case)), (32, 3))
         near[:, 2] = np.abs(near[:, 2]) + 0.02
         wo[:32] = near / np.linalg.norm(near, axis=1, keepdims=True)
         out.append({"bsdf": case, "rows": rows_of(bsdf, wi, wo)})

@@ -20,7 +20,7 @@ import numpy as np
 import mitsuba as mi
 
 sys.path.insert(0, str(Path(__file__).parent))
-from mitsuba_roughconductor import rows_of  # noqa: E402  (sets the scalar_rgb variant)
+from mitsuba_roughconductor import roughness, rows_of  # noqa: E402  (sets the scalar_rgb variant)
 
 CASES = [
     {"distribution": "ggx", "alpha": 0.05, "int_ior": 1.5, "ext_ior": 1.0},
@@ -32,6 +32,9 @@ CASES = [
     {"distribution": "beckmann", "alpha": 0.3, "int_ior": 1.0, "ext_ior": 1.5},
     {"distribution": "ggx", "alpha": 0.3, "int_ior": 1.5, "ext_ior": 1.0, "sample_visible": False},
     {"distribution": "beckmann", "alpha": 0.2, "int_ior": 1.5, "ext_ior": 1.0, "sample_visible": False},
+    # Anisotropic: alpha_u along the shading frame's x, alpha_v along y.
+    {"distribution": "ggx", "alpha_u": 0.05, "alpha_v": 0.35, "int_ior": 1.5, "ext_ior": 1.0},
+    {"distribution": "beckmann", "alpha_u": 0.6, "alpha_v": 0.25, "int_ior": 1.5, "ext_ior": 1.0},
 ]
 
 
@@ -53,7 +56,9 @@ def refract(w, eta):
 
 
 def bsdf_of(case):
-    d = {"type": "roughdielectric", "distribution": case["distribution"], "alpha": case["alpha"],
+    au, av = roughness(case)
+    d = {"type": "roughdielectric", "distribution": case["distribution"],
+         **({"alpha_u": au, "alpha_v": av} if "alpha_u" in case else {"alpha": au}),
          "int_ior": case["int_ior"], "ext_ior": case["ext_ior"],
          "sample_visible": case.get("sample_visible", True)}
     for key in ("specular_reflectance", "specular_transmittance"):
@@ -73,7 +78,7 @@ def main(out_path):
             e = eta if side > 0 else 1 / eta
             wi = directions(rng, 48)
             wo = directions(rng, 48)
-            s = 1.5 * case["alpha"]
+            s = 1.5 * max(roughness(case))
             for j in range(48):
                 kind = j % 3
                 if kind == 0:    # near the mirror direction

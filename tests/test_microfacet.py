@@ -21,13 +21,15 @@ pytestmark = pytest.mark.portability
 DATA = Path(__file__).parent / "data" / "roughconductor_mitsuba.json"
 
 
-def lobe(probe, alpha, dist, d, u1, u2, w, eta=(0, 0, 0), k=(1, 1, 1), km=(1, 1, 1)):
+def lobe(probe, alpha, dist, d, u1, u2, w, eta=(0, 0, 0), k=(1, 1, 1), km=(1, 1, 1), alpha_v=0.0):
     """probe_microfacet over incoming directions d (N, 3; towards the surface),
-    uniforms u1, u2 and evaluation directions w (N, 3); normal +z."""
+    uniforms u1, u2 and evaluation directions w (N, 3); normal +z, alpha along
+    x, alpha_v along y (0: alpha)."""
     r4 = cl.cltypes.make_double4 if probe.real is np.float64 else cl.cltypes.make_float4
     cols = [d[:, 0], d[:, 1], d[:, 2], u1, u2, w[:, 0], w[:, 1], w[:, 2]]
     o = probe.run("probe_microfacet", cols, 12,
-                  scalars=(r4(alpha, 1.0 if dist == "beckmann" else 0.0, 0, 0), r4(*eta, 0), r4(*k, 0), r4(*km, 0)))
+                  scalars=(r4(alpha, 1.0 if dist == "beckmann" else 0.0, alpha_v, 0), r4(*eta, 0), r4(*k, 0),
+                           r4(*km, 0)))
     return {"wi": np.stack(o[0:3], 1), "weight": np.stack(o[3:6], 1), "spdf": o[6], "chosen": o[7] > 0,
             "f": np.stack(o[8:11], 1), "pdf": o[11]}
 
@@ -44,8 +46,11 @@ def mitsuba_cases():
 
 
 @pytest.mark.parametrize("double", [False, True])
-@pytest.mark.parametrize("case", range(5))
+@pytest.mark.parametrize("case", range(9))
 def test_eval_and_pdf_match_mitsuba(probes, case, double):
+    """f cos and pdf against Mitsuba 3's (tests/mitsuba_roughconductor.py):
+    GGX and Beckmann, isotropic and anisotropic (alpha_u along the shading
+    frame's x, alpha_v along y)."""
     c = mitsuba_cases()[case]
     b = c["bsdf"]
     eta, k = (b["eta"], b["k"]) if "eta" in b else conductor_ior(b["material"])
@@ -55,8 +60,8 @@ def test_eval_and_pdf_match_mitsuba(probes, case, double):
     ev = np.array([r["eval"] for r in c["rows"]])  # f cos_o
     pdf = np.array([r["pdf"] for r in c["rows"]])
     n = len(wi)
-    out = lobe(probes(1, double=double), b["alpha"], b["distribution"], -wi, np.full(n, 0.5), np.full(n, 0.5), wo,
-               eta, k, km)
+    out = lobe(probes(1, double=double), b.get("alpha_u", b.get("alpha")), b["distribution"], -wi, np.full(n, 0.5),
+               np.full(n, 0.5), wo, eta, k, km, alpha_v=b.get("alpha_v", 0.0))
     f_cos = out["f"] * wo[:, 2:3]
     assert (ev > 0).sum() >= 32
     # Float rounding of the half vector near a narrow peak: relative 1e-3, and

@@ -325,6 +325,9 @@ inline Material probe_material_blank(__global const real4 *tab)
 {
     Material m = material_blank(tab);
     m.nondelta = (vreal)R(1);
+#if CLPT_HAS_ANISOTROPY
+    m.s = v3((vreal)R(1), (vreal)R(0), (vreal)R(0));  // the shading frame: x, y, the normal z
+#endif
     return m;
 }
 
@@ -332,7 +335,8 @@ inline Material probe_material_blank(__global const real4 *tab)
 // +z, alone in its material: for each incoming direction d, a sample from
 // (u1, u2) (its direction, weight f cos / pdf, mixture pdf and whether a lobe
 // was chosen) and f and pdf of the given direction w.
-// par: alpha, 1 for Beckmann; eta, k: the conductor's index; km: reflectance.
+// par: alpha (alpha_u, along x), 1 for Beckmann, alpha_v (along y; 0: alpha);
+// eta, k: the conductor's index; km: reflectance.
 __kernel void probe_microfacet(real4 par, real4 eta, real4 k, real4 km,
                                __global const real *dx, __global const real *dy, __global const real *dz,
                                __global const real *u1, __global const real *u2,
@@ -346,6 +350,9 @@ __kernel void probe_microfacet(real4 par, real4 eta, real4 k, real4 km,
     Material m = probe_material_blank(0);
     m.km = v3_splat(km); m.eta = v3_splat(eta); m.k = v3_splat(k);
     m.p_m = (vreal)R(1); m.alpha = (vreal)par.x; m.beckmann = (vreal)par.y;
+#if CLPT_HAS_ANISOTROPY
+    m.alpha_v = (vreal)(par.z > R(0) ? par.z : par.x);
+#endif
     LobeProbs pr = lobe_probs(&m, (vmask)0);
     V3 n = v3((vreal)R(0), (vreal)R(0), (vreal)R(1));
     V3 d = LD3(dx, dy, dz, i);
@@ -405,7 +412,8 @@ __kernel void probe_plastic(__global const real4 *tab, real4 par, real4 kp, real
 // vertex_make does), a sample per d from (u1, u2, uf: reflection or
 // refraction), and f and pdf of w. par: alpha, 1 for Beckmann, eta (inside
 // over outside), sample_visible; kr, kt: specular reflectance and
-// transmittance, kt.w: 1 for importance transport (photons) instead of radiance.
+// transmittance, kr.w: alpha_v (along y; 0: alpha), kt.w: 1 for importance
+// transport (photons) instead of radiance.
 __kernel void probe_rough_dielectric(real4 par, real4 kr, real4 kt,
                                      __global const real *dx, __global const real *dy, __global const real *dz,
                                      __global const real *u1, __global const real *u2, __global const real *uf,
@@ -420,6 +428,9 @@ __kernel void probe_rough_dielectric(real4 par, real4 kr, real4 kt,
     m.gr = v3_splat(kr); m.gt = v3_splat(kt);
     m.p_g = (vreal)R(1); m.g_alpha = (vreal)par.x; m.g_beckmann = (vreal)par.y; m.g_eta = (vreal)par.z;
     m.g_visible = (vreal)par.w;
+#if CLPT_HAS_ANISOTROPY
+    m.alpha_v = (vreal)(kr.w > R(0) ? kr.w : par.x);
+#endif
     V3 d = LD3(dx, dy, dz, i);
     vmask front = d.z < R(0);
     material_face(&m, front);
