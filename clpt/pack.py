@@ -270,33 +270,21 @@ def _planar_uv(uv, m: int) -> np.ndarray:
     return out
 
 
-def coordinate_system(n: np.ndarray) -> np.ndarray:
-    """The first tangent of the orthonormal basis about unit normals n (..., 3)
-    that Mitsuba 3's coordinate_system builds (Duff et al. 2017)."""
-    n = np.asarray(n, dtype=np.float64)
-    x, y, z = n[..., 0], n[..., 1], n[..., 2]
-    sign = np.where(z >= 0, 1.0, -1.0)
-    a = -1.0 / (sign + z)
-    return np.stack([x * x * a * sign + 1.0, x * y * a * sign, -x * sign], axis=-1)
-
-
-def _planar_tangents(u, v, uv, fallback) -> np.ndarray:
+def _planar_tangents(u, v, uv) -> np.ndarray:
     """TANGENT records of planar primitives with edges u, v (M, 3) and (u, v)
     ((u0, v0), change along edge u, change along edge v) (M, 3, 2): dp/du as
-    Mitsuba's mesh computes it; where the (u, v) are degenerate (or fallback,
-    a mesh without them), Mitsuba's coordinate_system of the face normal."""
+    Mitsuba 3 (3.9) computes a mesh's, from the (u, v); where those are
+    degenerate, and so for a mesh without them (its barycentric (u, v)),
+    edge u itself."""
     u, v = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64)
     uv = np.broadcast_to(np.asarray(uv, dtype=np.float64), (len(u), 3, 2))
     d0, d1 = uv[:, 1], uv[:, 2]
     det = d0[:, 0] * d1[:, 1] - d0[:, 1] * d1[:, 0]
-    ok = (det != 0) & (not fallback)
-    inv = np.where(ok, 1.0 / np.where(det != 0, det, 1.0), 0.0)
+    ok = det != 0
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
     dpdu = (d1[:, 1:2] * u - d0[:, 1:2] * v) * inv[:, None]
-    n = np.cross(u, v)
-    ln = np.linalg.norm(n, axis=1, keepdims=True)
-    cs = coordinate_system(n / np.where(ln > 0, ln, 1.0))
     out = layout.TANGENT.zeros(len(u))
-    out["dpdu"][:, :3] = np.where(ok[:, None], dpdu, np.where(ln > 0, cs, 0.0))
+    out["dpdu"][:, :3] = np.where(ok[:, None], dpdu, u)
     out["dpdu"][:, 3] = layout.TAN_PLANAR
     return out
 
@@ -491,7 +479,7 @@ class _Builder:
         if self.uvs is not None:
             self.uvs.append(_planar_uv(uv, 1))
         if self.tangents is not None:
-            self.tangents.append(_planar_tangents(u[None], v[None], uv, fallback=False))
+            self.tangents.append(_planar_tangents(u[None], v[None], uv))
         kind = KIND_TRIANGLE if triangle else KIND_QUAD
         recs, n, ln = _planar_array(c[None], u[None], v[None], mid, ITEM_FLAT_TRIANGLE if triangle else ITEM_QUAD,
                                     self._prims(1), self._light1(m) if light else 0.0)
@@ -560,19 +548,15 @@ class _Builder:
         u, w = v1 - v0, v2 - v0
         recs, n, ln = _planar_array(v0, u, w, mid, ITEM_FLAT_TRIANGLE, self._prims(len(t)), self._light1(m))
         self.blocks[KIND_TRIANGLE].append(recs)
-        if self.uvs is not None:
-            if p.uvs is None:
-                self.uvs.append(_planar_uv(DEFAULT_UV, len(t)))
-            else:
+        if self.uvs is not None or self.tangents is not None:
+            tri_uv = DEFAULT_UV
+            if p.uvs is not None:
                 t0 = p.uvs[t[:, 0]]
-                self.uvs.append(_planar_uv(np.stack([t0, p.uvs[t[:, 1]] - t0, p.uvs[t[:, 2]] - t0], axis=1), len(t)))
-        if self.tangents is not None:
-            if p.uvs is None:
-                self.tangents.append(_planar_tangents(u, w, DEFAULT_UV, fallback=True))
-            else:
-                t0 = p.uvs[t[:, 0]]
-                self.tangents.append(_planar_tangents(u, w, np.stack([t0, p.uvs[t[:, 1]] - t0, p.uvs[t[:, 2]] - t0],
-                                                                     axis=1), fallback=False))
+                tri_uv = np.stack([t0, p.uvs[t[:, 1]] - t0, p.uvs[t[:, 2]] - t0], axis=1)
+            if self.uvs is not None:
+                self.uvs.append(_planar_uv(tri_uv, len(t)))
+            if self.tangents is not None:
+                self.tangents.append(_planar_tangents(u, w, tri_uv))
         self.bounds.append((np.minimum(np.minimum(v0, v1), v2), np.maximum(np.maximum(v0, v1), v2)))
         if p.normals is not None:
             self.normals.append((recs, p.normals[t]))
