@@ -126,19 +126,21 @@ def _reversed(r):
                                    str(Path(__file__).parent / "data" / "plastic_spheres.xml"),
                                    str(Path(__file__).parent / "data" / "rough_glass.xml"),
                                    str(Path(__file__).parent / "data" / "cbox_textured.xml"),
-                                   str(Path(__file__).parent / "data" / "env_spheres.xml")])
+                                   str(Path(__file__).parent / "data" / "env_spheres.xml"),
+                                   str(Path(__file__).parent / "data" / "brushed.xml")])
 def test_reordered_fields_render_the_same_image(device_spec, monkeypatch, scene):
     """Every record with its fields in reverse order, scene rows and launch
     structs alike: the host fills by name and the kernels read by name, so
     the image is the same to the bit (the BVH, mesh lights, sphere,
     triangle and quad lights, photon mapping, rough conductors, plastics,
-    rough dielectrics, textures and an environment map included)."""
+    rough dielectrics, textures, an environment map and anisotropic lobes'
+    tangents included)."""
     ref = clpt.Renderer(scene, device=device_spec, aux=True).render(2, width=16, height=16)
     for name in ("MATERIAL", "SPHERE", "PLANAR", "PLANE", "LIGHT", "CAUSTIC", "BVH_NODE", "BVH_LEAF", "NORMALS",
-                 "LIGHT_TRI", "TEXTURE_SLOTS", "TEXTURE", "UV", "ENV_TEXEL", "ENV_PACKED", "SCENE_INFO", "CAMERA",
+                 "LIGHT_TRI", "TEXTURE_SLOTS", "TEXTURE", "UV", "TANGENT", "ENV_TEXEL", "ENV_PACKED", "SCENE_INFO", "CAMERA",
                  "PHOTON_LOOKUP", "TRACE_LAUNCH", "PHOTON_LAUNCH"):
         monkeypatch.setattr(layout, name, _reversed(getattr(layout, name)))
-    assert "#define MAT_GLASS_ROUGH 0" in layout.c_source()  # the last field first
+    assert "#define MAT_ANISO 0" in layout.c_source()  # the last field first
     r = clpt.Renderer(scene, device=device_spec, aux=True)
     assert r.packed.count("nodes") > 0 or scene != "mesh_lights"
     got = r.render(2, width=16, height=16)
