@@ -215,10 +215,11 @@ TEXTURE = Rows("texture", "TEX", _r4("kind_size", "data", "uv_u", "uv_v", "color
                "TEX_MIRROR, TEX_CLAMP) | the record of its first texel as hi, lo (hi * TEX_ROW_SPLIT + lo; "
                "3 reals a texel, row by row, from there), filter (TEX_BILINEAR, TEX_NEAREST), 0 | to_uv: a, b, c, 0 (u' = a u + b v + c) | d, e, f, 0 (v') | color0.rgb, 0 | "
                "color1.rgb, 0")
-TEXTURE_SLOTS = Rows("material textures", "TEXS", _r4("slots"),
+TEXTURE_SLOTS = Rows("material textures", "TEXS", _r4("slots", "more"),
                      "a textured material's textures (the record index of each TEXTURE, 0: none): reflectance "
-                     "(kd, or kp of a plastic), specular reflectance (km, or kr), a rough conductor's alpha "
-                     "(the texture's luminance), record index of the UV section")
+                     "(kd, or kp of a plastic), specular reflectance (km, gr of a rough dielectric, or kr), a "
+                     "rough conductor's alpha (the texture's luminance), record index of the UV section | "
+                     "transmittance (gt of a rough dielectric, or kt), 0, 0, 0")
 UV = Rows("surface coordinates", "UV", _r4("a", "b"),
           "a primitive's (u, v), one record per primitive id (scenes with textures): a quad or triangle: "
           "u, v at its corner, their change along edge u | their change along edge v, 0, UV_PLANAR; a sphere: "

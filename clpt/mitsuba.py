@@ -844,8 +844,11 @@ class _Loader:
             kd, tex = p.textured("reflectance", 0.5)
             m = Material(kd=kd, one_sided=True, textures=_slots(reflectance=tex))
         elif t == "conductor":
-            spec = np.array(p.color("specular_reflectance", 1.0)) * self._conductor_albedo(p)
-            m = Material(kr=tuple(spec), one_sided=True)
+            # A mirror of the conductor's hemispherical albedo (a texture scaled by it).
+            spec, spec_tex = p.textured("specular_reflectance", 1.0)
+            albedo = self._conductor_albedo(p)
+            m = Material(kr=tuple(np.array(spec) * albedo), one_sided=True,
+                         textures=_slots(specular=spec_tex.scaled(albedo) if spec_tex else None))
         elif t == "roughconductor":
             # The microfacet lobe itself (kernels/microfacet.h), Fresnel from eta + i k per channel.
             spec, spec_tex = p.textured("specular_reflectance", 1.0)
@@ -859,13 +862,16 @@ class _Loader:
                          eta=eta, k=k, one_sided=True, textures=_slots(specular=spec_tex, alpha=alpha_tex))
         elif t in ("dielectric", "roughdielectric", "thindielectric"):
             eta = p.ior("int_ior", "bk7") / p.ior("ext_ior", "air")
-            refl = np.array(p.color("specular_reflectance", 1.0))
-            trans = np.array(p.color("specular_transmittance", 1.0))
+            refl, refl_tex = p.textured("specular_reflectance", 1.0)
+            trans, trans_tex = p.textured("specular_transmittance", 1.0)
+            refl, trans = np.array(refl), np.array(trans)
             if t == "thindielectric":
                 # Reflection summed over the slab's internal bounces, R' = 2R/(1+R), averaged over
                 # the hemisphere; the rest passes straight through (ior 1: no bending, no Fresnel).
                 r = _hemispherical(lambda mu: 2 * fresnel_dielectric(mu, eta) / (1 + fresnel_dielectric(mu, eta)))
-                m = Material(kr=tuple(refl * r), kt=tuple(trans * (1 - r)), ior=1.0)
+                m = Material(kr=tuple(refl * r), kt=tuple(trans * (1 - r)), ior=1.0,
+                             textures=_slots(specular=refl_tex.scaled(r) if refl_tex else None,
+                                             transmittance=trans_tex.scaled(1 - r) if trans_tex else None))
             elif t == "roughdielectric":
                 # The microfacet interface itself (kernels/bsdf.h rough_dielectric_*).
                 if abs(eta - 1.0) < 1e-6:
@@ -873,13 +879,14 @@ class _Loader:
                 au, av = (min(a, ALPHA_RANGE[1]) for a in self._alphas(p))
                 m = Material(rough_dielectric_lobe=True, kgr=tuple(refl), kgt=tuple(trans), ior=eta,
                              alpha=au, alpha_v=None if av == au else av, distribution=self._distribution(p),
-                             sample_visible=p.boolean("sample_visible", True))
+                             sample_visible=p.boolean("sample_visible", True),
+                             textures=_slots(specular=refl_tex, transmittance=trans_tex))
             else:
-                if np.abs(refl - trans).max() > 1e-6:
+                if np.abs(refl - trans).max() > 1e-6 or refl_tex is not None:
                     self.warn(node, "specular_reflectance differs from specular_transmittance: clpt's "
                                     "dielectric has one colour for both; specular_transmittance is used",
                               key=("dielectric_colors",))
-                m = Material(kt=tuple(trans), ior=eta)
+                m = Material(kt=tuple(trans), ior=eta, textures=_slots(transmittance=trans_tex))
         elif t in ("plastic", "roughplastic"):
             # The coated diffuse lobe itself (kernels/bsdf.h plastic_*, clpt/coating.py).
             eta = p.ior("int_ior", "polypropylene") / p.ior("ext_ior", "air")

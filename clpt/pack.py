@@ -233,10 +233,10 @@ def _texture_records(mat_recs, materials, base: int):
     first_tex = base + layout.TEXTURE_SLOTS.stride * len(textured)
     for k, (rec, m) in enumerate(textured):
         rec["coat_tab"][2] = base + layout.TEXTURE_SLOTS.stride * k
-        for col, slot in enumerate(TEXTURE_SLOTS):
+        for slot, (row, col) in zip(TEXTURE_SLOTS, (("slots", 0), ("slots", 1), ("slots", 2), ("more", 0))):
             t = m.texture(slot)
             if t is not None:
-                slots[k]["slots"][col] = first_tex + layout.TEXTURE.stride * next(i for i, x in enumerate(textures)
+                slots[k][row][col] = first_tex + layout.TEXTURE.stride * next(i for i, x in enumerate(textures)
                                                                                   if x is t)
     return textures, slots, layout.TEXTURE.zeros(len(textures))
 

@@ -32,9 +32,10 @@ from .presets import PRESETS
 from .spectrum import conductor_ior
 from .texture import Texture
 
-# Material.textures slots: "reflectance" (kd, or kp of a plastic), "specular" (km, or kr), "alpha" (a
-# rough conductor's roughness: the texture's luminance).
-TEXTURE_SLOTS = ("reflectance", "specular", "alpha")
+# Material.textures slots: "reflectance" (kd, or kp of a plastic), "specular" (km, kgr of a rough
+# dielectric, or kr), "alpha" (a rough conductor's roughness: the texture's luminance), "transmittance"
+# (kgt of a rough dielectric, or kt).
+TEXTURE_SLOTS = ("reflectance", "specular", "alpha", "transmittance")
 # A planar primitive's default (u, v): the corner's, and its change along
 # edge_u and along edge_v (a triangle's: its barycentrics of v1 and v2, as
 # Mitsuba gives a mesh without texture coordinates).
@@ -73,7 +74,8 @@ class Material:
     kgr) and refracts (specular_transmittance kgt) through the same microfacet
     normal; the material's only lobe (`Material.rough_dielectric`).
     textures: ((slot, clpt.texture.Texture), ...): "reflectance" varies kd
-    (kp of a plastic), "specular" km (or kr) over the surface by its
+    (kp of a plastic), "specular" km (kgr of a rough dielectric, or kr),
+    "transmittance" kgt of a rough dielectric (or kt) over the surface by its
     (u, v); the colour field then holds the texture's largest value per
     channel (the bound lobe probabilities and energy checks use). "alpha"
     varies a rough conductor's roughness (the texture's luminance, within

@@ -20,7 +20,7 @@ texture.h reads 3 reals a texel from the scene's records).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -100,6 +100,13 @@ class Texture:
     @property
     def texels(self) -> int:
         return 0 if self.data is None else self.data.shape[0] * self.data.shape[1]
+
+    def scaled(self, k) -> "Texture":
+        """This texture times k per channel (a bitmap's texels or a checkerboard's colours)."""
+        k = np.broadcast_to(np.asarray(k, dtype=np.float64), 3)
+        if self.kind == "bitmap":
+            return replace(self, data=(self.data * k).astype(np.float32))
+        return replace(self, color0=tuple(np.asarray(self.color0) * k), color1=tuple(np.asarray(self.color1) * k))
 
     def max(self) -> tuple:
         """The largest value of each channel anywhere (filtering only mixes texels)."""

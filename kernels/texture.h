@@ -5,8 +5,9 @@
 //
 // Records (clpt/layout.py): a material's coat_tab.z is its TEXTURE_SLOTS
 // record (0: no textures), which holds the TEXTURE records of its
-// reflectance (kd, or kp of a plastic), specular reflectance (km, or kr) and
-// a rough conductor's alpha (0 for none). A TEXTURE record points to its texels
+// reflectance (kd, or kp of a plastic), specular reflectance (km, gr of a
+// rough dielectric, or kr), a rough conductor's alpha and transmittance (gt
+// of a rough dielectric, or kt) (0 for none). A TEXTURE record points to its texels
 // (3 reals each, row by row, from a record of its own, at the records' end:
 // indexed as integers, past the 2^24 records float reals index) and to the
 // UV section, one UV record per primitive id, from which hit_uv forms the
@@ -91,8 +92,23 @@ inline real texture_prob(real p, real4 c, real b)
     return b > R(0) ? p * fmax(c.x, fmax(c.y, c.z)) / b : p;
 }
 
+// Lane l of colour *k becomes the textured colour c; its lobe probability
+// *p, where given, scaled by how much of the colour's bound c is (texture_prob).
+inline void texture_colour(V3 *k, vreal *p, int l, real4 c)
+{
+    vreal kx = k->x, ky = k->y, kz = k->z;
+    if (p) {
+        vreal pl = *p;
+        VLANE_R(*p, l) = texture_prob(VLANE_R(pl, l), c, fmax(VLANE_R(kx, l), fmax(VLANE_R(ky, l), VLANE_R(kz, l))));
+    }
+    VLANE_R(k->x, l) = c.x;
+    VLANE_R(k->y, l) = c.y;
+    VLANE_R(k->z, l) = c.z;
+}
+
 // The material m of the lanes in `hit` at their hits h, its textured values
-// looked up there (a BSDF never knows whether a colour is constant).
+// looked up there (a BSDF never knows whether a colour is constant). A rough
+// dielectric's probability is the bound of its colours: it stays.
 inline void material_textures(const Scene *sc, Material *m, const Hit *h, vmask hit)
 {
     for (int l = 0; l < CLPT_LANES; l++) {
@@ -103,52 +119,48 @@ inline void material_textures(const Scene *sc, Material *m, const Hit *h, vmask 
         if (ts == R(0))
             continue;
         real4 slots = scene_rec(sc, (uint)ts + TEXS_SLOTS);
+        real more = scene_rec(sc, (uint)ts + TEXS_MORE).x;
         vreal prim = h->prim, bu = h->bu, bv = h->bv;
         vreal nx = h->ng.x, ny = h->ng.y, nz = h->ng.z;
         real4 n = (real4)(VLANE_R(nx, l), VLANE_R(ny, l), VLANE_R(nz, l), R(0));
         real4 uv = hit_uv(sc, (uint)slots.w, VLANE_R(prim, l), VLANE_R(bu, l), VLANE_R(bv, l), n);
-        if (slots.x > R(0)) {
+        vreal pp = (vreal)R(0), pm = m->p_m, pg = (vreal)R(0);
+#if CLPT_HAS_PLASTIC
+        pp = m->p_p;
+#endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+        pg = m->p_g;
+#endif
+        int plastic = VLANE_R(pp, l) > R(0), conductor = VLANE_R(pm, l) > R(0), rough_glass = VLANE_R(pg, l) > R(0);
+        if (slots.x > R(0)) {  // reflectance: a plastic's diffuse base, else the diffuse lobe
             real4 c = texture_eval(sc, (uint)slots.x, uv.x, uv.y);
 #if CLPT_HAS_PLASTIC
-            vreal pp = m->p_p;
-            if (VLANE_R(pp, l) > R(0)) {
-                VLANE_R(m->kp.x, l) = c.x;
-                VLANE_R(m->kp.y, l) = c.y;
-                VLANE_R(m->kp.z, l) = c.z;
-            } else
+            if (plastic)
+                texture_colour(&m->kp, 0, l, c);
+            else
 #endif
-            {
-                vreal kx = m->kd.x, ky = m->kd.y, kz = m->kd.z;
-                real b = fmax(VLANE_R(kx, l), fmax(VLANE_R(ky, l), VLANE_R(kz, l)));
-                VLANE_R(m->p_d, l) = texture_prob(VLANE_R(m->p_d, l), c, b);
-                VLANE_R(m->kd.x, l) = c.x;
-                VLANE_R(m->kd.y, l) = c.y;
-                VLANE_R(m->kd.z, l) = c.z;
-            }
+                texture_colour(&m->kd, &m->p_d, l, c);
         }
-        if (slots.y > R(0)) {
+        if (slots.y > R(0)) {  // specular reflectance: a rough dielectric's, a rough conductor's, else the mirror's
             real4 c = texture_eval(sc, (uint)slots.y, uv.x, uv.y);
-#if CLPT_HAS_MICROFACET
-            vreal pm = m->p_m;
-            if (VLANE_R(pm, l) > R(0)) {
-                vreal kx = m->km.x, ky = m->km.y, kz = m->km.z;
-                real b = fmax(VLANE_R(kx, l), fmax(VLANE_R(ky, l), VLANE_R(kz, l)));
-                VLANE_R(m->p_m, l) = texture_prob(VLANE_R(m->p_m, l), c, b);
-                VLANE_R(m->km.x, l) = c.x;
-                VLANE_R(m->km.y, l) = c.y;
-                VLANE_R(m->km.z, l) = c.z;
-            } else
+#if CLPT_HAS_ROUGH_DIELECTRIC
+            if (rough_glass)
+                texture_colour(&m->gr, 0, l, c);
+            else
 #endif
-            {
-#if CLPT_HAS_MIRROR
-                vreal kx = m->kr.x, ky = m->kr.y, kz = m->kr.z;
-                real b = fmax(VLANE_R(kx, l), fmax(VLANE_R(ky, l), VLANE_R(kz, l)));
-                VLANE_R(m->p_r, l) = texture_prob(VLANE_R(m->p_r, l), c, b);
-                VLANE_R(m->kr.x, l) = c.x;
-                VLANE_R(m->kr.y, l) = c.y;
-                VLANE_R(m->kr.z, l) = c.z;
+            if (conductor)
+                texture_colour(&m->km, &m->p_m, l, c);
+            else
+                texture_colour(&m->kr, &m->p_r, l, c);
+        }
+        if (more > R(0)) {  // transmittance: a rough dielectric's, else the smooth dielectric's
+            real4 c = texture_eval(sc, (uint)more, uv.x, uv.y);
+#if CLPT_HAS_ROUGH_DIELECTRIC
+            if (rough_glass)
+                texture_colour(&m->gt, 0, l, c);
+            else
 #endif
-            }
+                texture_colour(&m->kt, &m->p_t, l, c);
         }
 #if CLPT_HAS_MICROFACET
         if (slots.z > R(0)) {  // a rough conductor's alpha: the texture's luminance, within ALPHA_RANGE

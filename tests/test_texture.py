@@ -352,7 +352,9 @@ def test_generic_lanes_and_double_builds_give_the_same_textured_image(device_spe
 
 def _lobe(kind, colour, tex=None):
     """A material of one lobe whose colour (or texture) is in the slot a texture would fill."""
-    slot = (({"roughconductor": "specular", "alpha": "alpha"}.get(kind, "reflectance"), tex),) if tex else ()
+    names = {"roughconductor": ("specular",), "alpha": ("alpha",), "mirror": ("specular",),
+             "glass": ("transmittance",), "roughglass": ("specular", "transmittance")}.get(kind, ("reflectance",))
+    slot = tuple((name, tex) for name in names) if tex else ()
     c = tex.max() if tex else colour
     if kind == "alpha":  # a grey texture: its luminance is its value
         return Material.rough_conductor(alpha=c[0], distribution="ggx", specular_reflectance=(0.9, 0.8, 0.7),
@@ -361,16 +363,25 @@ def _lobe(kind, colour, tex=None):
         return Material(kd=c, textures=slot)
     if kind == "roughconductor":
         return Material.rough_conductor(alpha=0.3, distribution="ggx", specular_reflectance=c, textures=slot)
+    if kind == "mirror":  # a smooth conductor
+        return Material(kr=c, one_sided=True, textures=slot)
+    if kind == "glass":
+        return Material(kt=c, ior=1.5, textures=slot)
+    if kind == "roughglass":
+        return Material.rough_dielectric(alpha=0.3, distribution="ggx", specular_reflectance=c,
+                                         specular_transmittance=c, textures=slot)
     return Material.rough_plastic(diffuse_reflectance=c, specular_reflectance=(0, 0, 0), alpha=0.2, textures=slot)
 
 
-@pytest.mark.parametrize("kind", ["diffuse", "roughconductor", "plastic", "alpha"])
+@pytest.mark.parametrize("kind", ["diffuse", "roughconductor", "plastic", "alpha", "mirror", "glass", "roughglass"])
 def test_a_textured_lobe_is_the_untextured_lobe_of_its_colour(device_spec, kind):
     """Head-on (as above), one bounce, every random number the same: a
     checkerboard cell of the textured surface is, pixel for pixel, the
     untextured surface of that cell's colour (the BSDF never knows the colour
     was looked up; the rough conductor's specular and the plastic's diffuse
-    base included, and a rough conductor's alpha)."""
+    base included, a rough conductor's alpha, a smooth conductor's
+    reflectance, a dielectric's transmittance and a rough dielectric's
+    reflectance and transmittance)."""
     colours = ((0.1, 0.1, 0.1), (0.6, 0.6, 0.6)) if kind == "alpha" else ((0.8, 0.3, 0.1), (0.2, 0.5, 0.9))
     tex = Texture("checkerboard", color0=colours[0], color1=colours[1], to_uv=((2, 0, 0), (0, 2, 0)))
     base = _head_on(tex)
@@ -386,3 +397,33 @@ def test_a_textured_lobe_is_the_untextured_lobe_of_its_colour(device_spec, kind)
         assert plain[where].mean() > 0.01
         assert np.allclose(img[where], plain[where], rtol=1e-5, atol=1e-7), \
             f"{kind}: {np.abs(img[where] - plain[where]).max():.3g} off in the cells of {colour}"
+
+
+def test_loader_maps_conductor_and_dielectric_textures(tmp_path):
+    """A smooth conductor's specular_reflectance texture times the conductor's
+    albedo (what its mirror colour is), a thin dielectric's reflectance and
+    transmittance textures times its summed reflectance and the rest, a rough
+    dielectric's into its own slots, a smooth dielectric's transmittance."""
+    from clpt.mitsuba import conductor_albedo, conductor_ior
+
+    checker = '<texture type="checkerboard" name="{}"><rgb name="color0" value="0.2, 0.4, 0.6"/></texture>'
+    s = _load(tmp_path, f'''
+        <shape type="rectangle" id="c"><bsdf type="conductor"><string name="material" value="Au"/>
+            {checker.format("specular_reflectance")}</bsdf></shape>
+        <shape type="rectangle" id="t"><bsdf type="thindielectric">{checker.format("specular_reflectance")}
+            {checker.format("specular_transmittance")}</bsdf></shape>
+        <shape type="rectangle" id="r"><bsdf type="roughdielectric">{checker.format("specular_reflectance")}
+            {checker.format("specular_transmittance")}</bsdf></shape>
+        <shape type="rectangle" id="d"><bsdf type="dielectric">{checker.format("specular_transmittance")}</bsdf>
+        </shape>''')
+    mats = {sh.name: s.surface(sh) for sh in s.shapes}
+    albedo = np.array(conductor_albedo(*conductor_ior("Au")))
+    c = mats["c"].texture("specular")
+    assert np.allclose(c.color0, np.array([0.2, 0.4, 0.6]) * albedo) and np.allclose(mats["c"].kr, c.max())
+    t = mats["t"]
+    r = t.kr[0] / 0.2  # the checkerboard's largest value is color0 (color1 is 0.2 grey)
+    assert np.allclose(t.texture("specular").color0, np.array([0.2, 0.4, 0.6]) * r)
+    assert np.allclose(t.texture("transmittance").color0, np.array([0.2, 0.4, 0.6]) * (1 - r))
+    rd = mats["r"]
+    assert rd.texture("specular").color0 == (0.2, 0.4, 0.6) and rd.texture("transmittance").color0 == (0.2, 0.4, 0.6)
+    assert mats["d"].texture("transmittance") is not None and np.allclose(mats["d"].kt, (0.2, 0.4, 0.6))
