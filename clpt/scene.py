@@ -30,7 +30,9 @@ from .hostio import open_regular_file
 from .meshio import check_mesh, compose, cross_rows, norm_rows, read_mesh, transform_mesh
 from .presets import PRESETS
 from .spectrum import conductor_ior
-from .texture import Texture
+from .constants import LUMA
+from .errors import ImageError
+from .texture import FILTERS, KINDS, WRAP_MODES, Texture, load_bitmap
 
 # Material.textures slots: "reflectance" (kd, or kp of a plastic), "specular" (km, kgr of a rough
 # dielectric, or kr), "alpha" (a rough conductor's roughness: the texture's luminance), "transmittance"
@@ -1303,8 +1305,71 @@ _SHAPE_KEYS = {
 _TRANSFORM_KEYS = {"translate", "rotate", "scale", "matrix"}
 
 
-def _read_material(r: _Reader, d, path) -> Material:
+# A TOML material's keys that may be a texture table, and the Material.textures slot each fills.
+_TEXTURED_KEYS = {"kd": "reflectance", "km": "specular", "kr": "specular", "kgr": "specular",
+                  "kt": "transmittance", "kgt": "transmittance", "alpha": "alpha"}
+_TEXTURE_KEYS = {"texture", "filename", "raw", "filter_type", "wrap_mode", "color0", "color1", "to_uv"}
+
+
+def _read_texture(r: _Reader, d, path, base_dir) -> Texture:
+    """A texture table: Mitsuba's bitmap (filename relative to base_dir, raw,
+    filter_type, wrap_mode) or checkerboard (color0, color1), both with to_uv
+    (2 or 3 rows of 3 numbers, or a 4x4 matrix as Mitsuba's)."""
+    r.table(d, path, _TEXTURE_KEYS)
+    kind = r.string(r.require(d, path, "texture"), f"{path}.texture")
+    if kind not in KINDS:
+        r.fail(f"{path}.texture", f"unknown texture {kind!r}{_suggest(kind, KINDS)}; known: {', '.join(KINDS)}")
+    own = {"bitmap": {"filename", "raw", "filter_type", "wrap_mode"}, "checkerboard": {"color0", "color1"}}
+    for k in set(d) & (own["bitmap"] | own["checkerboard"]) - own[kind]:
+        r.fail(f"{path}.{k}", f"not a {kind} key; a {kind} takes {', '.join(sorted(own[kind]))}, to_uv")
+    to_uv = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+    if "to_uv" in d:
+        m = d["to_uv"]
+        if not isinstance(m, list) or len(m) not in (2, 3, 4) or \
+                not all(isinstance(row, list) and len(row) == (4 if len(m) == 4 else 3) for row in m):
+            r.fail(f"{path}.to_uv", f"must be 2 or 3 rows of 3 numbers, or 4 rows of 4 (got {_short(m)})")
+        to_uv = [[r.number(x, f"{path}.to_uv[{i}][{j}]") for j, x in enumerate(row)] for i, row in enumerate(m)]
+    try:
+        if kind == "checkerboard":
+            return Texture("checkerboard", color0=r.vec3(d.get("color0", 0.4), f"{path}.color0"),
+                           color1=r.vec3(d.get("color1", 0.2), f"{path}.color1"), to_uv=to_uv, name=path)
+        choice = {}
+        for k, known, default in (("filter_type", FILTERS, "bilinear"), ("wrap_mode", WRAP_MODES, "repeat")):
+            choice[k] = r.string(d.get(k, default), f"{path}.{k}")
+            if choice[k] not in known:
+                r.fail(f"{path}.{k}", f"unknown {k} {choice[k]!r}{_suggest(choice[k], known)}; "
+                                      f"known: {', '.join(known)}")
+        name = r.string(r.require(d, path, "filename"), f"{path}.filename")
+        file = Path(name) if Path(name).is_absolute() or base_dir is None else Path(base_dir) / name
+        try:
+            data = load_bitmap(file, r.boolean(d.get("raw", False), f"{path}.raw"))
+        except (ImageError, OSError) as e:
+            r.fail(f"{path}.filename", f"cannot read {file}: {e}")
+        return Texture("bitmap", data=data, filter=choice["filter_type"], wrap=choice["wrap_mode"], to_uv=to_uv,
+                       name=path)
+    except SceneError as e:
+        if str(e).startswith(r.source):
+            raise
+        r.fail(path, str(e).removeprefix(f"{path}: "))
+
+
+def _read_material(r: _Reader, d, path, base_dir=None) -> Material:
     r.table(d, path, _MATERIAL_KEYS)
+    d = dict(d)
+    textures = {}
+    for k, slot in _TEXTURED_KEYS.items():
+        if isinstance(d.get(k), dict):
+            if slot in textures:
+                r.fail(f"{path}.{k}", f"a second texture for the {slot} slot (one of "
+                                      f"{', '.join(x for x, s in _TEXTURED_KEYS.items() if s == slot)})")
+            t = textures[slot] = _read_texture(r, d[k], f"{path}.{k}", base_dir)
+            if k == "alpha":  # the texture's luminance, as Mitsuba's eval_1; alpha its mean
+                d[k] = float(np.dot(t.mean(), LUMA))
+            else:
+                if max(t.max()) > 1:
+                    r.fail(f"{path}.{k}", f"a reflectance or transmittance texture must be at most 1 (its "
+                                          f"largest value is {max(t.max()):g})")
+                d[k] = list(t.max())
     base = {}
     if "preset" in d:
         name = r.string(d["preset"], f"{path}.preset")
@@ -1325,6 +1390,8 @@ def _read_material(r: _Reader, d, path) -> Material:
             base[k] = r.boolean(d[k], f"{path}.{k}")
     if "rough_dielectric" in d:
         base["rough_dielectric_lobe"] = r.boolean(d["rough_dielectric"], f"{path}.rough_dielectric")
+    if textures:
+        base["textures"] = tuple(textures.items())
     m = Material(**base)
     check_material(r.source, path, m)
     return m
@@ -1375,7 +1442,7 @@ def _read_shape(r: _Reader, d, path, materials, base_dir=None):
         kw["name"] = d["name"]
     mat = r.require(d, path, "material")
     if isinstance(mat, dict):
-        kw["material"] = _read_material(r, mat, f"{path}.material")
+        kw["material"] = _read_material(r, mat, f"{path}.material", base_dir)
     else:
         name = r.string(mat, f"{path}.material")
         if name not in materials and name not in PRESETS:
@@ -1458,7 +1525,7 @@ def parse_scene(text: str, source: str = "<string>", base_dir=None) -> Scene:
     if not isinstance(md, dict):
         r.fail("materials", f"must be a table (got {_tname(md)})")
     for name, m in md.items():
-        mats[name] = _read_material(r, m, f"materials.{name}")
+        mats[name] = _read_material(r, m, f"materials.{name}", base_dir)
     sd = r.require(doc, "", "shapes")
     if not isinstance(sd, list):
         r.fail("shapes", f"must be an array of tables ([[shapes]]), got {_tname(sd)}")
