@@ -301,6 +301,16 @@ def _slots(**textures) -> tuple:
     return tuple((k, t) for k, t in textures.items() if t is not None)
 
 
+def coordinate_system(n) -> tuple:
+    """The two tangents of the orthonormal basis Mitsuba 3 builds about unit n
+    (coordinate_system, after Duff et al. 2017): its frames' x and y axes."""
+    x, y, z = (float(c) for c in n)
+    sign = 1.0 if z >= 0 else -1.0
+    a = -1.0 / (sign + z)
+    b = x * y * a
+    return (np.array([1.0 + sign * x * x * a, sign * b, -sign * x]), np.array([b, sign + y * y * a, -y]))
+
+
 def _floats3(v) -> tuple:
     return tuple(float(c) for c in v)
 
@@ -1067,31 +1077,41 @@ class _Loader:
             out.append(Sphere(center=_floats3(center), radius=r * float(np.mean(sv)),
                               uv_frame=tuple(tuple(float(x) for x in row) for row in frame), **kw))
         elif t == "disk":
+            # A fan of k triangles, each with vertices of its own so that it carries Mitsuba's
+            # (u, v) = (r, phi / 2 pi) (exact at its vertices; its centre's phi its middle one's).
             k = DISK_SEGMENTS
-            ang = 2 * math.pi * np.arange(k) / k
+            ang = 2 * math.pi * np.arange(k + 1) / k
             scale = math.sqrt(2 * math.pi / (k * math.sin(2 * math.pi / k)))  # fan area = disk area
-            ring = np.stack([np.cos(ang) * scale, np.sin(ang) * scale, np.zeros(k)], axis=1)
-            verts = np.vstack([np.zeros((1, 3)), ring])
-            tris = np.stack([np.zeros(k, dtype=np.int64), 1 + np.arange(k), 1 + (np.arange(k) + 1) % k], axis=1)
-            out.append(self._mesh(node, verts, tris, None, m, flip, kw))
+            ring = np.stack([np.cos(ang) * scale, np.sin(ang) * scale, np.zeros(k + 1)], axis=1)
+            i = np.arange(k)
+            verts = np.stack([np.zeros((k, 3)), ring[i], ring[i + 1]], axis=1).reshape(-1, 3)
+            uvs = np.stack([np.stack([np.zeros(k), (i + 0.5) / k], axis=1), np.stack([np.full(k, scale), i / k], axis=1),
+                            np.stack([np.full(k, scale), (i + 1) / k], axis=1)], axis=1).reshape(-1, 2)
+            out.append(self._mesh(node, verts, np.arange(3 * k).reshape(k, 3), None, m, flip, dict(kw, uvs=uvs)))
         elif t == "cylinder":
             p0, p1 = p.point("p0", (0.0, 0.0, 0.0)), p.point("p1", (0.0, 0.0, 1.0))
             r = p.float("radius", 1.0, lo=0.0)
             axis = p1 - p0
             if np.linalg.norm(axis) == 0 or r == 0:
                 node.fail("a cylinder needs p0 != p1 and radius > 0")
+            # A prism of k quads, each with vertices of its own carrying Mitsuba's (u, v) = (phi / 2 pi,
+            # z / length), phi about the axis in Mitsuba's frame of it (coordinate_system).
             k = DISK_SEGMENTS
-            ang = 2 * math.pi * np.arange(k) / k
+            ang = 2 * math.pi * np.arange(k + 1) / k
             scale = (math.pi / k) / math.sin(math.pi / k)  # the prism's side area = the cylinder's
             w = axis / np.linalg.norm(axis)
-            a = np.cross(w, (1.0, 0.0, 0.0) if abs(w[0]) < 0.9 else (0.0, 1.0, 0.0))
-            a /= np.linalg.norm(a)
-            b = np.cross(w, a)
+            a, b = coordinate_system(w)
             radial = np.outer(np.cos(ang), a) + np.outer(np.sin(ang), b)
-            verts = np.vstack([p0 + r * scale * radial, p1 + r * scale * radial])
-            i, j = np.arange(k), (np.arange(k) + 1) % k
-            tris = np.vstack([np.stack([i, j, k + j], axis=1), np.stack([i, k + j, k + i], axis=1)])
-            out.append(self._mesh(node, verts, tris, np.vstack([radial, radial]), m, flip, kw))
+            i = np.arange(k)
+            verts = np.stack([p0 + r * scale * radial[i], p0 + r * scale * radial[i + 1],
+                              p1 + r * scale * radial[i + 1], p1 + r * scale * radial[i]], axis=1).reshape(-1, 3)
+            normals = np.stack([radial[i], radial[i + 1], radial[i + 1], radial[i]], axis=1).reshape(-1, 3)
+            uvs = np.stack([np.stack([i / k, np.zeros(k)], axis=1), np.stack([(i + 1) / k, np.zeros(k)], axis=1),
+                            np.stack([(i + 1) / k, np.ones(k)], axis=1), np.stack([i / k, np.ones(k)], axis=1)],
+                           axis=1).reshape(-1, 2)
+            q = 4 * i
+            tris = np.vstack([np.stack([q, q + 1, q + 2], axis=1), np.stack([q, q + 2, q + 3], axis=1)])
+            out.append(self._mesh(node, verts, tris, normals, m, flip, dict(kw, uvs=uvs)))
         elif t in ("obj", "ply", "serialized"):
             path = self.resolve(node, p.string("filename") or node.fail("missing property 'filename'"))
             index = p.integer("shape_index", 0) if t == "serialized" else 0

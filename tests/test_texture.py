@@ -499,3 +499,52 @@ def test_toml_texture_errors_in_one_line(tmp_path, material, message):
     with pytest.raises(clpt.SceneError) as e:
         clpt.load_scene(tmp_path / "s.toml")
     assert message in str(e.value) and "\n" not in str(e.value), str(e.value)
+
+
+# Mitsuba 3.9.1's (u, v) and shading-frame tangent at points of a disk and a cylinder (scalar_rgb: a ray
+# along -n onto sample_position's points of the shapes of DISK_CYLINDER): (point, uv, s).
+DISK_CYLINDER = '''
+    <shape type="disk" id="d"><transform name="to_world"><rotate x="1" angle="30"/><translate z="1"/></transform>
+        </shape>
+    <shape type="cylinder" id="c"><point name="p0" x="0.3" y="0.1" z="-0.5"/><point name="p1" x="-0.2" y="0.4"
+        z="1.1"/><float name="radius" value="0.7"/></shape>'''
+MITSUBA_DISK_CYLINDER = [
+    ((0.018568, 0.78006, 1.450368), (0.900927, 0.24672), (0.02061, 0.865842, 0.499894)),
+    ((-0.523499, 0.631127, 1.364381), (0.897299, 0.349142), (-0.583416, 0.703363, 0.406087)),
+    ((-0.357229, -0.102531, 0.940803), (0.376337, 0.550934), (-0.949227, -0.272446, -0.157297)),
+    ((0.639947, -0.122548, 0.929247), (0.655405, 0.965365), (0.976414, -0.186981, -0.107954)),
+    ((0.687304, 0.401943, 0.560557), (0.027559, 0.549594), (-0.138368, 0.964689, -0.224119)),
+    ((-0.730957, 0.144417, 0.53524), (0.538143, 0.753513), (0.200918, -0.949545, 0.240826)),
+    ((0.27695, -0.465435, 0.196454), (0.788429, 0.329732), (0.93421, 0.261184, 0.242969)),
+    ((-0.486759, 0.371485, -0.247225), (0.453498, 0.303195), (-0.300777, -0.949977, 0.084128)),
+]
+
+
+def test_disk_and_cylinder_uvs_as_mitsuba(tmp_path):
+    """A disk's (u, v) = (r, phi / 2 pi) and a cylinder's (phi / 2 pi, z /
+    length) in Mitsuba's frames: each fan triangle and prism quad carries them
+    at its vertices (within the polygon's approximation of the circle; a fan
+    triangle's centre takes its middle phi), and
+    dp/du from them is Mitsuba's tangent within the segments' 1.9 degrees."""
+    from clpt.pack import _planar_tangents
+
+    s = _load(tmp_path, DISK_CYLINDER)
+    shapes = {sh.name: sh for sh in s.shapes}
+    for k, (p, uv, tangent) in enumerate(MITSUBA_DISK_CYLINDER):
+        mesh = shapes["dc"[k // 4]]
+        v, t = mesh.vertices, mesh.triangles
+        a, e1, e2 = v[t[:, 0]], v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]
+        # The triangle nearest the point, and the point's barycentrics in it.
+        q = np.asarray(p) - a
+        g = np.stack([e1, e2], axis=2)
+        bc = np.array([np.linalg.lstsq(g[i], q[i], rcond=None)[0] for i in range(len(t))])
+        dist = np.linalg.norm(np.einsum("tij,tj->ti", g, bc) - q, axis=1)
+        inside = (bc >= -1e-3).all(axis=1) & (bc.sum(axis=1) <= 1 + 1e-3)
+        i = int(np.argmin(np.where(inside, dist, np.inf)))
+        u0, u1, u2 = mesh.uvs[t[i]]
+        got = u0 + bc[i, 0] * (u1 - u0) + bc[i, 1] * (u2 - u0)
+        # r within the polygon's 0.1%; phi / 2 pi within half a segment (1 / 192): a fan triangle's
+        # centre has one phi.
+        assert (np.abs(got - uv) <= (np.array([2e-3, 1 / 192]) if k < 4 else 2e-3)).all(), (k, got, uv)
+        rec = _planar_tangents(e1[i:i + 1], e2[i:i + 1], np.stack([u0, u1 - u0, u2 - u0])[None])["dpdu"][0, :3]
+        assert np.dot(rec / np.linalg.norm(rec), tangent) > np.cos(np.radians(1.9)), k
