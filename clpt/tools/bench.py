@@ -435,6 +435,7 @@ def equal_time_methods() -> dict:
     return {
         "path": ("path tracing", None),
         "default": ("merging (default: MIS, progressive, pilot)", PhotonSettings()),
+        "trial": ("merging, pilot with its timed trial", PhotonSettings(pilot_trial=True)),
         "forced": ("merging, forced (no pilot)", PhotonSettings(pilot=False)),
         "first": ("merging, first vertex only", PhotonSettings(pilot=False, merge_vertices=1)),
         "online": ("owned map, online (10^6 photons)", PhotonSettings(mode="online")),
