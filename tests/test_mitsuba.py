@@ -581,8 +581,8 @@ def test_cli_render_xml_with_params_and_overrides(tmp_path, device_spec, capsys)
 
 def test_instances_aliases_and_texture_means(tmp_path):
     clpt.save_image(tmp_path / "tex.exr", np.array([[[0.2, 0.4, 0.6], [0.4, 0.6, 0.8]]], dtype=np.float32))
-    with pytest.warns(SceneWarning, match="a texture as 'specular_reflectance' is not supported: the checkerboard's "
-                                          "mean colour is used"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # every texture here is evaluated: no mean colour stands in
         s = load(tmp_path, '''
         <shape type="shapegroup" id="pair">
             <shape type="sphere" id="p1"><float name="radius" value="0.1"/></shape>
@@ -603,11 +603,11 @@ def test_instances_aliases_and_texture_means(tmp_path):
     spheres = [x for x in s.shapes if isinstance(x, Sphere)]
     assert len(spheres) == 1 and np.allclose(spheres[0].center, (3, 0, 0))  # only the instance is rendered
     assert np.allclose(shape(s, "p2").corner, (2, -1, 0))
-    # Diffuse reflectance textures are evaluated (kd: their largest value, the bound); a smooth conductor's
-    # specular reflectance is its mean.
+    # Reflectance textures are evaluated (kd, kr: their largest value, the bound), a smooth conductor's
+    # specular reflectance too (times the conductor's albedo, 1 for "none").
     assert np.allclose(material(s, "c").kd, 0.5) and material(s, "c").texture("reflectance").kind == "checkerboard"
     assert np.allclose(material(s, "t").kd, (0.4, 0.6, 0.8)) and material(s, "t").texture("reflectance").texels == 2
-    assert np.allclose(material(s, "m").kr, 0.4) and not material(s, "m").textures
+    assert np.allclose(material(s, "m").kr, 0.6) and material(s, "m").texture("specular").color1 == (0.6, 0.6, 0.6)
 
 
 def test_version_0x_names_and_search_path(tmp_path):
