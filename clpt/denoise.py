@@ -44,7 +44,7 @@ class FilterSettings:
     sigma_normal: int = 32       # exponent of the normals' cosine, 1 to 127
     sigma_depth: float = 0.1     # relative depth change per pixel of distance that costs a factor e
     sigma_albedo: float = 0.1
-    sigma_luminance: float = 5.0  # value differences, in standard errors of the pixel's noise
+    sigma_luminance: float = 2.5  # differences of 3x3-smoothed values, in standard errors of the pixel's noise
     guide_floor: float = 0.3     # least guide weight of a tap (edge pixels, whose guides are mixtures)
     firefly_k: float = 3.0       # clamp pixels above all 8 neighbours by this many standard errors; 0: off
     confirm_k: float = 2.0       # a bright value the pixel's own samples confirm to this many standard errors
@@ -165,6 +165,15 @@ def reference_firefly(c, v, k, k_confirm=None):
     return (c * s[..., None]).astype(np.float32), np.where(clip, vmed, v).astype(np.float32)
 
 
+def smooth3(x):
+    """x (H x W) averaged over each pixel's 3x3 in the image, weights (1 2 1) x (1 2 1)."""
+    h, w = x.shape
+    kern = np.array([1, 2, 1], np.float32)
+    xp, wp = np.pad(x, 1), np.pad(np.ones((h, w), np.float32), 1)
+    s = sum(kern[a] * kern[b] * xp[a:a + h, b:b + w] for a in range(3) for b in range(3))
+    return s / sum(kern[a] * kern[b] * wp[a:a + h, b:b + w] for a in range(3) for b in range(3))
+
+
 def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
     """numpy twin of the cone filter (clpt/engine/passes.py FilterPass; slow, for tests on small images)."""
     h, w = color.shape[:2]
@@ -181,13 +190,8 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
     r_ = min(settings.width, max(w, h))
     for it in range(settings.passes(w, h)):
         step = 1 << it
-        lp = _lum(c)
-        vp = np.pad(v, 1)
-        wp = np.pad(np.ones((h, w), np.float32), 1)
-        kern = np.array([1, 2, 1], np.float32)
-        vs = sum(kern[a] * kern[b] * vp[a:a + h, b:b + w] for a in range(3) for b in range(3))
-        vw = sum(kern[a] * kern[b] * wp[a:a + h, b:b + w] for a in range(3) for b in range(3))
-        sl = settings.sigma_luminance * np.sqrt(vs / vw) + 1e-6
+        lp = smooth3(_lum(c))
+        sl = settings.sigma_luminance * np.sqrt(smooth3(v)) + 1e-6
         acc = np.zeros_like(c)
         wsum = np.ones((h, w), np.float32)
         w2v = v.copy()

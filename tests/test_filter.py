@@ -311,3 +311,18 @@ def test_firefly_clamp_spares_what_the_pixels_own_samples_confirm():
     assert c[10, 10] @ LUMA < 2.0 and np.array_equal(c[20, 20], img[20, 20])
     c, _ = reference_firefly(img, var, 3.0, 12.0)  # demanding more than 10 standard errors: clamped too
     assert c[20, 20] @ LUMA < 2.0
+
+
+def test_value_term_compares_3x3_smoothed_luminance():
+    """smooth3: (1 2 1) x (1 2 1) weights over the pixels in the image; a corner
+    pixel averages its 2x2 with weights 4, 2, 2, 1."""
+    from clpt.denoise import smooth3
+    x = np.zeros((4, 5), np.float32)
+    x[0, 0] = 9.0
+    s = smooth3(x)
+    assert s[0, 0] == pytest.approx(4 * 9 / 9)
+    assert s[0, 1] == pytest.approx(2 * 9 / 12)
+    assert s[1, 1] == pytest.approx(9 / 16)
+    assert s[2, 2] == 0
+    c = np.full((6, 7), 0.25, np.float32)
+    assert np.allclose(smooth3(c), 0.25)

@@ -422,6 +422,7 @@ class FilterPass:
     def __init__(self, dctx, program):
         self.dctx = dctx
         self.firefly = cl.Kernel(program, "filter_firefly")
+        self.luma = cl.Kernel(program, "filter_luma")
         self.kernel = cl.Kernel(program, "filter_cone")
         self.counters = Counters()
 
@@ -439,7 +440,7 @@ class FilterPass:
         radius = min(int(settings.width), max(w, h))
         lay = Planar(w, h, radius, 1 << (passes - 1))
         flag = np.zeros((h, w)) if emitter is None else (emitter > 0.5)
-        c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v])
+        c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v, np.zeros((h, w))])
         g0 = lay.pack([normal[..., 0], normal[..., 1], normal[..., 2], flag,
                        albedo[..., 0], albedo[..., 1], albedo[..., 2], depth])
         c = [cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0),
@@ -448,15 +449,16 @@ class FilterPass:
         dims = (np.uint32(w), np.uint32(h), np.uint32(lay.pitch), np.uint32(lay.plane), np.uint32(lay.margin))
         src = 0
         local = FILTER_LOCAL_SIZE
+        psize = -(-(w * h) // local) * local  # filter_firefly and filter_luma: one item per pixel
         if settings.firefly_k > 0:
-            gsize = -(-(w * h) // local) * local
-            self.counters.launched("filter_firefly", self.firefly(q, (gsize,), (local,), c[0], *dims,
+            self.counters.launched("filter_firefly", self.firefly(q, (psize,), (local,), c[0], *dims,
                                                                   np.float32(settings.firefly_k),
                                                                   np.float32(settings.confirm_k), c[1]))
             src = 1
         items = h * lay.pitch // 8
         gsize = -(-items // local) * local
         for it in range(passes):
+            self.counters.launched("filter_luma", self.luma(q, (psize,), (local,), c[src], *dims))
             self.counters.launched("filter_cone", self.kernel(
                 q, (gsize,), (local,), c[src], gb, *dims, np.int32(radius), np.int32(1 << it),
                 np.int32(settings.sigma_normal), np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
@@ -466,4 +468,4 @@ class FilterPass:
         cl.enqueue_copy(q, out, c[src])
         q.finish()
         self.counters.settle()
-        return (lay.unpack(out, 4)[..., :3] * alb).astype(np.float32)
+        return (lay.unpack(out, 5)[..., :3] * alb).astype(np.float32)

@@ -63,7 +63,8 @@ def shape_coverage(scene, index, width, height, spp=64, device=None):
     (two-sided, every other shape black and dark), emitters only."""
     from dataclasses import replace
 
-    from ..scene import Material, load_scene
+    from ..loading import load_scene
+    from ..scene import Material
     sc = load_scene(scene) if not hasattr(scene, "shapes") else scene
     black = Material()
     shapes = [replace(s, material=black, emission=(1.0, 1.0, 1.0) if i == index else (0.0, 0.0, 0.0),
@@ -85,7 +86,7 @@ def regions(scene, width, height, ref, *, device=None, spp=64) -> dict:
     where the lamps, seen through the specular chain, bring at least half
     of the reference's luminance) and "brightest 1%" (of the reference's lower half: the
     caustic and the highlights, which a filter must not cut)."""
-    from ..scene import load_scene
+    from ..loading import load_scene
     sc = load_scene(scene) if not hasattr(scene, "shapes") else scene
     out = {}
     diffuse = np.zeros((height, width), bool)
