@@ -108,7 +108,7 @@ def oidn_module():
 def demodulate(color, var, albedo):
     """Colour / albedo (where the albedo is not black), and its variance."""
     alb = np.where(albedo > ALBEDO_FLOOR, albedo, 1.0)
-    lum_alb = np.maximum(alb @ LUMA, ALBEDO_FLOOR)
+    lum_alb = np.maximum(alb @ LUMA.astype(alb.dtype), ALBEDO_FLOOR)  # in the inputs' precision
     return color / alb, var / lum_alb ** 2, alb
 
 
@@ -122,9 +122,10 @@ class Planar:
         self.margin = radius * max_step + 16
         self.plane = self.pitch * height + 2 * self.margin
 
-    def pack(self, planes) -> np.ndarray:
-        out = np.zeros((len(planes), self.plane), np.float32)
-        body = out[:, self.margin:self.margin + self.pitch * self.height].reshape(len(planes), self.height,
+    def pack(self, planes, extra: int = 0) -> np.ndarray:
+        """The planes laid out, then `extra` planes of zeros."""
+        out = np.zeros((len(planes) + extra, self.plane), np.float32)
+        body = out[:len(planes), self.margin:self.margin + self.pitch * self.height].reshape(len(planes), self.height,
                                                                                    self.pitch)
         for k, p in enumerate(planes):
             body[k, :, :self.width] = p

@@ -42,7 +42,7 @@
 // Layout: planar images of `pitch` (the width rounded up to 8) columns, each
 // plane `plane` floats long with `margin` floats before and after the pixels
 // (zeros, so that lanes outside the image read finite values):
-//   color: r, g, b, variance of the pixel mean, smoothed luminance (filter_luma)
+//   color: r, g, b, variance of the pixel mean, smoothed luminance and variance (filter_luma)
 //   guides: normal x, y, z (0 if none), emitter flag (0/1), albedo r, g, b, depth
 // filter_firefly, filter_luma: one work-item per pixel (global size width * height).
 // filter_cone: one work-item per 8 pixels of a row, in float8 lanes (global
@@ -62,28 +62,32 @@ __kernel void filter_firefly(__global const float *color_in, uint width, uint he
     int x = (int)(i % width), y = (int)(i / width);
     int xm = (int)width - 1, ym = (int)height - 1;
     uint o = margin + (uint)y * pitch + (uint)x;
+    // Branch-free (lanes of neighbouring pixels stay together): pixels outside
+    // the image read a clamped address and count as +inf variance, n as 0 luminance.
     float v[9];
     int n = 0;
     float lmax = -INFINITY;
     for (int dy = -1; dy <= 1; dy++) {
         for (int dx = -1; dx <= 1; dx++) {
             int qx = x + dx, qy = y + dy;
-            if (qx < 0 || qy < 0 || qx > xm || qy > ym)
-                continue;
-            uint q = margin + (uint)qy * pitch + (uint)qx;
-            float t = color_in[3 * plane + q];
-            int j = n++;  // insertion into the sorted variances
-            while (j > 0 && v[j - 1] > t) {
-                v[j] = v[j - 1];
-                j--;
-            }
-            v[j] = t;
-            if (dx != 0 || dy != 0)
+            int in = qx >= 0 && qy >= 0 && qx <= xm && qy <= ym;
+            uint q = margin + (uint)clamp(qy, 0, ym) * pitch + (uint)clamp(qx, 0, xm);
+            v[(dy + 1) * 3 + dx + 1] = in ? color_in[3 * plane + q] : INFINITY;
+            n += in;
+            if ((dx != 0 || dy != 0) && in)
                 lmax = fmax(lmax, luma(color_in[q], color_in[plane + q], color_in[2 * plane + q]));
         }
     }
+    // The median of the n variances in the image: the one of rank n / 2 (ties
+    // ranked by position), without sorting.
+    float vmed = 0.0f;
+    for (int a = 0; a < 9; a++) {
+        int rank = 0;
+        for (int b = 0; b < 9; b++)
+            rank += v[b] < v[a] || (b < a && v[b] == v[a]);
+        vmed = rank == n / 2 ? v[a] : vmed;
+    }
     float r = color_in[o], g = color_in[plane + o], b = color_in[2 * plane + o], var = color_in[3 * plane + o];
-    float vmed = v[n / 2];
     float bound = lmax + k * sqrt(vmed);
     float lp = luma(r, g, b);
     // Brightness the pixel's own samples confirm is kept: it is clamped only
@@ -97,15 +101,16 @@ __kernel void filter_firefly(__global const float *color_in, uint width, uint he
     color_out[o] = r; color_out[plane + o] = g; color_out[2 * plane + o] = b; color_out[3 * plane + o] = var;
 }
 
-// filter_luma: plane 4 of color, the luminance of planes 0-2 averaged over
-// the pixel's 3x3 in the image with weights (1 2 1) x (1 2 1).
+// filter_luma: planes 4 and 5 of color, the luminance of planes 0-2 and the
+// variance (plane 3) averaged over the pixel's 3x3 in the image with weights
+// (1 2 1) x (1 2 1).
 __kernel void filter_luma(__global float *color, uint width, uint height, uint pitch, uint plane, uint margin)
 {
     uint i = get_global_id(0);
     if (i >= width * height)
         return;
     int x = (int)(i % width), y = (int)(i / width);
-    float s = 0.0f, ws = 0.0f;
+    float s = 0.0f, sv = 0.0f, ws = 0.0f;
     for (int dy = -1; dy <= 1; dy++) {
         for (int dx = -1; dx <= 1; dx++) {
             int qx = x + dx, qy = y + dy;
@@ -114,10 +119,13 @@ __kernel void filter_luma(__global float *color, uint width, uint height, uint p
             uint q = margin + (uint)qy * pitch + (uint)qx;
             float w = (float)((2 - abs(dx)) * (2 - abs(dy)));
             s += w * luma(color[q], color[plane + q], color[2 * plane + q]);
+            sv += w * color[3 * plane + q];
             ws += w;
         }
     }
-    color[4 * plane + margin + (uint)y * pitch + (uint)x] = s / ws;
+    uint o = margin + (uint)y * pitch + (uint)x;
+    color[4 * plane + o] = s / ws;
+    color[5 * plane + o] = sv / ws;
 }
 
 #define LD8(buf, k, off) vload8(0, (buf) + (k) * plane + (off))
@@ -142,21 +150,8 @@ __kernel void filter_cone(__global const float *color_in, __global const float *
     float8 dz = LD8(guides, 7, row0);
     int8 has_n = (nx * nx + ny * ny + nz * nz) > 0.0f;
     float8 lp = LD8(color_in, 4, row0);
-    // p's noise: its variance smoothed over the 3x3 (1 2 1 weights)
-    float8 vs = 0.0f, vw = 0.0f;
-    for (int dy = -1; dy <= 1; dy++) {
-        int qy = y + dy;
-        if (qy < 0 || qy > ym)
-            continue;
-        for (int dx = -1; dx <= 1; dx++) {
-            int8 qx = xs + dx;
-            int8 in = qx >= 0 && qx < (int)width;
-            float8 wv = select((float8)(0.0f), (float8)((float)((2 - abs(dx)) * (2 - abs(dy)))), in);
-            vs += wv * LD8(color_in, 3, (int)margin + qy * (int)pitch + x0 + dx);
-            vw += wv;
-        }
-    }
-    float8 inv_sl = 1.0f / (sigma_lum * sqrt(vs / fmax(vw, 1.0f)) + 1e-6f);
+    // p's noise: its variance smoothed over the 3x3 (filter_luma)
+    float8 inv_sl = 1.0f / (sigma_lum * sqrt(LD8(color_in, 5, row0)) + 1e-6f);
     float inv_sa = 1.0f / (sigma_albedo * sigma_albedo);
     float8 inv_sd = 1.0f / (sigma_depth * fmax(dz, 1e-6f) * (float)step);
     float8 accr = 0.0f, accg = 0.0f, accb = 0.0f;

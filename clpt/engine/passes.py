@@ -433,14 +433,15 @@ class FilterPass:
         h, w = color.shape[:2]
         if settings.width == 0:
             return color.astype(np.float32).copy()
-        irr, v, alb = demodulate(color.astype(np.float64), var.astype(np.float64), albedo.astype(np.float64))
+        f32 = np.float32
+        irr, v, alb = demodulate(np.asarray(color, f32), np.asarray(var, f32), np.asarray(albedo, f32))
         ctx, q = self.dctx.context, self.dctx.queue
         mf = cl.mem_flags
         passes = settings.passes(w, h)
         radius = min(int(settings.width), max(w, h))
         lay = Planar(w, h, radius, 1 << (passes - 1))
         flag = np.zeros((h, w)) if emitter is None else (emitter > 0.5)
-        c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v, np.zeros((h, w))])
+        c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v], extra=2)  # planes 4, 5: filter_luma's
         g0 = lay.pack([normal[..., 0], normal[..., 1], normal[..., 2], flag,
                        albedo[..., 0], albedo[..., 1], albedo[..., 2], depth])
         c = [cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0),
@@ -464,8 +465,8 @@ class FilterPass:
                 np.int32(settings.sigma_normal), np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
                 np.float32(settings.sigma_luminance), np.float32(settings.guide_floor), c[1 - src]))
             src = 1 - src
-        out = np.empty_like(c0)
+        out = np.empty(3 * lay.plane, np.float32)  # the colour planes only
         cl.enqueue_copy(q, out, c[src])
         q.finish()
         self.counters.settle()
-        return (lay.unpack(out, 5)[..., :3] * alb).astype(np.float32)
+        return lay.unpack(out, 3) * alb

@@ -181,12 +181,19 @@ def measure_quality(scene, *, spp_list=(16, 64), seeds=(1, 2), width=128, height
                     if box is not None:
                         side_by_side(str(crop_path).format(spp=spp), [im[box] for im in shown], scale=3)
         for name, a in acc.items():
-            reg = {k: {q: float(np.mean([d[k][q] for d in a["regions"]])) for q in ("relmse", "energy")}
+            reg = {k: {**{q: float(np.mean([d[k][q] for d in a["regions"]])) for q in ("relmse", "energy")},
+                       **{q + "_se": _se([d[k][q] for d in a["regions"]]) for q in ("relmse", "energy")}}
                    for k in masks}
             rows.append({"scene": scene, "spp": spp, "method": name, "aux_specular": ms[name][1],
                          **{k: (float(np.mean(v)) if v else None) for k, v in a.items() if k != "regions"},
+                         "relmse_se": _se(a["relmse"]),
                          "regions": reg, "region_pixels": {k: int(v.sum()) for k, v in masks.items()}})
     return rows
+
+
+def _se(values) -> float | None:
+    """The standard error of the mean of per-seed values (None for one seed)."""
+    return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else None
 
 
 def _crop_box(masks, pad=4):
@@ -265,12 +272,15 @@ def run_bench_denoise(a) -> int:
           f"means of {a.seeds} seeds); caustic core energy against the raw image and the reference; light ring "
           f"against the reference's")
     for r in out["quality"]:
-        print(f"  {r['scene']:22s} {r['spp']:4d} spp  {r['method']:38s} relMSE {r['relmse'] * 1e3:7.3f}  "
+        print(f"  {r['scene']:22s} {r['spp']:4d} spp  {r['method']:38s} relMSE {r['relmse'] * 1e3:7.3f}"
+              f"{'' if r['relmse_se'] is None else ' +-' + format(r['relmse_se'] * 1e3, '.3f')}  "
               f"core/raw {f(r['core_vs_raw'], '{:.3f}')}  core/ref {f(r['core_vs_ref'], '{:.3f}')}  "
               f"ring {f(r['ring'], '{:+.3f}')}")
-    print("per region: relMSE x1e3 / mean luminance over the reference's (energy)")
+    print("per region: relMSE x1e3 / mean luminance over the reference's (energy, +- its standard error over the seeds)")
     for r in out["quality"]:
-        cells = "  ".join(f"{k} {v['relmse'] * 1e3:7.3f} / {v['energy']:.3f}" for k, v in r["regions"].items())
+        cells = "  ".join(f"{k} {v['relmse'] * 1e3:7.3f} / {v['energy']:.3f}"
+                          + (f" (+-{v['energy_se']:.3f})" if v["energy_se"] is not None else "")
+                          for k, v in r["regions"].items())
         print(f"  {r['scene']:22s} {r['spp']:4d} spp  {r['method']:38s} {cells}")
     for scene, t in out["time"].items():
         print(f"time at {a.time_size}x{a.time_size}, {scene} (medians of 2):")
