@@ -244,12 +244,15 @@ def kept_emission(aux, count, k: float):
 
 def dilate(mask, r: int):
     """mask (H x W bool) grown by r pixels in each direction (a square)."""
-    pad = np.pad(mask, r)
     h, w = mask.shape
+    pad = np.pad(mask, ((0, 0), (r, r)))
+    rows = np.zeros_like(mask)
+    for dx in range(2 * r + 1):  # a square is a row's dilation, then a column's
+        rows |= pad[:, dx:dx + w]
+    pad = np.pad(rows, ((r, r), (0, 0)))
     out = np.zeros_like(mask)
     for dy in range(2 * r + 1):
-        for dx in range(2 * r + 1):
-            out |= pad[dy:dy + h, dx:dx + w]
+        out |= pad[dy:dy + h]
     return out
 
 

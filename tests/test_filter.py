@@ -326,3 +326,16 @@ def test_value_term_compares_3x3_smoothed_luminance():
     assert s[2, 2] == 0
     c = np.full((6, 7), 0.25, np.float32)
     assert np.allclose(smooth3(c), 0.25)
+
+
+def test_dilate_is_a_square_of_radius_r():
+    from clpt.denoise import dilate
+    rng = np.random.default_rng(3)
+    m = rng.random((23, 29)) > 0.97
+    for r in (1, 2):
+        pad = np.pad(m, r)
+        want = np.zeros_like(m)
+        for dy in range(2 * r + 1):
+            for dx in range(2 * r + 1):
+                want |= pad[dy:dy + 23, dx:dx + 29]
+        assert (dilate(m, r) == want).all()

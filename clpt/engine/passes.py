@@ -425,6 +425,17 @@ class FilterPass:
         self.luma = cl.Kernel(program, "filter_luma")
         self.kernel = cl.Kernel(program, "filter_cone")
         self.counters = Counters()
+        self._kept = None  # (plane length, [colour, colour], guides): buffers kept for the next image of that size
+
+    def _buffers(self, plane: int):
+        """The two colour buffers (6 planes) and the guides' (8), made once
+        per image size (making them cost more than the filter's passes)."""
+        if self._kept is None or self._kept[0] != plane:
+            self._kept = None  # the old ones go before the new are made
+            ctx, mf, nb = self.dctx.context, cl.mem_flags, 4 * plane
+            self._kept = (plane, [cl.Buffer(ctx, mf.READ_WRITE, 6 * nb), cl.Buffer(ctx, mf.READ_WRITE, 6 * nb)],
+                          cl.Buffer(ctx, mf.READ_ONLY, 8 * nb))
+        return self._kept[1], self._kept[2]
 
     def __call__(self, color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
         """Filtered colour (H x W x 3 float32) from the guides (H x W arrays);
@@ -435,8 +446,7 @@ class FilterPass:
             return color.astype(np.float32).copy()
         f32 = np.float32
         irr, v, alb = demodulate(np.asarray(color, f32), np.asarray(var, f32), np.asarray(albedo, f32))
-        ctx, q = self.dctx.context, self.dctx.queue
-        mf = cl.mem_flags
+        q = self.dctx.queue
         passes = settings.passes(w, h)
         radius = min(int(settings.width), max(w, h))
         lay = Planar(w, h, radius, 1 << (passes - 1))
@@ -444,9 +454,9 @@ class FilterPass:
         c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v], extra=2)  # planes 4, 5: filter_luma's
         g0 = lay.pack([normal[..., 0], normal[..., 1], normal[..., 2], flag,
                        albedo[..., 0], albedo[..., 1], albedo[..., 2], depth])
-        c = [cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0),
-             cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0)]
-        gb = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g0)
+        c, gb = self._buffers(lay.plane)
+        for buf, host in ((c[0], c0), (c[1], c0), (gb, g0)):  # both colour buffers: margins of zeros
+            cl.enqueue_copy(q, buf, host, is_blocking=False)
         dims = (np.uint32(w), np.uint32(h), np.uint32(lay.pitch), np.uint32(lay.plane), np.uint32(lay.margin))
         src = 0
         local = FILTER_LOCAL_SIZE
