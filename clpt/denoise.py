@@ -2,10 +2,12 @@
 Image Denoise (OIDN) when pyoidn is installed (pip install 'clpt[oidn]').
 
 Both are fed from the renderer's feature buffers (render.py, CLPT_AUX):
-per pixel the normal, albedo and depth of the first surface seen (mirrors
-and glass as surfaces of albedo kr + kt; or, with aux_specular="through",
-the first non-delta vertex seen through them, their throughput folded into
-its albedo), the share of samples that see an emitter directly or through
+per pixel the normal, albedo and depth of the first surface seen (by
+default, aux_specular="glass", mirrors as surfaces of albedo kr and what is
+seen through glass: the first vertex that is not glass, the glass's
+throughput folded into its albedo; "surface": glass too as a surface of
+albedo kr + kt; "through": the first non-delta vertex seen through both),
+the share of samples that see an emitter directly or through
 mirrors and glass (where it is most, the pixel is flagged; an emitter that is
 the feature vertex gives its own colour as albedo), the emission seen so, and
 the photon map's caustic part. Both leave that emission out and add it back
@@ -19,8 +21,8 @@ filtering them again spreads them). The rest is divided by the albedo
 all 8 neighbours by more than `firefly_k` standard errors, unless its own
 samples confirm it to `confirm_k` of its own standard errors), and `iterations`
 a-trous passes of a cone kernel of `width` pixels (steps 1, 2, 4, ...)
-smooth it where normals, depths, albedos, emitter flags and values (beyond
-the pixel's noise) agree. A numpy twin (`reference_cone_filter`) is there for the tests.
+smooth it where normals, depths, albedos, emitter flags and values (their
+3x3 means, beyond the pixel's noise) agree. A numpy twin (`reference_cone_filter`) is there for the tests.
 """
 
 from __future__ import annotations

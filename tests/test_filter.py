@@ -230,6 +230,15 @@ def test_feature_buffers_see_through_glass_or_stop_at_it(device_spec):
                        aux_specular="surface").aux
     nearer = surface["depth"] < through["depth"] - 1e-3
     assert 10 < nearer.sum() < 400 and (surface["depth"] <= through["depth"] + 1e-4).all()
+    # "glass" (the default): the mirror ball as a surface, what is seen through the glass ball
+    glass = r.render(2, width=32, height=32, seed=4, photons=clpt.PhotonSettings(count=10_000)).aux
+    as_surface = nearer & np.isclose(glass["depth"], surface["depth"], rtol=1e-5)
+    as_through = nearer & np.isclose(glass["depth"], through["depth"], rtol=1e-5)
+    assert as_surface.sum() > 5 and as_through.sum() > 5
+    assert (as_surface | as_through).sum() >= 0.8 * nearer.sum()  # the rest: rims, where both balls' samples mix
+    xs = np.nonzero(nearer)[1]
+    # the two balls sit side by side: the pixels described as surfaces and as seen through are apart
+    assert abs(np.nonzero(as_surface)[1].mean() - np.nonzero(as_through)[1].mean()) > 0.2 * (xs.max() - xs.min())
     with pytest.raises(clpt.SceneError, match="aux_specular"):
         r.render(1, width=8, height=8, aux_specular="mirror")
 

@@ -26,6 +26,7 @@ from ..errors import DeviceError
 from ..photons import (GRID_CELL_RADII, MAX_TABLE_BITS, PM_MERGE, PM_OFFLINE, PM_OWNED, PM_PREPASS, RADIX_BITS,
                        PhotonSettings)
 from ..program import event_seconds
+from .job import AUX_SPECULAR
 from .launch import (AUX_ARGS, PHOTON_ARGS, PHOTON_PASS_ARGS, TRACE_ARGS, RecordBuffer, fill_pixel_filter, fill_scene_info,
                      photon_record, trace_record)
 
@@ -169,7 +170,7 @@ class TracePass:
         values = {"lum_scale": packed.lum_scale, "width": job.width, "height": job.height,
                   "group_offset": 0,  # a launch covers the image from its first pixel
                   "max_depth": min(job.max_depth, 2**31), "rr_depth": min(job.rr_depth, 2**31),
-                  "aux_specular": int(job.aux_specular == "surface")}
+                  "aux_specular": AUX_SPECULAR.index(job.aux_specular)}
         for k, v in values.items():
             rec[k] = v
         fill_pixel_filter(rec["pixel_filter"], job.scene.camera.pixel_filter)

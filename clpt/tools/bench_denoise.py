@@ -29,18 +29,20 @@ from .reference import cached_path, reference_image
 
 def methods(with_oidn: bool) -> dict:
     """name -> (settings, aux_specular): what each row of the bench runs.
-    Both feature-buffer choices are measured for every denoiser that reads
-    them ("surface": mirrors and glass as surfaces; "through": what is seen
-    through them)."""
-    m = {"raw": (None, "surface"),
-         "cone": (FilterSettings(), "surface"),
+    The three feature-buffer choices are measured for every denoiser that
+    reads them ("glass", the default: mirrors as surfaces, what is seen
+    through glass; "surface": both as surfaces; "through": what is seen
+    through both)."""
+    m = {"raw": (None, "glass"),
+         "cone": (FilterSettings(), "glass"),
+         "cone (surface)": (FilterSettings(), "surface"),
          "cone (through)": (FilterSettings(), "through")}
     if with_oidn:
-        m.update({"oidn albedo+normal (cleaned)": (OidnSettings(aux="clean"), "surface"),
+        m.update({"oidn albedo+normal (cleaned)": (OidnSettings(aux="clean"), "glass"),
+                  "oidn albedo+normal (cleaned, surface)": (OidnSettings(aux="clean"), "surface"),
                   "oidn albedo+normal (cleaned, through)": (OidnSettings(aux="clean"), "through"),
-                  "oidn albedo+normal": (OidnSettings(aux="noisy"), "surface"),
-                  "oidn albedo+normal (through)": (OidnSettings(aux="noisy"), "through"),
-                  "oidn colour only": (OidnSettings(aux="none"), "surface")})
+                  "oidn albedo+normal": (OidnSettings(aux="noisy"), "glass"),
+                  "oidn colour only": (OidnSettings(aux="none"), "glass")})
     return m
 
 
@@ -225,7 +227,7 @@ def measure_time(scene, *, size=512, rounds=2, device=None) -> dict:
     r = Renderer(scene, device=device, aux=True)
     r.render(1, width=size, height=size)  # the lazy device compile
     small = r.render(1, width=64, height=64)
-    ms = {k: v for k, (v, mode) in methods(_oidn_available()).items() if v is not None and mode == "surface"}
+    ms = {k: v for k, (v, mode) in methods(_oidn_available()).items() if v is not None and mode == "glass"}
     for s in ms.values():  # warm every kernel and OIDN's device
         apply_denoiser(r.states[0].filter, small.image, small.lum_var, small.sample_count, small.aux, s)
     times = {"render 16 spp": [], **{k: [] for k in ms}}
