@@ -1,9 +1,10 @@
 """`clpt bench-denoise`: the denoisers measured against a path-traced reference.
 
-For each scene and spp, renders of two seeds (feature buffers on) are
-denoised by the cone filter and by OIDN in its three modes (cleaned
-albedo+normal, albedo+normal as they are, colour only), and for each the
-relMSE against the reference, the energy kept over the caustic's core (the
+For each scene and spp, renders of --seeds seeds (feature buffers on, each
+feature-buffer choice) are denoised by the cone filter and by OIDN in its
+three modes (cleaned albedo+normal, albedo+normal as they are, colour only),
+and for each the relMSE against the reference (means over the seeds, with
+their standard errors), the energy kept over the caustic's core (the
 pixels where the photon map's part is at least half its peak; against the
 raw image and against the reference), and the 2-pixel ring around the lights
 (pixels beside a lamp that see none of it in 256 samples) against the
