@@ -279,7 +279,8 @@ def run_bench_denoise(a) -> int:
               f"{'' if r['relmse_se'] is None else ' +-' + format(r['relmse_se'] * 1e3, '.3f')}  "
               f"core/raw {f(r['core_vs_raw'], '{:.3f}')}  core/ref {f(r['core_vs_ref'], '{:.3f}')}  "
               f"ring {f(r['ring'], '{:+.3f}')}")
-    print("per region: relMSE x1e3 / mean luminance over the reference's (energy, +- its standard error over the seeds)")
+    print("per region: relMSE x1e3 / mean luminance over the reference's "
+          "(energy, +- its standard error over the seeds)")
     for r in out["quality"]:
         cells = "  ".join(f"{k} {v['relmse'] * 1e3:7.3f} / {v['energy']:.3f}"
                           + (f" (+-{v['energy_se']:.3f})" if v["energy_se"] is not None else "")
