@@ -69,6 +69,7 @@ class Features:
     bvh_walk: str = "hybrid"   # BVH traversal (Experimental): "hybrid" (packets for coherent rays) or "lane"
     smooth: bool = True        # some triangles have vertex normals
     textures: bool = True      # some materials have textures (kernels/texture.h)
+    textured_emitters: bool = True  # some area lights' radiance is a texture (with textures)
     pixel_filter: str = "box"  # the camera's pixel filter (PIXEL_FILTERS); the box compiles no filter code
     counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights, casters, BVH nodes (not generic)
 
@@ -103,6 +104,7 @@ class Features:
             "CLPT_BVH_PACKETS": int(self.bvh_walk == "hybrid"),
             "CLPT_HAS_SMOOTH": int(self.smooth),
             "CLPT_HAS_TEXTURES": int(self.textures),
+            "CLPT_HAS_TEXTURED_EMITTERS": int(self.textures and self.textured_emitters),
         }
         if self.mode != "generic":
             for name, n in zip(("MATERIALS", "SPHERES", "QUADS", "TRIANGLES", "PLANES", "LIGHTS", "CAUSTICS",
@@ -142,7 +144,7 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
     if mode == "generic":
         return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
                         photons=use_photons, aux=aux, bvh_walk=bvh_walk, pixel_filter=packed.pixel_filter,
-                        textures=bool(packed.textures))
+                        textures=bool(packed.textures), textured_emitters=packed.has_textured_emitters)
     return Features(
         lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
         pixel_filter=packed.pixel_filter,
@@ -166,6 +168,7 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         bvh=packed.count("nodes") > 0,
         smooth=packed.smooth,
         textures=bool(packed.textures),
+        textured_emitters=packed.has_textured_emitters,
         bvh_walk=bvh_walk,
         counts=tuple(packed.counts),
     )

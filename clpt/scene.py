@@ -35,6 +35,9 @@ from .texture import Texture
 # Material.textures slots: "reflectance" (kd, or kp of a plastic), "specular" (km, or kr), "alpha" (a
 # rough conductor's roughness: the texture's luminance).
 TEXTURE_SLOTS = ("reflectance", "specular", "alpha")
+# An area light's radiance varying over its surface by (u, v): the light's own slot (its LIGHT record
+# points to the texture; the material's texture slots above are the BSDF's).
+EMISSION_SLOT = "emission"
 # A planar primitive's default (u, v): the corner's, and its change along
 # edge_u and along edge_v (a triangle's: its barycentrics of v1 and v2, as
 # Mitsuba gives a mesh without texture coordinates).
@@ -77,7 +80,10 @@ class Material:
     (u, v); the colour field then holds the texture's largest value per
     channel (the bound lobe probabilities and energy checks use). "alpha"
     varies a rough conductor's roughness (the texture's luminance, within
-    ALPHA_RANGE; alpha holds its mean).
+    ALPHA_RANGE; alpha holds its mean). "emission" varies an area light's
+    radiance (Mitsuba 3's textured `area` emitter: the texture's value at the
+    point's (u, v)); emission then holds the texture's largest value per
+    channel, and the light is picked by the texture's mean times its area.
     emission is radiance leaving the surface (on the side its normal points
     to, or both sides if two_sided). one_sided makes the surface black from
     behind (the side its normal points away from): no reflection, no
@@ -127,10 +133,11 @@ class Material:
                 raise TypeError(f"Material.{key} must be True or False (got {getattr(self, key)!r})")
         slots = [s for s, _ in self.textures] if isinstance(self.textures, tuple) and \
             all(isinstance(x, tuple) and len(x) == 2 for x in self.textures) else None
-        if slots is None or any(s not in TEXTURE_SLOTS for s in slots) or len(set(slots)) != len(slots) or \
+        known = TEXTURE_SLOTS + (EMISSION_SLOT,)
+        if slots is None or any(s not in known for s in slots) or len(set(slots)) != len(slots) or \
                 not all(isinstance(t, Texture) for _, t in self.textures):
             raise TypeError(f"Material.textures must be ((slot, clpt.texture.Texture), ...) with slots among "
-                            f"{', '.join(TEXTURE_SLOTS)}, each once (got {self.textures!r})")
+                            f"{', '.join(known)}, each once (got {self.textures!r})")
 
     def texture(self, slot: str):
         """The Texture in a slot ("reflectance": kd, or kp of a plastic; "specular": km, or kr; "alpha": a
@@ -189,6 +196,18 @@ class Material:
     @property
     def is_emissive(self) -> bool:
         return max(self.emission) > 0.0
+
+    @property
+    def mean_emission(self) -> tuple:
+        """The emission's mean over the surface's texture space: a textured
+        emitter's texture mean (what light selection by power uses), else emission."""
+        t = self.texture(EMISSION_SLOT)
+        return t.mean() if t is not None else tuple(self.emission)
+
+    @property
+    def bsdf_textures(self) -> tuple:
+        """The textures of the BSDF's slots (TEXTURE_SLOTS): those the material record points to."""
+        return tuple((s, t) for s, t in self.textures if s != EMISSION_SLOT)
 
     @property
     def is_specular(self) -> bool:
@@ -1070,6 +1089,10 @@ def check_material(source, path, m: Material):
         if not isinstance(m.sample_visible, (bool, np.bool_)):
             _fail(source, f"{path}.sample_visible", f"must be True or False (got {m.sample_visible!r})")
     _emission(source, f"{path}.emission", m.emission)
+    et = m.texture(EMISSION_SLOT)
+    if et is not None and tuple(float(c) for c in m.emission) != et.max():
+        _fail(source, f"{path}.emission", f"a textured emitter's emission must be its texture's largest value per "
+                                          f"channel, {et.max()} (got {tuple(m.emission)})")
     _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False, hi=MAX_SHININESS, hi_open=False)
     _finite(source, f"{path}.ior", m.ior, lo=IOR_RANGE[0], lo_open=False, hi=IOR_RANGE[1], hi_open=False)
     if not isinstance(m.two_sided, (bool, np.bool_)):
@@ -1163,7 +1186,7 @@ def check_scene(scene: Scene):
         if isinstance(s, LIGHT_TYPES):
             power += s.power()
         elif emissive:
-            power += area * float(np.mean(m.emission))
+            power += area * float(np.mean(m.mean_emission))
     extent = scene.extent()
     lo, hi = scene.bounds()
     far = float(max(np.abs(lo).max(), np.abs(hi).max()))

@@ -27,6 +27,12 @@
 // that leave the scene see it (env_emission, with light_sample's pdf of
 // their direction for the weight). Both stand at dist beyond the scene's
 // bounding sphere from x (infinite_dist), where the shadow ray ends.
+// A textured area light (CLPT_HAS_TEXTURED_EMITTERS; its LIGHT_TEX row
+// names the texture) emits its texture's value at the point's (u, v):
+// light_texture for light samples, for next event estimation and photon
+// emission alike (a photon leaves by area as before and carries Le(y), so
+// its flux Le(y) cos / pdf stays unbiased), texture.h emitter_textures_hit
+// for rays that hit it. It is picked by its texture's mean times its area.
 // A new light kind is a case of light_point (and of light_pdf_hit, and of
 // the light records' packing in clpt/pack.py).
 
@@ -108,17 +114,22 @@ inline int light_next(const Scene *sc, vreal *li, uint *i, vmask *pick, uint *r)
     return 1;
 }
 
+// Where light_point's point lies on the light's primitive: edge coordinates
+// a, b (a triangle's barycentrics of v1 and v2, as Hit.bu, .bv) and, on a
+// mesh light, the triangle's index in the mesh (a sphere's point: its normal).
+typedef struct { vreal a, b, tri; } LightUV;
+
 #if CLPT_HAS_MESH_LIGHTS
 // A point y on the mesh light whose records start at r, and the normal n of
 // its triangle (winding order), for the lanes in pick: the triangle by area
 // from the mesh's alias table (LTRI_* records), then a uniform point on it. u1
 // picks the alias slot and, rescaled to [0, 1), serves again for the point.
-inline void mesh_light_point(const Scene *sc, uint r, vmask pick, vreal u1, vreal u2, V3 *y, V3 *n)
+inline void mesh_light_point(const Scene *sc, uint r, vmask pick, vreal u1, vreal u2, V3 *y, V3 *n, LightUV *q)
 {
     real4 mi = scene_rec(sc, r + LIGHT_U);  // first triangle record, triangles
     uint base = (uint)mi.x, ntri = (uint)mi.y;
     V3 p = v3_zero(), eu = v3_zero(), ev = v3_zero();
-    vreal ur = u1;
+    vreal ur = u1, tri = (vreal)R(0);
     for (int l = 0; l < CLPT_LANES; l++) {
         if (VLANE_M(pick, l) == 0)
             continue;
@@ -137,6 +148,7 @@ inline void mesh_light_point(const Scene *sc, uint r, vmask pick, vreal u1, vrea
             f = f / b.w;
         }
         real4 c = scene_rec(sc, t + LTRI_V);
+        VLANE_R(tri, l) = (real)j;
         VLANE_R(ur, l) = fmin(fmax(f, R(0)), R(1) - REAL_EPS);
         VLANE_R(p.x, l) = a.x; VLANE_R(p.y, l) = a.y; VLANE_R(p.z, l) = a.z;
         VLANE_R(eu.x, l) = b.x; VLANE_R(eu.y, l) = b.y; VLANE_R(eu.z, l) = b.z;
@@ -146,14 +158,44 @@ inline void mesh_light_point(const Scene *sc, uint r, vmask pick, vreal u1, vrea
     sample_uniform_triangle(ur, u2, &a, &b);
     *y = v3_fma(ev, b, v3_fma(eu, a, p));
     *n = v3_normalize(v3_cross(eu, ev));
+    q->a = a;
+    q->b = b;
+    q->tri = tri;
+}
+#endif
+
+#if CLPT_HAS_TEXTURED_EMITTERS
+// The radiance Le of light r (kind) replaced, for the lanes in pick, by its
+// texture's at the point light_point drew (q; a sphere's from its unit
+// normal ns there), if the light is textured (texture.h emitter_texture).
+inline V3 light_texture(const Scene *sc, uint r, int kind, vmask pick, LightUV q, V3 ns, V3 Le)
+{
+    real4 t = scene_rec(sc, r + LIGHT_TEX);
+    if (t.x == R(0))
+        return Le;
+    for (int l = 0; l < CLPT_LANES; l++) {
+        if (!VLANE_M(pick, l))
+            continue;
+        real prim = t.y + (kind == LIGHT_KIND_MESH ? VLANE_R(q.tri, l) : R(0));
+        real4 c = emitter_texture(sc, (uint)t.x, prim, VLANE_R(q.a, l), VLANE_R(q.b, l),
+                                  (real4)(VLANE_R(ns.x, l), VLANE_R(ns.y, l), VLANE_R(ns.z, l), R(0)));
+        VLANE_R(Le.x, l) = c.x;
+        VLANE_R(Le.y, l) = c.y;
+        VLANE_R(Le.z, l) = c.z;
+    }
+    return Le;
 }
 #endif
 
 // A point y uniform by area on light r (kind, records at r: p its first
-// row), its unit normal n there and the magnitude err its rounding error
-// follows, for the lanes in pick.
-CLPT_INLINE void light_point(const Scene *sc, uint r, int kind, vmask pick, LightU u, V3 *y, V3 *n, vreal *err)
+// row), its unit normal n there, the magnitude err its rounding error
+// follows and (*q) its coordinates on the light's primitive, for the lanes in pick.
+CLPT_INLINE void light_point(const Scene *sc, uint r, int kind, vmask pick, LightU u, V3 *y, V3 *n, vreal *err,
+                             LightUV *q)
 {
+    q->a = u.u1;
+    q->b = u.u2;
+    q->tri = (vreal)R(0);
     real4 p = scene_rec(sc, r + LIGHT_P_KIND);
 #if CLPT_HAS_SPHERE_LIGHTS
     if (kind == LIGHT_KIND_SPHERE) {
@@ -166,7 +208,7 @@ CLPT_INLINE void light_point(const Scene *sc, uint r, int kind, vmask pick, Ligh
 #endif
 #if CLPT_HAS_MESH_LIGHTS
     if (kind == LIGHT_KIND_MESH) {
-        mesh_light_point(sc, r, pick, u.u1, u.u2, y, n);
+        mesh_light_point(sc, r, pick, u.u1, u.u2, y, n, q);
         *err = fmax(fabs(y->x), fmax(fabs(y->y), fabs(y->z)));  // each lane's triangle: the point's magnitude
         return;
     }
@@ -174,8 +216,11 @@ CLPT_INLINE void light_point(const Scene *sc, uint r, int kind, vmask pick, Ligh
     real4 eu = scene_rec(sc, r + LIGHT_U), ev = scene_rec(sc, r + LIGHT_V);
     vreal a = u.u1, b = u.u2;
 #if CLPT_HAS_TRIANGLE_LIGHTS
-    if (kind == LIGHT_KIND_TRIANGLE)
+    if (kind == LIGHT_KIND_TRIANGLE) {
         sample_uniform_triangle(u.u1, u.u2, &a, &b);
+        q->a = a;
+        q->b = b;
+    }
 #endif
     *y = v3(p.x + a * eu.x + b * ev.x, p.y + a * eu.y + b * ev.y, p.z + a * eu.z + b * ev.z);
     *n = v3_splat(scene_rec(sc, r + LIGHT_N));
@@ -527,8 +572,13 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, vmask a
 #endif
         V3 y, n;
         vreal err;
-        light_point(sc, r, kind, pick, u, &y, &n, &err);
+        LightUV q;
+        light_point(sc, r, kind, pick, u, &y, &n, &err, &q);
         ls.Le = v3_sel(ls.Le, v3_splat(m), pick);
+#if CLPT_HAS_TEXTURED_EMITTERS
+        if (!at_x)  // photon emission: the radiance where the photon leaves (flux = Le(y) cos / pdf)
+            ls.Le = v3_sel(ls.Le, light_texture(sc, r, kind, pick, q, n, ls.Le), pick);
+#endif
         if (!at_x) {
             ls.p = v3_sel(ls.p, y, pick);
             ls.n = v3_sel(ls.n, n, pick);
@@ -565,7 +615,13 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, vmask a
             dist = VSEL(dist, tc, outside);
             pdf_sa = VSEL(pdf_sa, uniform_cone_pdf(omc), outside);
             cos_l = VSEL(cos_l, (vreal)R(1), outside);
+#if CLPT_HAS_TEXTURED_EMITTERS
+            n = v3_sel(n, v3_scale(v3_sub(v3_fma(wc, tc, x), v3_splat(p)), R(1) / rad), outside);  // the cone's point
+#endif
         }
+#endif
+#if CLPT_HAS_TEXTURED_EMITTERS
+        ls.Le = v3_sel(ls.Le, light_texture(sc, r, kind, pick, q, n, ls.Le), pick);
 #endif
         vmask emits = cos_l > R(0) || (m.w != R(0) && cos_l < R(0));
         ls.wi = v3_sel(ls.wi, wi, pick);

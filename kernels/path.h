@@ -118,6 +118,9 @@ inline Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmask act
 #if CLPT_HAS_TEXTURES
     material_textures(sc, &v.m, &h, v.hit);
 #endif
+#if CLPT_HAS_TEXTURED_EMITTERS
+    emitter_textures_hit(sc, &v.m, &h, v.hit);
+#endif
     v.x = v3_fma(ps->d, h.t, ps->o);
     v.front = v3_dot(h.ng, ps->d) < R(0);
     v.ng = v3_sel(v3_neg(h.ng), h.ng, v.front);  // faces the incoming ray

@@ -15,6 +15,8 @@ in the tests (and clpt/data/mitsuba_ior.json) were produced:
         tests/data/cbox_lamp_gaussian_mitsuba.json spp=16384
     MI_VARIANT=llvm_ad_rgb python tests/mitsuba_measure.py --reference tests/data/cbox_textured.xml \
         tests/data/cbox_textured_mitsuba.json spp=8192                      # textures (tests/texgen.py first)
+    MI_VARIANT=llvm_ad_rgb python tests/mitsuba_measure.py --reference tests/data/cbox_textured_lights.xml \
+        tests/data/cbox_textured_lights_mitsuba.json spp=4096               # textured area lights
 """
 
 import json

@@ -126,13 +126,14 @@ def _reversed(r):
                                    str(Path(__file__).parent / "data" / "plastic_spheres.xml"),
                                    str(Path(__file__).parent / "data" / "rough_glass.xml"),
                                    str(Path(__file__).parent / "data" / "cbox_textured.xml"),
+                                   str(Path(__file__).parent / "data" / "cbox_textured_lights.xml"),
                                    str(Path(__file__).parent / "data" / "env_spheres.xml")])
 def test_reordered_fields_render_the_same_image(device_spec, monkeypatch, scene):
     """Every record with its fields in reverse order, scene rows and launch
     structs alike: the host fills by name and the kernels read by name, so
     the image is the same to the bit (the BVH, mesh lights, sphere,
     triangle and quad lights, photon mapping, rough conductors, plastics,
-    rough dielectrics, textures and an environment map included)."""
+    rough dielectrics, textures, textured lights and an environment map included)."""
     ref = clpt.Renderer(scene, device=device_spec, aux=True).render(2, width=16, height=16)
     for name in ("MATERIAL", "SPHERE", "PLANAR", "PLANE", "LIGHT", "CAUSTIC", "BVH_NODE", "BVH_LEAF", "NORMALS",
                  "LIGHT_TRI", "TEXTURE_SLOTS", "TEXTURE", "UV", "ENV_TEXEL", "ENV_PACKED", "SCENE_INFO", "CAMERA",
