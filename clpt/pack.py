@@ -749,10 +749,9 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
              LIGHT_KIND_MESH: "mesh", KIND_POINT: "point", KIND_SPOT: "spot", KIND_ENV: "environment",
              KIND_DIRECTIONAL: "directional"}
     lo, hi = scene.bounds(camera=False)
-    # The power photons can carry (an environment emits none: its light is path traced alone).
+    # The power photons can carry (an environment's: what crosses the bounding sphere inwards).
     flux = sum(b.delta_power[k] / max(float(np.mean(m.emission)), 1e-300) * max(m.emission) if k in b.delta_power
-               else sides * math.pi * area * max(m.emission) for k, (sides, area, m, f, *_) in enumerate(lights)
-               if f["p_kind"][3] != KIND_ENV)
+               else sides * math.pi * area * max(m.emission) for k, (sides, area, m, f, *_) in enumerate(lights))
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
                        light_kinds=frozenset(kinds[int(f["p_kind"][3])] for _, _, _, f, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,

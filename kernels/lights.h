@@ -52,8 +52,11 @@ typedef struct {
     vmask delta;      // a point or spot light (a delta light)
     vreal cos_cut, cut, inv_tr, cos_beam;  // the spot's falloff (a point light's: -2, 0, 0, -2, 1 everywhere)
 #endif
-#if CLPT_HAS_DIRECTIONAL_LIGHTS
-    vmask parallel;   // (photon emission) a directional light's: the photon travels along n from p
+#if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
+    vmask parallel;   // (photon emission) a directional light's or environment's: the photon travels along n from p
+#endif
+#if CLPT_HAS_ENV_LIGHT
+    vmask env_disk;   // (photon emission) an environment's: p still to be placed on the disk (env_photon_start)
 #endif
 } LightSample;
 
@@ -429,24 +432,37 @@ inline V3 env_emission(const Scene *sc, V3 d, vmask m, vreal *pdf)
 }
 #endif
 
-#if CLPT_HAS_DIRECTIONAL_LIGHTS
-// Where a directional light's photon starts (lanes in pick; records at r,
-// c its bounding-sphere row, info and m as light_sample's), into *ls: on the
-// disk of radius R across the scene's bounding sphere, at R before its
-// center along the light's direction d, aimed at the caustic casters: a
+#if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
+// The density, per unit area across unit direction d, with which
+// parallel_disk_point places a point whose line along d passes through p
+// (p in the plane through c across d): the mixture of the caster disks
+// (below) that hold it.
+inline vreal parallel_disk_density(const Scene *sc, real4 c, real big, V3 d, V3 p)
+{
+    vreal dens = (vreal)R(0);
+    for (uint k = 0; k < NUM_CAUSTICS; k++) {
+        real4 s = scene_rec(sc, OFF_CAUSTICS + CAUSTIC_STRIDE * k + CAUSTIC_SPHERE);
+        real rk = s.w < R(0) ? big : s.w;
+        V3 qk = s.w < R(0) ? v3_splat(c) : v3_splat(s);
+        qk = v3_fma(d, -v3_dot(v3_sub(qk, v3_splat(c)), d), qk);
+        V3 e = v3_sub(p, qk);
+        dens += VSEL((vreal)R(0), (vreal)(R(1) / (R(M_PI) * rk * rk)), v3_dot(e, e) <= rk * rk * R(1.000001));
+    }
+    return dens * (R(1) / (real)NUM_CAUSTICS);
+}
+
+// Where a photon travelling along unit d (per lane) from infinity starts:
+// on the disk of radius R (big) across the scene's bounding sphere (center
+// c), at R before its center along d, aimed at the caustic casters: a
 // caster picked in equal shares (u1), a uniform point in the disk its
 // bounding sphere casts along d (u1 rescaled, u2; an unbounded caster's:
-// the whole disk). pdf_area = the pick probability times the mixture of
-// those disks' uniform densities at the point; n = d, Le = the irradiance,
-// delta and parallel set (the photon leaves p along n).
-CLPT_INLINE void directional_photon_start(const Scene *sc, uint r, real4 c, real4 info, real4 m, vmask pick,
-                                          LightU u, LightSample *ls)
+// the whole disk). *dens: the mixture of those disks' uniform densities at
+// the point (parallel_disk_density).
+inline V3 parallel_disk_point(const Scene *sc, real4 c, real big, V3 d, vreal u1, vreal u2, vreal *dens)
 {
-    real4 d4 = scene_rec(sc, r + LIGHT_U);
-    V3 d = v3((vreal)d4.x, (vreal)d4.y, (vreal)d4.z), t, b;
+    V3 t, b;
     frame_from_z(d, &t, &b);
-    real big = sqrt(info.x * R(M_1_PI));
-    vreal uk = u.u1 * (real)NUM_CAUSTICS;
+    vreal uk = u1 * (real)NUM_CAUSTICS;
     vreal kf = fmin(floor(uk), (vreal)(real)(NUM_CAUSTICS - 1));
     vreal ur = fmin(uk - kf, (vreal)R(1));
     V3 q = v3_zero();
@@ -459,20 +475,26 @@ CLPT_INLINE void directional_photon_start(const Scene *sc, uint r, real4 c, real
     }
     // The point in the plane through c across d, then moved back by R.
     q = v3_fma(d, -v3_dot(v3_sub(q, v3_splat(c)), d), q);
-    vreal pr = rad * sqrt(ur), phi = u.u2 * R(2 * M_PI);
+    vreal pr = rad * sqrt(ur), phi = u2 * R(2 * M_PI);
     V3 p = v3_fma(t, pr * cos(phi), v3_fma(b, pr * sin(phi), q));
-    // The density: every caster's disk that holds the point.
-    vreal dens = (vreal)R(0);
-    for (uint k = 0; k < NUM_CAUSTICS; k++) {
-        real4 s = scene_rec(sc, OFF_CAUSTICS + CAUSTIC_STRIDE * k + CAUSTIC_SPHERE);
-        real rk = s.w < R(0) ? big : s.w;
-        V3 qk = s.w < R(0) ? v3_splat(c) : v3_splat(s);
-        qk = v3_fma(d, -v3_dot(v3_sub(qk, v3_splat(c)), d), qk);
-        V3 e = v3_sub(p, qk);
-        dens += VSEL((vreal)R(0), (vreal)(R(1) / (R(M_PI) * rk * rk)), v3_dot(e, e) <= rk * rk * R(1.000001));
-    }
-    dens *= R(1) / (real)NUM_CAUSTICS;
-    p = v3_fma(d, (vreal)(-big * R(1.001)), p);
+    *dens = parallel_disk_density(sc, c, big, d, p);
+    return v3_fma(d, (vreal)(-big * R(1.001)), p);
+}
+#endif
+
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+// Where a directional light's photon starts (lanes in pick; records at r,
+// c its bounding-sphere row, info and m as light_sample's), into *ls: on
+// parallel_disk_point's disk along the light's direction d (u1, u2).
+// pdf_area = the pick probability times the disk's density at the point;
+// n = d, Le = the irradiance, delta and parallel set (the photon leaves p along n).
+CLPT_INLINE void directional_photon_start(const Scene *sc, uint r, real4 c, real4 info, real4 m, vmask pick,
+                                          LightU u, LightSample *ls)
+{
+    real4 d4 = scene_rec(sc, r + LIGHT_U);
+    V3 d = v3((vreal)d4.x, (vreal)d4.y, (vreal)d4.z);
+    vreal dens;
+    V3 p = parallel_disk_point(sc, c, sqrt(info.x * R(M_1_PI)), d, u.u1, u.u2, &dens);
     ls->p = v3_sel(ls->p, p, pick);
     ls->n = v3_sel(ls->n, d, pick);
     ls->Le = v3_sel(ls->Le, v3_splat(m), pick);
@@ -485,19 +507,72 @@ CLPT_INLINE void directional_photon_start(const Scene *sc, uint r, real4 c, real
 }
 #endif
 
+#if CLPT_HAS_ENV_LIGHT
+// An environment's photon (lanes in pick; records at r, c its
+// bounding-sphere row, info and m as light_sample's), into *ls: a
+// direction w drawn as next event estimation draws it (env_sample, u1,
+// u2); the photon travels along n = -w with Le the radiance from w, and
+// pdf_area = the pick probability times w's solid-angle pdf, still to be
+// multiplied by the density of its start on the disk (env_disk set:
+// env_photon_start, with random numbers of its own).
+CLPT_INLINE void env_photon_dir(const Scene *sc, uint r, real4 info, real4 m, vmask pick, LightU u,
+                                LightSample *ls)
+{
+    V3 w;
+    vreal pdf_sa;
+    V3 Le = v3_mul(env_sample(sc, r, pick, u.u1, u.u2, &w, &pdf_sa), v3_splat(m));
+    ls->n = v3_sel(ls->n, v3_neg(w), pick);
+    ls->Le = v3_sel(ls->Le, Le, pick);
+    ls->pdf_area = VSEL(ls->pdf_area, pdf_sa * info.y, pick);
+    ls->parallel = ls->parallel || pick;
+    ls->env_disk = ls->env_disk || pick;
+}
+
+// The start of the environment photons in env_disk on parallel_disk_point's
+// disk along their direction n (u1, u2); pdf_area times its density there.
+inline void env_photon_start(const Scene *sc, vreal u1, vreal u2, LightSample *ls)
+{
+    if (!VANY(ls->env_disk))
+        return;
+    uint r = ENV_LIGHT_REC;
+    real4 c = scene_rec(sc, r + LIGHT_P_KIND);
+    vreal dens;
+    V3 p = parallel_disk_point(sc, c, sqrt(scene_rec(sc, r + LIGHT_INFO).x * R(M_1_PI)), ls->n, u1, u2, &dens);
+    ls->p = v3_sel(ls->p, p, ls->env_disk);
+    ls->err = VSEL(ls->err, fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z))), ls->env_disk);
+    ls->pdf_area = VSEL(ls->pdf_area, ls->pdf_area * dens, ls->env_disk);
+}
+
+// The light-side pdf factor of an environment photon that a camera ray
+// leaving along unit d from o would meet (pdf_l: light_sample's pdf of d,
+// env_emission's): its direction's pdf times its disk density there, as
+// trace_photons stores it, for the weight of an escape after a merge.
+inline vreal env_photon_pdf(const Scene *sc, V3 o, V3 d, vreal pdf_l)
+{
+    uint r = ENV_LIGHT_REC;
+    real4 c = scene_rec(sc, r + LIGHT_P_KIND);
+    V3 w = v3_neg(d), p = v3_fma(w, -v3_dot(v3_sub(o, v3_splat(c)), w), o);  // into the plane through c
+    vreal dens = parallel_disk_density(sc, c, sqrt(scene_rec(sc, r + LIGHT_INFO).x * R(M_1_PI)), w, p);
+    return pdf_l * dens;
+}
+#endif
+
 #if CLPT_HAS_ENV_LIGHT || CLPT_HAS_DIRECTIONAL_LIGHTS
 // light_sample's light at infinity (records at r; info and m its LIGHT_INFO
 // and material's Le row) for the lanes in pick, into *ls. At x: an
 // environment's direction and pdf (env_sample), or a directional light's
 // (delta: pdf = the pick probability), at a point beyond the scene. For
-// photon emission: a directional light's start (directional_photon_start);
-// an environment's photons are not traced (pdf_area 0).
+// photon emission: a directional light's start (directional_photon_start)
+// or an environment's direction (env_photon_dir).
 CLPT_INLINE void infinite_light_sample(const Scene *sc, uint r, int kind, real4 info, real4 m, vmask pick, V3 x,
                                        int at_x, LightU u, LightSample *ls)
 {
     real4 c = scene_rec(sc, r + LIGHT_P_KIND);
     if (!at_x) {
-        ls->pdf_area = VSEL(ls->pdf_area, (vreal)R(0), pick);  // an environment: no photons
+#if CLPT_HAS_ENV_LIGHT
+        if (kind == LIGHT_KIND_ENV)
+            env_photon_dir(sc, r, info, m, pick, u, ls);
+#endif
 #if CLPT_HAS_DIRECTIONAL_LIGHTS
         if (kind == LIGHT_KIND_DIRECTIONAL)
             directional_photon_start(sc, r, c, info, m, pick, u, ls);
@@ -548,8 +623,11 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, vmask a
     ls.delta = ls.valid;
     ls.cos_cut = ls.cut = ls.inv_tr = ls.cos_beam = (vreal)R(0);
 #endif
-#if CLPT_HAS_DIRECTIONAL_LIGHTS
+#if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
     ls.parallel = ls.valid;
+#endif
+#if CLPT_HAS_ENV_LIGHT
+    ls.env_disk = ls.valid;
 #endif
     vreal li = VSEL((vreal)R(INFINITY), light_pick_index(sc, u.pick), active);  // only the active lanes pick
     uint i, r;
