@@ -1282,9 +1282,7 @@ class _Loader:
                 if rr < 1:
                     p.props["rr_depth"].fail(f"must be >= 1 (got {rr})")
                 settings["rr_depth"] = rr - 1
-            if p.boolean("hide_emitters", False):
-                self.warn(node, "hide_emitters is not supported: emitters seen directly are rendered",
-                          key=("hide_emitters",))
+            settings["hide_emitters"] = p.boolean("hide_emitters", False)
             p.finish(quiet=("samples_per_pass", "timeout"))
         elif t == "direct":
             self.warn(node, "integrator 'direct' is rendered as path tracing with one bounce", key=("direct",))
@@ -1351,7 +1349,8 @@ class _Loader:
         defaults = RenderSettings()
         render = RenderSettings(spp=settings.get("spp", 4), max_depth=settings["max_depth"],
                                 seed=settings.get("seed", defaults.seed),
-                                rr_depth=settings.get("rr_depth", defaults.rr_depth))
+                                rr_depth=settings.get("rr_depth", defaults.rr_depth),
+                                hide_emitters=settings.get("hide_emitters", defaults.hide_emitters))
         self.emit_warnings()
         scene = Scene(camera=camera, shapes=shapes, materials=materials, render=render, source=self.shown)
         try:

@@ -311,12 +311,16 @@ class RenderSettings:
     max_depth counts scattering events (pbrt's convention): 0 shows emitters
     only, 1 adds direct light. Mitsuba's max_depth is this plus one.
     rr_depth is the depth from which Russian roulette may absorb a path.
+    hide_emitters (Mitsuba 3's integrator option): camera rays see no
+    emission (an emitter seen directly is black, as is the environment
+    behind the scene); the light emitters cast is unchanged.
     """
 
     spp: int = 64
     max_depth: int = 8
     seed: int = 0
     rr_depth: int = 2
+    hide_emitters: bool = False
 
 
 @dataclass(frozen=True)
@@ -1301,6 +1305,57 @@ _SHAPE_KEYS = {
     "mesh": {"file", "transform"},
 }
 _TRANSFORM_KEYS = {"translate", "rotate", "scale", "matrix"}
+# Lights without a surface, as [[shapes]] entries: their keys are the Python classes' fields.
+_LIGHT_KEYS = {
+    "point": {"position", "intensity"},
+    "spot": {"position", "direction", "intensity", "cutoff_angle", "beam_width"},
+    "directional": {"direction", "irradiance"},
+    "envmap": {"file", "scale", "transform"},
+    "constant": {"radiance"},
+}
+
+
+def _read_light(r: _Reader, d, kind, path, base_dir):
+    """A point, spot, directional, envmap or constant light from its table
+    (the Python API's parameters; an envmap's image from `file`, relative to
+    base_dir, 8-bit formats sRGB-decoded as Mitsuba decodes them, turned by
+    `transform`'s rotation)."""
+    r.table(d, path, {"type", "name"} | _LIGHT_KEYS[kind])
+    kw = {"name": r.string(d["name"], f"{path}.name")} if "name" in d else {}
+    for k in ("position", "intensity", "direction", "irradiance", "radiance"):
+        if k in d:
+            kw[k] = r.vec3(d[k], f"{path}.{k}")
+    for k in ("cutoff_angle", "beam_width", "scale"):
+        if k in d:
+            kw[k] = r.number(d[k], f"{path}.{k}")
+    if kind == "spot":
+        cut = kw.get("cutoff_angle", SpotLight.cutoff_angle)
+        if not 0 < cut <= 90:
+            r.fail(f"{path}.cutoff_angle", f"must be in (0, 90] degrees (got {cut:g})")
+        beam = kw.get("beam_width", 0.75 * cut)
+        if not 0 <= beam <= cut:
+            r.fail(f"{path}.beam_width", f"must be in [0, cutoff_angle = {cut:g}] degrees (got {beam:g})")
+        return SpotLight(**kw)
+    if kind == "point":
+        return PointLight(**kw)
+    if kind == "directional":
+        return DirectionalLight(**kw)
+    if kind == "constant":
+        return EnvironmentLight(**kw)
+    from .texture import load_bitmap
+    from .errors import ImageError
+
+    name = r.string(r.require(d, path, "file"), f"{path}.file")
+    file = Path(name) if Path(name).is_absolute() or base_dir is None else Path(base_dir) / name
+    try:
+        img = load_bitmap(file)
+    except (ImageError, OSError) as e:
+        r.fail(f"{path}.file", str(e))
+    if "scale" in kw and not kw["scale"] > 0:
+        r.fail(f"{path}.scale", f"must be > 0 (got {kw['scale']:g})")
+    if "transform" in d:
+        kw["to_world"] = tuple(map(tuple, _read_transform(r, d["transform"], f"{path}.transform").tolist()))
+    return EnvironmentLight(image=img, filename=str(file), **kw)
 
 
 def _read_material(r: _Reader, d, path) -> Material:
@@ -1364,11 +1419,13 @@ def _read_shape(r: _Reader, d, path, materials, base_dir=None):
     if not isinstance(d, dict):
         r.fail(path, f"must be a table (got {_tname(d)})")
     kind = r.string(r.require(d, path, "type"), f"{path}.type")
-    if kind not in SHAPE_TYPES:
-        r.fail(f"{path}.type", f"unknown shape type {kind!r}{_suggest(kind, SHAPE_TYPES)}; "
-                               f"types: {', '.join(SHAPE_TYPES)}")
+    if kind not in SHAPE_TYPES and kind not in _LIGHT_KEYS:
+        known = list(SHAPE_TYPES) + list(_LIGHT_KEYS)
+        r.fail(f"{path}.type", f"unknown shape type {kind!r}{_suggest(kind, known)}; types: {', '.join(known)}")
     if "name" in d:
         path = f"{path} {r.string(d['name'], f'{path}.name')!r}"
+    if kind in _LIGHT_KEYS:
+        return _read_light(r, d, kind, path, base_dir)
     r.table(d, path, _COMMON_SHAPE_KEYS | _SHAPE_KEYS[kind])
     kw = {}
     if "name" in d:
@@ -1445,13 +1502,14 @@ def parse_scene(text: str, source: str = "<string>", base_dir=None) -> Scene:
         width=r.integer(cd.get("width", 256), "camera.width", lo=1, hi=1 << 16),
         height=r.integer(cd.get("height", 256), "camera.height", lo=1, hi=1 << 16),
     )
-    rd = r.table(doc.get("render", {}), "render", {"spp", "max_depth", "seed", "rr_depth"})
+    rd = r.table(doc.get("render", {}), "render", {"spp", "max_depth", "seed", "rr_depth", "hide_emitters"})
     defaults = RenderSettings()
     settings = RenderSettings(
         spp=r.integer(rd.get("spp", defaults.spp), "render.spp", lo=1, hi=2 ** 32 - 1),
         max_depth=r.integer(rd.get("max_depth", defaults.max_depth), "render.max_depth", lo=0),
         seed=r.integer(rd.get("seed", defaults.seed), "render.seed", lo=0, hi=2 ** 32 - 1),
         rr_depth=r.integer(rd.get("rr_depth", defaults.rr_depth), "render.rr_depth", lo=0),
+        hide_emitters=r.boolean(rd.get("hide_emitters", defaults.hide_emitters), "render.hide_emitters"),
     )
     mats = {}
     md = doc.get("materials", {})

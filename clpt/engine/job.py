@@ -89,6 +89,7 @@ class RenderJob:
     adaptive: AdaptiveSettings | None = None
     filter: object | None = None               # FilterSettings or OidnSettings
     aux_specular: str = "surface"              # what the feature buffers show of mirrors and glass
+    hide_emitters: bool = False                # camera rays see no emission (RenderSettings.hide_emitters)
 
     # --- identity ----------------------------------------------------------------
     def scene_key(self) -> str:
