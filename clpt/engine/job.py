@@ -90,6 +90,8 @@ class RenderJob:
     filter: object | None = None               # FilterSettings or OidnSettings
     aux_specular: str = "surface"              # what the feature buffers show of mirrors and glass
     hide_emitters: bool = False                # camera rays see no emission (RenderSettings.hide_emitters)
+    moments: bool = False                      # the pilot's trial: merges estimate path tracing's second
+                                               # moment in the caustic plane (builds with feature buffers)
 
     # --- identity ----------------------------------------------------------------
     def scene_key(self) -> str:
