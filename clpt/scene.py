@@ -25,12 +25,12 @@ from typing import Union
 
 import numpy as np
 
-from .errors import MeshError, SceneError, SceneWarning, SettingsError  # noqa: F401 - importable from here
+from .errors import ImageError, MeshError, SceneError, SceneWarning, SettingsError  # noqa: F401 - importable
 from .hostio import open_regular_file
 from .meshio import check_mesh, compose, cross_rows, norm_rows, read_mesh, transform_mesh
 from .presets import PRESETS
 from .spectrum import conductor_ior
-from .texture import Texture
+from .texture import Texture, load_bitmap
 
 # Material.textures slots: "reflectance" (kd, or kp of a plastic), "specular" (km, or kr), "alpha" (a
 # rough conductor's roughness: the texture's luminance).
@@ -1342,9 +1342,6 @@ def _read_light(r: _Reader, d, kind, path, base_dir):
         return DirectionalLight(**kw)
     if kind == "constant":
         return EnvironmentLight(**kw)
-    from .texture import load_bitmap
-    from .errors import ImageError
-
     name = r.string(r.require(d, path, "file"), f"{path}.file")
     file = Path(name) if Path(name).is_absolute() or base_dir is None else Path(base_dir) / name
     try:

@@ -2,10 +2,11 @@
 against: path tracing cannot form a point light's caustic through a smooth
 sphere at all (its path-traced reference would have no caustic), so the
 reference is a long render with photon merging (progressive: the radius
-shrinks with the maps, so its blur vanishes), saved with its noise as the
-bench's reference EXR:
+shrinks with the maps, so its blur vanishes), saved with its noise (per
+pixel: the merged estimate's own variance, which leaves out the noise its
+photon maps share) as the bench's reference EXR:
 
-    python tests/point_glass_reference.py /tmp/point_glass_ref.exr [spp] [device]
+    python tests/point_glass_reference.py /tmp/point_glass_ref.exr [spp] [device]   # and its .noise.exr
     clpt bench-photons tests/data/point_glass.xml --reference /tmp/point_glass_ref.exr \
         --equal-time 4,16 --cpu-time --device intel
 
@@ -23,6 +24,7 @@ import numpy as np
 import clpt
 from clpt.image import save_image
 from clpt.photons import PhotonSettings
+from clpt.tools.reference import noise_path
 
 SCENE = Path(__file__).resolve().parent / "data" / "point_glass.xml"
 
@@ -31,9 +33,12 @@ def main(out, spp=16384, device=None):
     scene = clpt.load_scene(SCENE)
     res = clpt.Renderer(scene, device=device).render(spp, seed=12345, max_depth=64,
                                                      photons=PhotonSettings(pilot=False))
-    noise = float((res.lum_var / np.maximum(res.sample_count, 1)).mean())
+    noise_map = res.lum_var.astype(np.float64) / np.maximum(res.sample_count, 1)
+    noise = float(noise_map.mean())
     save_image(out, res.image, metadata={"clpt:reference_spp": spp, "clpt:noise": noise, "clpt:max_depth": 64,
                                          "clpt:reference_method": "photon merging (progressive)"})
+    save_image(noise_path(out), noise_map, metadata={"clpt:reference_spp": spp,
+                                                     "clpt:content": "variance of each pixel's luminance mean"})
     print(f"{out}: {spp} spp in {res.stats.render_seconds:.1f} s, noise {noise:.3g}")
 
 
