@@ -435,6 +435,7 @@ def equal_time_methods() -> dict:
     return {
         "path": ("path tracing", None),
         "default": ("merging (default: MIS, progressive, pilot)", PhotonSettings()),
+        "trial": ("merging, pilot with its timed trial", PhotonSettings(pilot_trial=True)),
         "forced": ("merging, forced (no pilot)", PhotonSettings(pilot=False)),
         "first": ("merging, first vertex only", PhotonSettings(pilot=False, merge_vertices=1)),
         "online": ("owned map, online (10^6 photons)", PhotonSettings(mode="online")),
@@ -474,18 +475,27 @@ def caustic_equal_time(scene, *, device=None, width=128, height=128, seconds=(2.
             "caustic": metrics.relmse_luma(ref[region], ref[region], -ref.noise_map[region]),
             "image": metrics.relmse_luma(ref, ref, -ref.noise_map)}
     per_spp = {}
+    fixed = {}
     if cpu:
+        # Each method's CPU seconds per spp and per render (its pilot, a build made on the first
+        # render: a twin's), from a warm-up render and two timed ones of 16 and 48 spp.
         for name, ps in methods.items():
-            c = time.process_time()
-            (pt if ps is None else pm).render(16, width=width, height=height, seed=1, photons=ps, max_depth=max_depth)
-            per_spp[name] = (time.process_time() - c) / 16
+            r = pt if ps is None else pm
+            r.render(1, width=width, height=height, seed=1, photons=ps, max_depth=max_depth)
+            cost = {}
+            for n in (16, 48):
+                c = time.process_time()
+                r.render(n, width=width, height=height, seed=1, photons=ps, max_depth=max_depth)
+                cost[n] = time.process_time() - c
+            per_spp[name] = max((cost[48] - cost[16]) / 32, 1e-9)
+            fixed[name] = max(cost[16] - 16 * per_spp[name], 0.0)
     for t in seconds:
         for name, ps in methods.items():
             r = pt if ps is None else pm
             c = time.process_time()
             if cpu:
-                res = r.render(max(1, int(t / per_spp[name])), width=width, height=height, seed=7, photons=ps,
-                               max_depth=max_depth)
+                res = r.render(max(1, int((t - fixed[name]) / per_spp[name])), width=width, height=height, seed=7,
+                               photons=ps, max_depth=max_depth)
             else:
                 res = r.render(1 << 24, width=width, height=height, seed=7, time_limit=t, photons=ps,
                                max_depth=max_depth)
@@ -533,8 +543,9 @@ def run_bench_photons(a) -> int:
                 base = run
             gain = (f"  (vs path tracing: caustic {base['relmse_caustic'] / run['relmse_caustic']:.2f}x, "
                     f"image {base['relmse_image'] / run['relmse_image']:.2f}x)") if base else ""
+            choice = f" [{run['choice']}]" if run.get("choice") else ""
             print(f"  {run['method']:44s} {run['seconds']:6.2f} s ({run['cpu_seconds']:6.2f} CPU s) {run['spp']:8.1f} spp  relMSE caustic "
-                  f"{run['relmse_caustic']:.3e}, image {run['relmse_image']:.3e}{gain}")
+                  f"{run['relmse_caustic']:.3e}, image {run['relmse_image']:.3e}{gain}{choice}")
             if "relmse_caustic_luma" in run:
                 gain = (f"  (vs path tracing: caustic {base['relmse_caustic_luma'] / run['relmse_caustic_luma']:.2f}x, "
                         f"image {base['relmse_image_luma'] / run['relmse_image_luma']:.2f}x)") if base else ""
