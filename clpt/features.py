@@ -70,6 +70,7 @@ class Features:
     smooth: bool = True        # some triangles have vertex normals
     textures: bool = True      # some materials have textures (kernels/texture.h)
     anisotropy: bool = True    # some microfacet lobes have alpha_u != alpha_v (shading-frame tangents)
+    textured_emitters: bool = True  # some area lights' radiance is a texture (with textures)
     pixel_filter: str = "box"  # the camera's pixel filter (PIXEL_FILTERS); the box compiles no filter code
     counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights, casters, BVH nodes (not generic)
 
@@ -105,6 +106,7 @@ class Features:
             "CLPT_HAS_SMOOTH": int(self.smooth),
             "CLPT_HAS_TEXTURES": int(self.textures),
             "CLPT_HAS_ANISOTROPY": int(self.anisotropy),
+            "CLPT_HAS_TEXTURED_EMITTERS": int(self.textures and self.textured_emitters),
         }
         if self.mode != "generic":
             for name, n in zip(("MATERIALS", "SPHERES", "QUADS", "TRIANGLES", "PLANES", "LIGHTS", "CAUSTICS",
@@ -144,7 +146,8 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
     if mode == "generic":
         return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
                         photons=use_photons, aux=aux, bvh_walk=bvh_walk, pixel_filter=packed.pixel_filter,
-                        textures=bool(packed.textures), anisotropy=packed.anisotropic)
+                        textures=bool(packed.textures), anisotropy=packed.anisotropic,
+                        textured_emitters=packed.has_textured_emitters)
     return Features(
         lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
         pixel_filter=packed.pixel_filter,
@@ -169,6 +172,7 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         smooth=packed.smooth,
         textures=bool(packed.textures),
         anisotropy=packed.anisotropic,
+        textured_emitters=packed.has_textured_emitters,
         bvh_walk=bvh_walk,
         counts=tuple(packed.counts),
     )

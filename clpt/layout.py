@@ -189,12 +189,13 @@ PLANAR = Rows("planar", "PLANAR", _r4("corner_mat", "n_light", "wu_prim", "wv_ki
               "As a BVH item, a sphere: center.xyz, material | radius, 0, 0, light + 1 | 0, 0, 0, prim id | "
               "0, 0, 0, ITEM_SPHERE")
 PLANE = Rows("plane", "PLANE", _r4("point_mat", "n"), "plane: point.xyz, material | n.xyz, prim id")
-LIGHT = Rows("light", "LIGHT", _r4("p_kind", "u", "v", "n", "info"),
+LIGHT = Rows("light", "LIGHT", _r4("p_kind", "u", "v", "n", "info", "tex"),
              "light: p.xyz, kind | u.xyz, 0 | v.xyz, 0 | n.xyz, alias | area, pick probability, alias "
              "probability, material; a mesh light: 0, 0, 0, kind | first triangle record, triangles, 0, 0 | ... | "
              "0, 0, 0, alias | info; a point or spot light: p.xyz, kind | axis.xyz, cos cutoff | cutoff, "
              "1 / (cutoff - beam width), cos beam width, 0 | 0, 0, 0, alias | 1, ... (Le: the intensity). Slot j of the lights' alias table (by power) keeps light j with its alias "
-             "probability, else gives light alias")
+             "probability, else gives light alias. Last row (area lights): the record index of the TEXTURE of "
+             "its radiance (0: none), its primitive's id (a mesh light's first triangle's), 0, 0")
 CAUSTIC = Rows("caustic caster", "CAUSTIC", _r4("sphere"), "caustic caster: bounding sphere center.xyz, radius")
 # Wide BVH nodes (clpt/bvh.py WIDTH = 8 children): rows of 8 reals, read as
 # one real8 each; SoA leaf blocks of up to 4 items: rows of 4 reals.
@@ -213,7 +214,7 @@ NORMALS = Rows("vertex normals", "NORMALS", _r4("n0", "n1", "n2"), "vertex norma
 TEXTURE = Rows("texture", "TEX", _r4("kind_size", "data", "uv_u", "uv_v", "color0", "color1"),
                "texture (clpt/texture.py): kind (TEX_BITMAP, TEX_CHECKERBOARD), width, height, wrap (TEX_REPEAT, "
                "TEX_MIRROR, TEX_CLAMP) | the record of its first texel as hi, lo (hi * TEX_ROW_SPLIT + lo; "
-               "3 reals a texel, row by row, from there), filter (TEX_BILINEAR, TEX_NEAREST), 0 | to_uv: a, b, c, 0 (u' = a u + b v + c) | d, e, f, 0 (v') | color0.rgb, 0 | "
+               "3 reals a texel, row by row, from there), filter (TEX_BILINEAR, TEX_NEAREST), record index of the UV section | to_uv: a, b, c, 0 (u' = a u + b v + c) | d, e, f, 0 (v') | color0.rgb, 0 | "
                "color1.rgb, 0")
 TEXTURE_SLOTS = Rows("material textures", "TEXS", _r4("slots", "more"),
                      "a textured material's textures (the record index of each TEXTURE, 0: none): reflectance "
@@ -299,7 +300,7 @@ TRACE_LAUNCH = Record("TraceLaunch", (
     ("scene", SCENE_INFO), ("camera", CAMERA), ("photons", PHOTON_LOOKUP), ("lum_scale", "real"),
     ("width", "uint"), ("height", "uint"), ("group_offset", "uint"), ("sample_begin", "uint"),
     ("n_samples", "uint"), ("max_depth", "uint"), ("rr_depth", "uint"), ("seed", "uint"), ("n_list", "uint"),
-    ("aux_specular", "uint"), ("pixel_filter", FILTER)),
+    ("aux_specular", "uint"), ("hide_emitters", "uint"), ("pixel_filter", FILTER)),
     "one trace_paths launch (kernels/trace.cl)")
 PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"), ("n_emit", "uint"),
                                         ("aim", "uint")),

@@ -26,7 +26,7 @@ import numpy as np
 
 from .scene import (ALPHA_RANGE, DISTRIBUTIONS, FILTER_MAX_RADIUS, Camera, Material, Mesh, PixelFilter, PointLight, Quad,
                     RenderSettings, Scene, SceneError, SceneWarning, Sphere, SpotLight, _suggest, read_file_bytes)
-from .scene import DirectionalLight, EnvironmentLight
+from .scene import EMISSION_SLOT, DirectionalLight, EnvironmentLight
 from .errors import ImageError
 from .image import load_image
 from .meshio import read_mesh_uv, transform_mesh, vertex_normals
@@ -1031,16 +1031,21 @@ class _Loader:
         if len(bsdfs) > 1:
             node.fail("has more than one BSDF")
         mat = self.bsdf(bsdfs[0]) if bsdfs else Material(kd=(0.5, 0.5, 0.5), one_sided=True)
-        emission = None
+        emission = radiance_tex = None
         for e in p.nested("emitter"):
             ep = self.props(e)
             if ep.type != "area":
                 self.warn(e, f"emitter '{ep.type}' on a shape is not supported; ignored", key=("emitter", ep.type))
                 continue
-            emission = ep.color("radiance", emitter=True)
+            # A bitmap or checkerboard radiance varies over the shape by its (u, v) (EMISSION_SLOT;
+            # a checkerboard's colours are reflectances in Mitsuba 3 too: at most 1).
+            radiance_tex = ep.texture("radiance")
+            emission = radiance_tex.max() if radiance_tex is not None else ep.color("radiance", emitter=True)
             ep.finish()
         if emission is not None and not bsdfs:
             mat = Material(one_sided=True)  # Mitsuba 3 gives an emitter without a BSDF a black diffuse one
+        if radiance_tex is not None:
+            mat = replace(mat, textures=mat.bsdf_textures + ((EMISSION_SLOT, radiance_tex),))
         flip = p.boolean("flip_normals", False)
         name = node.attrs.get("id") or f"{t} at {node.where()}"
         kw = dict(material=mat, emission=emission, two_sided=False, name=name)
@@ -1319,9 +1324,7 @@ class _Loader:
                 if rr < 1:
                     p.props["rr_depth"].fail(f"must be >= 1 (got {rr})")
                 settings["rr_depth"] = rr - 1
-            if p.boolean("hide_emitters", False):
-                self.warn(node, "hide_emitters is not supported: emitters seen directly are rendered",
-                          key=("hide_emitters",))
+            settings["hide_emitters"] = p.boolean("hide_emitters", False)
             p.finish(quiet=("samples_per_pass", "timeout"))
         elif t == "direct":
             self.warn(node, "integrator 'direct' is rendered as path tracing with one bounce", key=("direct",))
@@ -1388,7 +1391,8 @@ class _Loader:
         defaults = RenderSettings()
         render = RenderSettings(spp=settings.get("spp", 4), max_depth=settings["max_depth"],
                                 seed=settings.get("seed", defaults.seed),
-                                rr_depth=settings.get("rr_depth", defaults.rr_depth))
+                                rr_depth=settings.get("rr_depth", defaults.rr_depth),
+                                hide_emitters=settings.get("hide_emitters", defaults.hide_emitters))
         self.emit_warnings()
         scene = Scene(camera=camera, shapes=shapes, materials=materials, render=render, source=self.shown)
         try:

@@ -29,8 +29,8 @@ from . import coating, layout
 from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_DIRECTIONAL, KIND_ENV, KIND_MESH,
                      KIND_POINT, KIND_QUAD, KIND_SPHERE, KIND_SPOT, KIND_TRIANGLE, Rows)
 from .meshio import cross_rows
-from .scene import (DEFAULT_UV, TEXTURE_SLOTS, Camera, EnvironmentLight, Material, Scene, SceneError, Sphere,
-                    SpotLight, length_scale)
+from .scene import (DEFAULT_UV, EMISSION_SLOT, TEXTURE_SLOTS, Camera, EnvironmentLight, Material, Scene,
+                    SceneError, Sphere, SpotLight, length_scale)
 from .texture import FILTERS, KINDS, WRAP_MODES
 
 # Records are referred to as layout.NAME where they are filled (a test reorders their fields).
@@ -125,6 +125,10 @@ class PackedScene:
     def indexed_rows(self) -> int:
         """The records indexed by reals (every one but the textures' and the environment map's texels)."""
         return len(self.records) - self.texel_rows - self.env_texels
+
+    @property
+    def has_textured_emitters(self) -> bool:
+        return any(m.texture(EMISSION_SLOT) is not None and m.is_emissive for m in self.materials)
 
     @property
     def has_caustics(self) -> bool:
@@ -228,7 +232,7 @@ def _texture_records(mat_recs, materials, base: int):
         for _, t in m.textures:
             if not any(t is x for x in textures):
                 textures.append(t)
-    textured = [(rec, m) for rec, m in zip(mat_recs, materials) if m.textures]
+    textured = [(rec, m) for rec, m in zip(mat_recs, materials) if m.bsdf_textures]
     slots = layout.TEXTURE_SLOTS.zeros(len(textured))
     first_tex = base + layout.TEXTURE_SLOTS.stride * len(textured)
     for k, (rec, m) in enumerate(textured):
@@ -472,7 +476,8 @@ class _Builder:
         self.bounds.append((c[None] - p.radius, c[None] + p.radius))
         if m.is_emissive:
             self.lights.append((_sides(m), p.area(), m, {"p_kind": (*c, LIGHT_KIND_SPHERE),
-                                                         "u": (p.radius, 0.0, 0.0, 0.0)}, mid, None))
+                                                         "u": (p.radius, 0.0, 0.0, 0.0),
+                                                         "tex": (0.0, prim, 0.0, 0.0)}, mid, None))
 
     def planar(self, c, u, v, mat, triangle: bool, light: bool, uv=DEFAULT_UV):
         mid, m = mat
@@ -481,15 +486,16 @@ class _Builder:
         if self.tangents is not None:
             self.tangents.append(_planar_tangents(u[None], v[None], uv))
         kind = KIND_TRIANGLE if triangle else KIND_QUAD
+        prim = self._prims(1)
         recs, n, ln = _planar_array(c[None], u[None], v[None], mid, ITEM_FLAT_TRIANGLE if triangle else ITEM_QUAD,
-                                    self._prims(1), self._light1(m) if light else 0.0)
+                                    prim, self._light1(m) if light else 0.0)
         self.blocks[kind].append(recs)
         pts = np.array([c, c + u, c + v] + ([] if triangle else [c + u + v]))
         self.bounds.append((pts.min(0)[None], pts.max(0)[None]))
         area = float(ln[0]) * (0.5 if triangle else 1.0)
         if light and m.is_emissive:
             self.lights.append((_sides(m), area, m, {"p_kind": (*c, kind), "u": (*u, 0.0), "v": (*v, 0.0),
-                                                     "n": (*n[0], 0.0)}, mid, None))
+                                                     "n": (*n[0], 0.0), "tex": (0.0, prim[0], 0.0, 0.0)}, mid, None))
 
     def delta_light(self, p, mat):
         """A point or spot light: no primitive, a LIGHT record of area 1 (its
@@ -546,7 +552,8 @@ class _Builder:
         v, t = p.vertices, p.triangles
         v0, v1, v2 = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
         u, w = v1 - v0, v2 - v0
-        recs, n, ln = _planar_array(v0, u, w, mid, ITEM_FLAT_TRIANGLE, self._prims(len(t)), self._light1(m))
+        prims = self._prims(len(t))
+        recs, n, ln = _planar_array(v0, u, w, mid, ITEM_FLAT_TRIANGLE, prims, self._light1(m))
         self.blocks[KIND_TRIANGLE].append(recs)
         if self.uvs is not None or self.tangents is not None:
             tri_uv = DEFAULT_UV
@@ -569,7 +576,8 @@ class _Builder:
             tris["v"][:, :3] = w
             # u.xy of the light record: first triangle record (set on layout), count.
             self.lights.append((_sides(m), float(areas.sum()), m,
-                                {"p_kind": (0.0, 0.0, 0.0, LIGHT_KIND_MESH), "u": (0.0, float(len(t)), 0.0, 0.0)},
+                                {"p_kind": (0.0, 0.0, 0.0, LIGHT_KIND_MESH), "u": (0.0, float(len(t)), 0.0, 0.0),
+                                 "tex": (0.0, prims[0], 0.0, 0.0)},
                                 mid, tris))
 
 
@@ -654,7 +662,8 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     # times its mean radiance over directions, the power that crosses the
     # bounding sphere inwards.
     lights = b.lights
-    powers = np.array([b.delta_power[k] if k in b.delta_power else sides * math.pi * area * float(np.mean(m.emission))
+    # A textured emitter's: its texture's mean (over texture space) for Le.
+    powers = np.array([b.delta_power[k] if k in b.delta_power else sides * math.pi * area * float(np.mean(m.mean_emission))
                        for k, (sides, area, m, *_) in enumerate(lights)])
     probs = powers / powers.sum()
     # Walker's alias table over them: light j's record keeps slot j's
@@ -765,6 +774,12 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
             rec["aniso"][1] = tan_base
     texel_base = tan_base + len(Rows.rows(tan_recs))
     texels = _texel_rows(textures, tex_recs, texel_base)
+    tex_recs["data"][:, 3] = uv_base
+    for rec, (_, _, m, *_) in zip(light_recs, lights):  # textured emitters: their TEXTURE records
+        t = m.texture(EMISSION_SLOT)
+        if t is not None:
+            rec["tex"][0] = tex_base + len(Rows.rows(slot_recs)) + layout.TEXTURE.stride * next(
+                i for i, x in enumerate(textures) if x is t)
 
     # The environment map's texels and tables last (its light record points to them).
     parts = [Rows.rows(x) for x in sections] + [np.zeros((pad, 4)), nodes, normal_recs, ltri_recs, coat_recs,
@@ -780,10 +795,9 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
              LIGHT_KIND_MESH: "mesh", KIND_POINT: "point", KIND_SPOT: "spot", KIND_ENV: "environment",
              KIND_DIRECTIONAL: "directional"}
     lo, hi = scene.bounds(camera=False)
-    # The power photons can carry (an environment emits none: its light is path traced alone).
+    # The power photons can carry (an environment's: what crosses the bounding sphere inwards).
     flux = sum(b.delta_power[k] / max(float(np.mean(m.emission)), 1e-300) * max(m.emission) if k in b.delta_power
-               else sides * math.pi * area * max(m.emission) for k, (sides, area, m, f, *_) in enumerate(lights)
-               if f["p_kind"][3] != KIND_ENV)
+               else sides * math.pi * area * max(m.emission) for k, (sides, area, m, f, *_) in enumerate(lights))
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
                        light_kinds=frozenset(kinds[int(f["p_kind"][3])] for _, _, _, f, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,

@@ -190,7 +190,7 @@ class Renderer:
         if aux_specular not in AUX_SPECULAR:
             raise SettingsError(f"render: aux_specular must be one of {', '.join(AUX_SPECULAR)} (got {aux_specular!r})")
         return RenderJob(self.scene, int(spp), int(seed), int(max_depth), int(rr_depth), int(width), int(height),
-                         self.options, pset, aset, fset, aux_specular)
+                         self.options, pset, aset, fset, aux_specular, bool(rs.hide_emitters))
 
     def render(self, spp: int | None = None, *, seed: int | None = None, max_depth: int | None = None,
                rr_depth: int | None = None, width: int | None = None, height: int | None = None,
@@ -321,7 +321,7 @@ class Renderer:
         job = ck.job
         ck.check_against(RenderJob(self.scene, job.spp, job.seed, job.max_depth, job.rr_depth, job.width,
                                    job.height, self.options, job.photons, job.adaptive, job.filter,
-                                   job.aux_specular))
+                                   job.aux_specular, job.hide_emitters))
         job = replace(job, scene=self.scene)
         return self._run(job, Schedule.from_state(job, ck.schedule), ck.sums, float(ck.meta.get("elapsed", 0.0)),
                          checkpoint=out_checkpoint or ck.path, **kw)

@@ -25,7 +25,7 @@ from typing import Union
 
 import numpy as np
 
-from .errors import MeshError, SceneError, SceneWarning, SettingsError  # noqa: F401 - importable from here
+from .errors import ImageError, MeshError, SceneError, SceneWarning, SettingsError  # noqa: F401 - importable
 from .hostio import open_regular_file
 from .meshio import check_mesh, compose, cross_rows, norm_rows, read_mesh, transform_mesh
 from .presets import PRESETS
@@ -38,6 +38,9 @@ from .texture import FILTERS, KINDS, WRAP_MODES, Texture, load_bitmap
 # dielectric, or kr), "alpha" (a rough conductor's roughness: the texture's luminance), "transmittance"
 # (kgt of a rough dielectric, or kt).
 TEXTURE_SLOTS = ("reflectance", "specular", "alpha", "transmittance")
+# An area light's radiance varying over its surface by (u, v): the light's own slot (its LIGHT record
+# points to the texture; the material's texture slots above are the BSDF's).
+EMISSION_SLOT = "emission"
 # A planar primitive's default (u, v): the corner's, and its change along
 # edge_u and along edge_v (a triangle's: its barycentrics of v1 and v2, as
 # Mitsuba gives a mesh without texture coordinates).
@@ -81,7 +84,10 @@ class Material:
     (u, v); the colour field then holds the texture's largest value per
     channel (the bound lobe probabilities and energy checks use). "alpha"
     varies a rough conductor's roughness (the texture's luminance, within
-    ALPHA_RANGE; alpha holds its mean).
+    ALPHA_RANGE; alpha holds its mean). "emission" varies an area light's
+    radiance (Mitsuba 3's textured `area` emitter: the texture's value at the
+    point's (u, v)); emission then holds the texture's largest value per
+    channel, and the light is picked by the texture's mean times its area.
     alpha_v: a rough conductor's or rough dielectric's roughness along the
     shading frame's bitangent, alpha then being its roughness along the
     tangent (Mitsuba's alpha_u), the surface's dp/du as Mitsuba's shapes
@@ -138,10 +144,11 @@ class Material:
                 raise TypeError(f"Material.{key} must be True or False (got {getattr(self, key)!r})")
         slots = [s for s, _ in self.textures] if isinstance(self.textures, tuple) and \
             all(isinstance(x, tuple) and len(x) == 2 for x in self.textures) else None
-        if slots is None or any(s not in TEXTURE_SLOTS for s in slots) or len(set(slots)) != len(slots) or \
+        known = TEXTURE_SLOTS + (EMISSION_SLOT,)
+        if slots is None or any(s not in known for s in slots) or len(set(slots)) != len(slots) or \
                 not all(isinstance(t, Texture) for _, t in self.textures):
             raise TypeError(f"Material.textures must be ((slot, clpt.texture.Texture), ...) with slots among "
-                            f"{', '.join(TEXTURE_SLOTS)}, each once (got {self.textures!r})")
+                            f"{', '.join(known)}, each once (got {self.textures!r})")
 
     @property
     def anisotropic(self) -> bool:
@@ -206,6 +213,18 @@ class Material:
     @property
     def is_emissive(self) -> bool:
         return max(self.emission) > 0.0
+
+    @property
+    def mean_emission(self) -> tuple:
+        """The emission's mean over the surface's texture space: a textured
+        emitter's texture mean (what light selection by power uses), else emission."""
+        t = self.texture(EMISSION_SLOT)
+        return t.mean() if t is not None else tuple(self.emission)
+
+    @property
+    def bsdf_textures(self) -> tuple:
+        """The textures of the BSDF's slots (TEXTURE_SLOTS): those the material record points to."""
+        return tuple((s, t) for s, t in self.textures if s != EMISSION_SLOT)
 
     @property
     def is_specular(self) -> bool:
@@ -309,12 +328,16 @@ class RenderSettings:
     max_depth counts scattering events (pbrt's convention): 0 shows emitters
     only, 1 adds direct light. Mitsuba's max_depth is this plus one.
     rr_depth is the depth from which Russian roulette may absorb a path.
+    hide_emitters (Mitsuba 3's integrator option): camera rays see no
+    emission (an emitter seen directly is black, as is the environment
+    behind the scene); the light emitters cast is unchanged.
     """
 
     spp: int = 64
     max_depth: int = 8
     seed: int = 0
     rr_depth: int = 2
+    hide_emitters: bool = False
 
 
 @dataclass(frozen=True)
@@ -1094,6 +1117,10 @@ def check_material(source, path, m: Material):
         if not isinstance(m.sample_visible, (bool, np.bool_)):
             _fail(source, f"{path}.sample_visible", f"must be True or False (got {m.sample_visible!r})")
     _emission(source, f"{path}.emission", m.emission)
+    et = m.texture(EMISSION_SLOT)
+    if et is not None and tuple(float(c) for c in m.emission) != et.max():
+        _fail(source, f"{path}.emission", f"a textured emitter's emission must be its texture's largest value per "
+                                          f"channel, {et.max()} (got {tuple(m.emission)})")
     _finite(source, f"{path}.shininess", m.shininess, lo=0.0, lo_open=False, hi=MAX_SHININESS, hi_open=False)
     _finite(source, f"{path}.ior", m.ior, lo=IOR_RANGE[0], lo_open=False, hi=IOR_RANGE[1], hi_open=False)
     if not isinstance(m.two_sided, (bool, np.bool_)):
@@ -1187,7 +1214,7 @@ def check_scene(scene: Scene):
         if isinstance(s, LIGHT_TYPES):
             power += s.power()
         elif emissive:
-            power += area * float(np.mean(m.emission))
+            power += area * float(np.mean(m.mean_emission))
     extent = scene.extent()
     lo, hi = scene.bounds()
     far = float(max(np.abs(lo).max(), np.abs(hi).max()))
@@ -1303,6 +1330,54 @@ _SHAPE_KEYS = {
     "mesh": {"file", "transform"},
 }
 _TRANSFORM_KEYS = {"translate", "rotate", "scale", "matrix"}
+# Lights without a surface, as [[shapes]] entries: their keys are the Python classes' fields.
+_LIGHT_KEYS = {
+    "point": {"position", "intensity"},
+    "spot": {"position", "direction", "intensity", "cutoff_angle", "beam_width"},
+    "directional": {"direction", "irradiance"},
+    "envmap": {"file", "scale", "transform"},
+    "constant": {"radiance"},
+}
+
+
+def _read_light(r: _Reader, d, kind, path, base_dir):
+    """A point, spot, directional, envmap or constant light from its table
+    (the Python API's parameters; an envmap's image from `file`, relative to
+    base_dir, 8-bit formats sRGB-decoded as Mitsuba decodes them, turned by
+    `transform`'s rotation)."""
+    r.table(d, path, {"type", "name"} | _LIGHT_KEYS[kind])
+    kw = {"name": r.string(d["name"], f"{path}.name")} if "name" in d else {}
+    for k in ("position", "intensity", "direction", "irradiance", "radiance"):
+        if k in d:
+            kw[k] = r.vec3(d[k], f"{path}.{k}")
+    for k in ("cutoff_angle", "beam_width", "scale"):
+        if k in d:
+            kw[k] = r.number(d[k], f"{path}.{k}")
+    if kind == "spot":
+        cut = kw.get("cutoff_angle", SpotLight.cutoff_angle)
+        if not 0 < cut <= 90:
+            r.fail(f"{path}.cutoff_angle", f"must be in (0, 90] degrees (got {cut:g})")
+        beam = kw.get("beam_width", 0.75 * cut)
+        if not 0 <= beam <= cut:
+            r.fail(f"{path}.beam_width", f"must be in [0, cutoff_angle = {cut:g}] degrees (got {beam:g})")
+        return SpotLight(**kw)
+    if kind == "point":
+        return PointLight(**kw)
+    if kind == "directional":
+        return DirectionalLight(**kw)
+    if kind == "constant":
+        return EnvironmentLight(**kw)
+    name = r.string(r.require(d, path, "file"), f"{path}.file")
+    file = Path(name) if Path(name).is_absolute() or base_dir is None else Path(base_dir) / name
+    try:
+        img = load_bitmap(file)
+    except (ImageError, OSError) as e:
+        r.fail(f"{path}.file", str(e))
+    if "scale" in kw and not kw["scale"] > 0:
+        r.fail(f"{path}.scale", f"must be > 0 (got {kw['scale']:g})")
+    if "transform" in d:
+        kw["to_world"] = tuple(map(tuple, _read_transform(r, d["transform"], f"{path}.transform").tolist()))
+    return EnvironmentLight(image=img, filename=str(file), **kw)
 
 
 # A TOML material's keys that may be a texture table, and the Material.textures slot each fills.
@@ -1431,11 +1506,13 @@ def _read_shape(r: _Reader, d, path, materials, base_dir=None):
     if not isinstance(d, dict):
         r.fail(path, f"must be a table (got {_tname(d)})")
     kind = r.string(r.require(d, path, "type"), f"{path}.type")
-    if kind not in SHAPE_TYPES:
-        r.fail(f"{path}.type", f"unknown shape type {kind!r}{_suggest(kind, SHAPE_TYPES)}; "
-                               f"types: {', '.join(SHAPE_TYPES)}")
+    if kind not in SHAPE_TYPES and kind not in _LIGHT_KEYS:
+        known = list(SHAPE_TYPES) + list(_LIGHT_KEYS)
+        r.fail(f"{path}.type", f"unknown shape type {kind!r}{_suggest(kind, known)}; types: {', '.join(known)}")
     if "name" in d:
         path = f"{path} {r.string(d['name'], f'{path}.name')!r}"
+    if kind in _LIGHT_KEYS:
+        return _read_light(r, d, kind, path, base_dir)
     r.table(d, path, _COMMON_SHAPE_KEYS | _SHAPE_KEYS[kind])
     kw = {}
     if "name" in d:
@@ -1512,13 +1589,14 @@ def parse_scene(text: str, source: str = "<string>", base_dir=None) -> Scene:
         width=r.integer(cd.get("width", 256), "camera.width", lo=1, hi=1 << 16),
         height=r.integer(cd.get("height", 256), "camera.height", lo=1, hi=1 << 16),
     )
-    rd = r.table(doc.get("render", {}), "render", {"spp", "max_depth", "seed", "rr_depth"})
+    rd = r.table(doc.get("render", {}), "render", {"spp", "max_depth", "seed", "rr_depth", "hide_emitters"})
     defaults = RenderSettings()
     settings = RenderSettings(
         spp=r.integer(rd.get("spp", defaults.spp), "render.spp", lo=1, hi=2 ** 32 - 1),
         max_depth=r.integer(rd.get("max_depth", defaults.max_depth), "render.max_depth", lo=0),
         seed=r.integer(rd.get("seed", defaults.seed), "render.seed", lo=0, hi=2 ** 32 - 1),
         rr_depth=r.integer(rd.get("rr_depth", defaults.rr_depth), "render.rr_depth", lo=0),
+        hide_emitters=r.boolean(rd.get("hide_emitters", defaults.hide_emitters), "render.hide_emitters"),
     )
     mats = {}
     md = doc.get("materials", {})

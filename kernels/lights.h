@@ -27,6 +27,12 @@
 // that leave the scene see it (env_emission, with light_sample's pdf of
 // their direction for the weight). Both stand at dist beyond the scene's
 // bounding sphere from x (infinite_dist), where the shadow ray ends.
+// A textured area light (CLPT_HAS_TEXTURED_EMITTERS; its LIGHT_TEX row
+// names the texture) emits its texture's value at the point's (u, v):
+// light_texture for light samples, for next event estimation and photon
+// emission alike (a photon leaves by area as before and carries Le(y), so
+// its flux Le(y) cos / pdf stays unbiased), texture.h emitter_textures_hit
+// for rays that hit it. It is picked by its texture's mean times its area.
 // A new light kind is a case of light_point (and of light_pdf_hit, and of
 // the light records' packing in clpt/pack.py).
 
@@ -46,8 +52,11 @@ typedef struct {
     vmask delta;      // a point or spot light (a delta light)
     vreal cos_cut, cut, inv_tr, cos_beam;  // the spot's falloff (a point light's: -2, 0, 0, -2, 1 everywhere)
 #endif
-#if CLPT_HAS_DIRECTIONAL_LIGHTS
-    vmask parallel;   // (photon emission) a directional light's: the photon travels along n from p
+#if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
+    vmask parallel;   // (photon emission) a directional light's or environment's: the photon travels along n from p
+#endif
+#if CLPT_HAS_ENV_LIGHT
+    vmask env_disk;   // (photon emission) an environment's: p still to be placed on the disk (env_photon_start)
 #endif
 } LightSample;
 
@@ -108,17 +117,22 @@ inline int light_next(const Scene *sc, vreal *li, uint *i, vmask *pick, uint *r)
     return 1;
 }
 
+// Where light_point's point lies on the light's primitive: edge coordinates
+// a, b (a triangle's barycentrics of v1 and v2, as Hit.bu, .bv) and, on a
+// mesh light, the triangle's index in the mesh (a sphere's point: its normal).
+typedef struct { vreal a, b, tri; } LightUV;
+
 #if CLPT_HAS_MESH_LIGHTS
 // A point y on the mesh light whose records start at r, and the normal n of
 // its triangle (winding order), for the lanes in pick: the triangle by area
 // from the mesh's alias table (LTRI_* records), then a uniform point on it. u1
 // picks the alias slot and, rescaled to [0, 1), serves again for the point.
-inline void mesh_light_point(const Scene *sc, uint r, vmask pick, vreal u1, vreal u2, V3 *y, V3 *n)
+inline void mesh_light_point(const Scene *sc, uint r, vmask pick, vreal u1, vreal u2, V3 *y, V3 *n, LightUV *q)
 {
     real4 mi = scene_rec(sc, r + LIGHT_U);  // first triangle record, triangles
     uint base = (uint)mi.x, ntri = (uint)mi.y;
     V3 p = v3_zero(), eu = v3_zero(), ev = v3_zero();
-    vreal ur = u1;
+    vreal ur = u1, tri = (vreal)R(0);
     for (int l = 0; l < CLPT_LANES; l++) {
         if (VLANE_M(pick, l) == 0)
             continue;
@@ -137,6 +151,7 @@ inline void mesh_light_point(const Scene *sc, uint r, vmask pick, vreal u1, vrea
             f = f / b.w;
         }
         real4 c = scene_rec(sc, t + LTRI_V);
+        VLANE_R(tri, l) = (real)j;
         VLANE_R(ur, l) = fmin(fmax(f, R(0)), R(1) - REAL_EPS);
         VLANE_R(p.x, l) = a.x; VLANE_R(p.y, l) = a.y; VLANE_R(p.z, l) = a.z;
         VLANE_R(eu.x, l) = b.x; VLANE_R(eu.y, l) = b.y; VLANE_R(eu.z, l) = b.z;
@@ -146,14 +161,44 @@ inline void mesh_light_point(const Scene *sc, uint r, vmask pick, vreal u1, vrea
     sample_uniform_triangle(ur, u2, &a, &b);
     *y = v3_fma(ev, b, v3_fma(eu, a, p));
     *n = v3_normalize(v3_cross(eu, ev));
+    q->a = a;
+    q->b = b;
+    q->tri = tri;
+}
+#endif
+
+#if CLPT_HAS_TEXTURED_EMITTERS
+// The radiance Le of light r (kind) replaced, for the lanes in pick, by its
+// texture's at the point light_point drew (q; a sphere's from its unit
+// normal ns there), if the light is textured (texture.h emitter_texture).
+inline V3 light_texture(const Scene *sc, uint r, int kind, vmask pick, LightUV q, V3 ns, V3 Le)
+{
+    real4 t = scene_rec(sc, r + LIGHT_TEX);
+    if (t.x == R(0))
+        return Le;
+    for (int l = 0; l < CLPT_LANES; l++) {
+        if (!VLANE_M(pick, l))
+            continue;
+        real prim = t.y + (kind == LIGHT_KIND_MESH ? VLANE_R(q.tri, l) : R(0));
+        real4 c = emitter_texture(sc, (uint)t.x, prim, VLANE_R(q.a, l), VLANE_R(q.b, l),
+                                  (real4)(VLANE_R(ns.x, l), VLANE_R(ns.y, l), VLANE_R(ns.z, l), R(0)));
+        VLANE_R(Le.x, l) = c.x;
+        VLANE_R(Le.y, l) = c.y;
+        VLANE_R(Le.z, l) = c.z;
+    }
+    return Le;
 }
 #endif
 
 // A point y uniform by area on light r (kind, records at r: p its first
-// row), its unit normal n there and the magnitude err its rounding error
-// follows, for the lanes in pick.
-CLPT_INLINE void light_point(const Scene *sc, uint r, int kind, vmask pick, LightU u, V3 *y, V3 *n, vreal *err)
+// row), its unit normal n there, the magnitude err its rounding error
+// follows and (*q) its coordinates on the light's primitive, for the lanes in pick.
+CLPT_INLINE void light_point(const Scene *sc, uint r, int kind, vmask pick, LightU u, V3 *y, V3 *n, vreal *err,
+                             LightUV *q)
 {
+    q->a = u.u1;
+    q->b = u.u2;
+    q->tri = (vreal)R(0);
     real4 p = scene_rec(sc, r + LIGHT_P_KIND);
 #if CLPT_HAS_SPHERE_LIGHTS
     if (kind == LIGHT_KIND_SPHERE) {
@@ -166,7 +211,7 @@ CLPT_INLINE void light_point(const Scene *sc, uint r, int kind, vmask pick, Ligh
 #endif
 #if CLPT_HAS_MESH_LIGHTS
     if (kind == LIGHT_KIND_MESH) {
-        mesh_light_point(sc, r, pick, u.u1, u.u2, y, n);
+        mesh_light_point(sc, r, pick, u.u1, u.u2, y, n, q);
         *err = fmax(fabs(y->x), fmax(fabs(y->y), fabs(y->z)));  // each lane's triangle: the point's magnitude
         return;
     }
@@ -174,8 +219,11 @@ CLPT_INLINE void light_point(const Scene *sc, uint r, int kind, vmask pick, Ligh
     real4 eu = scene_rec(sc, r + LIGHT_U), ev = scene_rec(sc, r + LIGHT_V);
     vreal a = u.u1, b = u.u2;
 #if CLPT_HAS_TRIANGLE_LIGHTS
-    if (kind == LIGHT_KIND_TRIANGLE)
+    if (kind == LIGHT_KIND_TRIANGLE) {
         sample_uniform_triangle(u.u1, u.u2, &a, &b);
+        q->a = a;
+        q->b = b;
+    }
 #endif
     *y = v3(p.x + a * eu.x + b * ev.x, p.y + a * eu.y + b * ev.y, p.z + a * eu.z + b * ev.z);
     *n = v3_splat(scene_rec(sc, r + LIGHT_N));
@@ -384,24 +432,37 @@ inline V3 env_emission(const Scene *sc, V3 d, vmask m, vreal *pdf)
 }
 #endif
 
-#if CLPT_HAS_DIRECTIONAL_LIGHTS
-// Where a directional light's photon starts (lanes in pick; records at r,
-// c its bounding-sphere row, info and m as light_sample's), into *ls: on the
-// disk of radius R across the scene's bounding sphere, at R before its
-// center along the light's direction d, aimed at the caustic casters: a
+#if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
+// The density, per unit area across unit direction d, with which
+// parallel_disk_point places a point whose line along d passes through p
+// (p in the plane through c across d): the mixture of the caster disks
+// (below) that hold it.
+inline vreal parallel_disk_density(const Scene *sc, real4 c, real big, V3 d, V3 p)
+{
+    vreal dens = (vreal)R(0);
+    for (uint k = 0; k < NUM_CAUSTICS; k++) {
+        real4 s = scene_rec(sc, OFF_CAUSTICS + CAUSTIC_STRIDE * k + CAUSTIC_SPHERE);
+        real rk = s.w < R(0) ? big : s.w;
+        V3 qk = s.w < R(0) ? v3_splat(c) : v3_splat(s);
+        qk = v3_fma(d, -v3_dot(v3_sub(qk, v3_splat(c)), d), qk);
+        V3 e = v3_sub(p, qk);
+        dens += VSEL((vreal)R(0), (vreal)(R(1) / (R(M_PI) * rk * rk)), v3_dot(e, e) <= rk * rk * R(1.000001));
+    }
+    return dens * (R(1) / (real)NUM_CAUSTICS);
+}
+
+// Where a photon travelling along unit d (per lane) from infinity starts:
+// on the disk of radius R (big) across the scene's bounding sphere (center
+// c), at R before its center along d, aimed at the caustic casters: a
 // caster picked in equal shares (u1), a uniform point in the disk its
 // bounding sphere casts along d (u1 rescaled, u2; an unbounded caster's:
-// the whole disk). pdf_area = the pick probability times the mixture of
-// those disks' uniform densities at the point; n = d, Le = the irradiance,
-// delta and parallel set (the photon leaves p along n).
-CLPT_INLINE void directional_photon_start(const Scene *sc, uint r, real4 c, real4 info, real4 m, vmask pick,
-                                          LightU u, LightSample *ls)
+// the whole disk). *dens: the mixture of those disks' uniform densities at
+// the point (parallel_disk_density).
+inline V3 parallel_disk_point(const Scene *sc, real4 c, real big, V3 d, vreal u1, vreal u2, vreal *dens)
 {
-    real4 d4 = scene_rec(sc, r + LIGHT_U);
-    V3 d = v3((vreal)d4.x, (vreal)d4.y, (vreal)d4.z), t, b;
+    V3 t, b;
     frame_from_z(d, &t, &b);
-    real big = sqrt(info.x * R(M_1_PI));
-    vreal uk = u.u1 * (real)NUM_CAUSTICS;
+    vreal uk = u1 * (real)NUM_CAUSTICS;
     vreal kf = fmin(floor(uk), (vreal)(real)(NUM_CAUSTICS - 1));
     vreal ur = fmin(uk - kf, (vreal)R(1));
     V3 q = v3_zero();
@@ -414,20 +475,26 @@ CLPT_INLINE void directional_photon_start(const Scene *sc, uint r, real4 c, real
     }
     // The point in the plane through c across d, then moved back by R.
     q = v3_fma(d, -v3_dot(v3_sub(q, v3_splat(c)), d), q);
-    vreal pr = rad * sqrt(ur), phi = u.u2 * R(2 * M_PI);
+    vreal pr = rad * sqrt(ur), phi = u2 * R(2 * M_PI);
     V3 p = v3_fma(t, pr * cos(phi), v3_fma(b, pr * sin(phi), q));
-    // The density: every caster's disk that holds the point.
-    vreal dens = (vreal)R(0);
-    for (uint k = 0; k < NUM_CAUSTICS; k++) {
-        real4 s = scene_rec(sc, OFF_CAUSTICS + CAUSTIC_STRIDE * k + CAUSTIC_SPHERE);
-        real rk = s.w < R(0) ? big : s.w;
-        V3 qk = s.w < R(0) ? v3_splat(c) : v3_splat(s);
-        qk = v3_fma(d, -v3_dot(v3_sub(qk, v3_splat(c)), d), qk);
-        V3 e = v3_sub(p, qk);
-        dens += VSEL((vreal)R(0), (vreal)(R(1) / (R(M_PI) * rk * rk)), v3_dot(e, e) <= rk * rk * R(1.000001));
-    }
-    dens *= R(1) / (real)NUM_CAUSTICS;
-    p = v3_fma(d, (vreal)(-big * R(1.001)), p);
+    *dens = parallel_disk_density(sc, c, big, d, p);
+    return v3_fma(d, (vreal)(-big * R(1.001)), p);
+}
+#endif
+
+#if CLPT_HAS_DIRECTIONAL_LIGHTS
+// Where a directional light's photon starts (lanes in pick; records at r,
+// c its bounding-sphere row, info and m as light_sample's), into *ls: on
+// parallel_disk_point's disk along the light's direction d (u1, u2).
+// pdf_area = the pick probability times the disk's density at the point;
+// n = d, Le = the irradiance, delta and parallel set (the photon leaves p along n).
+CLPT_INLINE void directional_photon_start(const Scene *sc, uint r, real4 c, real4 info, real4 m, vmask pick,
+                                          LightU u, LightSample *ls)
+{
+    real4 d4 = scene_rec(sc, r + LIGHT_U);
+    V3 d = v3((vreal)d4.x, (vreal)d4.y, (vreal)d4.z);
+    vreal dens;
+    V3 p = parallel_disk_point(sc, c, sqrt(info.x * R(M_1_PI)), d, u.u1, u.u2, &dens);
     ls->p = v3_sel(ls->p, p, pick);
     ls->n = v3_sel(ls->n, d, pick);
     ls->Le = v3_sel(ls->Le, v3_splat(m), pick);
@@ -440,19 +507,72 @@ CLPT_INLINE void directional_photon_start(const Scene *sc, uint r, real4 c, real
 }
 #endif
 
+#if CLPT_HAS_ENV_LIGHT
+// An environment's photon (lanes in pick; records at r, c its
+// bounding-sphere row, info and m as light_sample's), into *ls: a
+// direction w drawn as next event estimation draws it (env_sample, u1,
+// u2); the photon travels along n = -w with Le the radiance from w, and
+// pdf_area = the pick probability times w's solid-angle pdf, still to be
+// multiplied by the density of its start on the disk (env_disk set:
+// env_photon_start, with random numbers of its own).
+CLPT_INLINE void env_photon_dir(const Scene *sc, uint r, real4 info, real4 m, vmask pick, LightU u,
+                                LightSample *ls)
+{
+    V3 w;
+    vreal pdf_sa;
+    V3 Le = v3_mul(env_sample(sc, r, pick, u.u1, u.u2, &w, &pdf_sa), v3_splat(m));
+    ls->n = v3_sel(ls->n, v3_neg(w), pick);
+    ls->Le = v3_sel(ls->Le, Le, pick);
+    ls->pdf_area = VSEL(ls->pdf_area, pdf_sa * info.y, pick);
+    ls->parallel = ls->parallel || pick;
+    ls->env_disk = ls->env_disk || pick;
+}
+
+// The start of the environment photons in env_disk on parallel_disk_point's
+// disk along their direction n (u1, u2); pdf_area times its density there.
+inline void env_photon_start(const Scene *sc, vreal u1, vreal u2, LightSample *ls)
+{
+    if (!VANY(ls->env_disk))
+        return;
+    uint r = ENV_LIGHT_REC;
+    real4 c = scene_rec(sc, r + LIGHT_P_KIND);
+    vreal dens;
+    V3 p = parallel_disk_point(sc, c, sqrt(scene_rec(sc, r + LIGHT_INFO).x * R(M_1_PI)), ls->n, u1, u2, &dens);
+    ls->p = v3_sel(ls->p, p, ls->env_disk);
+    ls->err = VSEL(ls->err, fmax(fabs(p.x), fmax(fabs(p.y), fabs(p.z))), ls->env_disk);
+    ls->pdf_area = VSEL(ls->pdf_area, ls->pdf_area * dens, ls->env_disk);
+}
+
+// The light-side pdf factor of an environment photon that a camera ray
+// leaving along unit d from o would meet (pdf_l: light_sample's pdf of d,
+// env_emission's): its direction's pdf times its disk density there, as
+// trace_photons stores it, for the weight of an escape after a merge.
+inline vreal env_photon_pdf(const Scene *sc, V3 o, V3 d, vreal pdf_l)
+{
+    uint r = ENV_LIGHT_REC;
+    real4 c = scene_rec(sc, r + LIGHT_P_KIND);
+    V3 w = v3_neg(d), p = v3_fma(w, -v3_dot(v3_sub(o, v3_splat(c)), w), o);  // into the plane through c
+    vreal dens = parallel_disk_density(sc, c, sqrt(scene_rec(sc, r + LIGHT_INFO).x * R(M_1_PI)), w, p);
+    return pdf_l * dens;
+}
+#endif
+
 #if CLPT_HAS_ENV_LIGHT || CLPT_HAS_DIRECTIONAL_LIGHTS
 // light_sample's light at infinity (records at r; info and m its LIGHT_INFO
 // and material's Le row) for the lanes in pick, into *ls. At x: an
 // environment's direction and pdf (env_sample), or a directional light's
 // (delta: pdf = the pick probability), at a point beyond the scene. For
-// photon emission: a directional light's start (directional_photon_start);
-// an environment's photons are not traced (pdf_area 0).
+// photon emission: a directional light's start (directional_photon_start)
+// or an environment's direction (env_photon_dir).
 CLPT_INLINE void infinite_light_sample(const Scene *sc, uint r, int kind, real4 info, real4 m, vmask pick, V3 x,
                                        int at_x, LightU u, LightSample *ls)
 {
     real4 c = scene_rec(sc, r + LIGHT_P_KIND);
     if (!at_x) {
-        ls->pdf_area = VSEL(ls->pdf_area, (vreal)R(0), pick);  // an environment: no photons
+#if CLPT_HAS_ENV_LIGHT
+        if (kind == LIGHT_KIND_ENV)
+            env_photon_dir(sc, r, info, m, pick, u, ls);
+#endif
 #if CLPT_HAS_DIRECTIONAL_LIGHTS
         if (kind == LIGHT_KIND_DIRECTIONAL)
             directional_photon_start(sc, r, c, info, m, pick, u, ls);
@@ -503,8 +623,11 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, vmask a
     ls.delta = ls.valid;
     ls.cos_cut = ls.cut = ls.inv_tr = ls.cos_beam = (vreal)R(0);
 #endif
-#if CLPT_HAS_DIRECTIONAL_LIGHTS
+#if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
     ls.parallel = ls.valid;
+#endif
+#if CLPT_HAS_ENV_LIGHT
+    ls.env_disk = ls.valid;
 #endif
     vreal li = VSEL((vreal)R(INFINITY), light_pick_index(sc, u.pick), active);  // only the active lanes pick
     uint i, r;
@@ -527,8 +650,13 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, vmask a
 #endif
         V3 y, n;
         vreal err;
-        light_point(sc, r, kind, pick, u, &y, &n, &err);
+        LightUV q;
+        light_point(sc, r, kind, pick, u, &y, &n, &err, &q);
         ls.Le = v3_sel(ls.Le, v3_splat(m), pick);
+#if CLPT_HAS_TEXTURED_EMITTERS
+        if (!at_x)  // photon emission: the radiance where the photon leaves (flux = Le(y) cos / pdf)
+            ls.Le = v3_sel(ls.Le, light_texture(sc, r, kind, pick, q, n, ls.Le), pick);
+#endif
         if (!at_x) {
             ls.p = v3_sel(ls.p, y, pick);
             ls.n = v3_sel(ls.n, n, pick);
@@ -565,7 +693,13 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, vmask a
             dist = VSEL(dist, tc, outside);
             pdf_sa = VSEL(pdf_sa, uniform_cone_pdf(omc), outside);
             cos_l = VSEL(cos_l, (vreal)R(1), outside);
+#if CLPT_HAS_TEXTURED_EMITTERS
+            n = v3_sel(n, v3_scale(v3_sub(v3_fma(wc, tc, x), v3_splat(p)), R(1) / rad), outside);  // the cone's point
+#endif
         }
+#endif
+#if CLPT_HAS_TEXTURED_EMITTERS
+        ls.Le = v3_sel(ls.Le, light_texture(sc, r, kind, pick, q, n, ls.Le), pick);
 #endif
         vmask emits = cos_l > R(0) || (m.w != R(0) && cos_l < R(0));
         ls.wi = v3_sel(ls.wi, wi, pick);

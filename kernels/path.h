@@ -118,6 +118,9 @@ inline Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmask act
 #if CLPT_HAS_TEXTURES
     material_textures(sc, &v.m, &h, v.hit);
 #endif
+#if CLPT_HAS_TEXTURED_EMITTERS
+    emitter_textures_hit(sc, &v.m, &h, v.hit);
+#endif
     v.x = v3_fma(ps->d, h.t, ps->o);
     v.front = v3_dot(h.ng, ps->d) < R(0);
     v.ng = v3_sel(v3_neg(h.ng), h.ng, v.front);  // faces the incoming ray
@@ -138,8 +141,8 @@ inline Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmask act
 // Emission at the vertex towards the path, times the throughput and its
 // multiple-importance weight; *sees: the lanes it reaches (an emitter's
 // side that emits; not a path the photon map owns). A ray that left the
-// scene sees the environment, weighted against light sampling as an
-// emitter's hit is (the photon map has no paths from it).
+// scene sees the environment, weighted against light sampling and photon
+// merging as an emitter's hit is.
 inline V3 path_emission(const Scene *sc, const PhotonLookup *pl, const PathState *ps, const Vertex *v,
                              vmask *sees)
 {
@@ -169,6 +172,8 @@ inline V3 path_emission(const Scene *sc, const PhotonLookup *pl, const PathState
     vmask esc = v->escaped;
 #if CLPT_PHOTONS
     esc = esc && !pl->stop_at_x;
+    if (pl->owns)
+        esc = esc && ps->own != (real)OWN_OWNED;
 #endif
     if (VANY(esc)) {
         vreal pdf_l;
@@ -176,6 +181,12 @@ inline V3 path_emission(const Scene *sc, const PhotonLookup *pl, const PathState
         vreal we = (vreal)R(1);
 #if CLPT_NEE
         we = VSEL(we, mis_power(ps->pdf_prev, pdf_l), ps->pdf_prev > R(0));
+#endif
+#if CLPT_PHOTONS
+        // After a merge and a purely specular chain: the environment's photons could have made this path too.
+        vmask merged_esc = esc && ps->chain == (real)CHAIN_IN && ps->chain_k > R(0);
+        if (pl->merge && VANY(merged_esc))
+            we = VSEL(we, mis_power((vreal)R(1), env_photon_pdf(sc, ps->o, ps->d, pdf_l) * ps->chain_k), merged_esc);
 #endif
         Le = v3_sel(Le, v3_scale(v3_mul(ps->beta, Lenv), we), esc);
         s = s || esc;

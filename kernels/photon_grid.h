@@ -124,6 +124,31 @@ inline vmask photon_maybe(const PhotonMap *pm, V3 x, vmask active)
 // filter's weights square to kappa = pi r^2 int K^2 times the uniform
 // kernel's, and are divided out; with subsampling (stride s) each visited
 // photon stands for s, so it adds c^2 / s.
+#if CLPT_AUX
+// One photon's sample of path tracing's second moment (below), before the
+// gather's normalization: its contribution's luminance c (flux: its power
+// times the cone weight w) squared, over the stride weight s and q = p_pt /
+// p_m. (q = 0: a path path tracing cannot make; its error there is the
+// path's whole contribution, counted as c^2.)
+INLINE_VEC3 real photon_moment(real3 lw, real3 kd, real3 ks, real shininess, real lobe_s, real3 flux, real s, real q)
+{
+    real3 f = kd * R(M_1_PI);
+#if CLPT_HAS_PHONG
+    f += ks * ((shininess + R(2)) * R(0.5 * M_1_PI)) * lobe_s;
+#endif
+    real c = dot(lw, f * flux);
+    return c * c / (s * (q > R(0) && isfinite(q) ? q : R(1)));
+}
+
+// pi r^2 int K^2 over the disk for the cone filter K = (1 - d / (k r)) / ((1 - 2 / (3k)) pi r^2):
+// how much more the squares of its weights sum to than the uniform kernel's.
+inline real cone_kappa(real k)
+{
+    real a = R(1) - R(2) / (R(3) * k);
+    return R(2) * (R(0.5) - R(2) / (R(3) * k) + R(0.25) / (k * k)) / (a * a);
+}
+#endif
+
 INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, real3 kd, real3 ks, real shininess,
                                     real u, real p_d, real p_s, int mis, real max_bounces, real3 lw, real *m2)
 {
@@ -185,23 +210,13 @@ INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3
                         lobe_s = ca > R(0) ? exp(shininess * log(fmax(ca, R(1e-30)))) : R(0);
                     }
 #endif
+                    real p_pt = p_d * cos_n * R(M_1_PI) + p_s * (shininess + R(1)) * R(0.5 * M_1_PI) * lobe_s;
+                    real q = p_pt / ((real)dir.w * cos_n * pm->mis_k);
 #if CLPT_AUX
-                    if (pm->moments) {
-                        real3 f = kd * R(M_1_PI);
-#if CLPT_HAS_PHONG
-                        f += ks * ((shininess + R(2)) * R(0.5 * M_1_PI)) * lobe_s;
-#endif
-                        real c = dot(lw, f * REAL3(pm->pow[i].xyz)) * w;
-                        real p_pt = p_d * cos_n * R(M_1_PI) + p_s * (shininess + R(1)) * R(0.5 * M_1_PI) * lobe_s;
-                        real q = p_pt / ((real)dir.w * cos_n * pm->mis_k);
-                        // (q = 0: a path path tracing cannot make; its error there is the path's whole
-                        // contribution, counted as c^2.)
-                        *m2 += c * c / (weight * (q > R(0) && isfinite(q) ? q : R(1)));
-                    }
+                    if (pm->moments)
+                        *m2 += photon_moment(lw, kd, ks, shininess, lobe_s, REAL3(pm->pow[i].xyz) * w, weight, q);
 #endif
                     if (mis) {
-                        real p_pt = p_d * cos_n * R(M_1_PI) + p_s * (shininess + R(1)) * R(0.5 * M_1_PI) * lobe_s;
-                        real q = p_pt / ((real)dir.w * cos_n * pm->mis_k);
                         real wm = R(1) / (R(1) + q * q);
                         w *= isnan(wm) ? R(0) : wm;
                     }
@@ -227,11 +242,8 @@ done:;
 #endif
     real norm = (R(1) - R(2) / (R(3) * pm->cone_k)) * R(M_PI) * r2;
 #if CLPT_AUX
-    if (pm->moments) {
-        real k = pm->cone_k, a = R(1) - R(2) / (R(3) * k);
-        real kappa = R(2) * (R(0.5) - R(2) / (R(3) * k) + R(0.25) / (k * k)) / (a * a);
-        *m2 /= norm * norm * kappa;
-    }
+    if (pm->moments)
+        *m2 /= norm * norm * cone_kappa(pm->cone_k);
 #endif
     return f_sum / norm;
 }

@@ -29,8 +29,8 @@
 // The emission cosine of the photon's direction at the light, after what
 // the light kinds without a surface change: a point or spot light has no
 // cosine, and the spot's falloff in the direction taken scales its
-// intensity; a directional light's photon leaves its disk along the light's
-// direction (lights.h).
+// intensity; a directional light's or an environment's photon leaves its
+// disk along its direction (lights.h), across it.
 inline vreal photon_light_kinds(LightSample *lp, AimSample *aim)
 {
     vreal cos_y = v3_dot(aim->w, lp->n);
@@ -39,7 +39,8 @@ inline vreal photon_light_kinds(LightSample *lp, AimSample *aim)
     lp->Le = v3_sel(lp->Le, v3_scale(lp->Le, delta_falloff(lp->n, lp->cos_cut, lp->cut, lp->inv_tr, lp->cos_beam,
                                                            aim->w)), lp->delta);
 #endif
-#if CLPT_HAS_DIRECTIONAL_LIGHTS
+#if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
+    cos_y = VSEL(cos_y, (vreal)R(1), lp->parallel);
     aim->w = v3_sel(aim->w, lp->n, lp->parallel);
     aim->pdf = VSEL(aim->pdf, (vreal)R(1), lp->parallel);
     aim->valid = aim->valid || lp->parallel;
@@ -63,6 +64,9 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
     EmitU ue = sample_photon_emission(&sp);
     LightSample lp;
     light_sample(sc, v3_zero(), ue.light, 0, live, &lp);
+#if CLPT_HAS_ENV_LIGHT
+    env_photon_start(sc, ue.u1, ue.u2, &lp);  // the aim's numbers: an environment's photon aims by its disk
+#endif
     AimSample aim = aim_at_casters(sc, lp.p, lp.n, lp.two_sided, L.aim, ue.caster, ue.u1, ue.u2);
     vreal cos_y = photon_light_kinds(&lp, &aim);
     vmask emits = cos_y > R(0) || (lp.two_sided && cos_y < R(0));

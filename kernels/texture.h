@@ -84,6 +84,39 @@ inline real4 hit_uv(const Scene *sc, uint uv_base, real prim, real bu, real bv, 
     return (real4)(a.x + bu * a.z + bv * b.x, a.y + bu * a.w + bv * b.y, R(0), R(0));
 }
 
+#if CLPT_HAS_TEXTURED_EMITTERS
+// A textured area light (Mitsuba 3's `area` emitter with a texture as its
+// radiance; CLPT_HAS_TEXTURED_EMITTERS): its LIGHT_TEX row names the TEXTURE
+// (0: none) and its primitive (a mesh light's first triangle). The radiance
+// at a point is the texture at the point's (u, v), formed by hit_uv from
+// the primitive's UV record (the UV section's row: the TEXTURE's data.w).
+inline real4 emitter_texture(const Scene *sc, uint tex, real prim, real bu, real bv, real4 n)
+{
+    real4 uv = hit_uv(sc, (uint)scene_rec(sc, tex + TEX_DATA).w, prim, bu, bv, n);
+    return texture_eval(sc, tex, uv.x, uv.y);
+}
+
+// The radiance of the textured lights the lanes in `hit` found at h, into m->Le.
+inline void emitter_textures_hit(const Scene *sc, Material *m, const Hit *h, vmask hit)
+{
+    for (int l = 0; l < CLPT_LANES; l++) {
+        vreal light = h->light;
+        if (!VLANE_M(hit, l) || VLANE_R(light, l) <= R(0))
+            continue;
+        uint li = (uint)VLANE_R(light, l) - 1u;
+        real4 t = scene_rec(sc, OFF_LIGHTS + LIGHT_STRIDE * li + LIGHT_TEX);
+        if (t.x == R(0))
+            continue;
+        vreal prim = h->prim, bu = h->bu, bv = h->bv, nx = h->ng.x, ny = h->ng.y, nz = h->ng.z;
+        real4 c = emitter_texture(sc, (uint)t.x, VLANE_R(prim, l), VLANE_R(bu, l), VLANE_R(bv, l),
+                                  (real4)(VLANE_R(nx, l), VLANE_R(ny, l), VLANE_R(nz, l), R(0)));
+        VLANE_R(m->Le.x, l) = c.x;
+        VLANE_R(m->Le.y, l) = c.y;
+        VLANE_R(m->Le.z, l) = c.z;
+    }
+}
+#endif
+
 // Scales lobe probability p by how much the textured colour c is of the
 // bound b the host chose it for (so a lobe weight c / p stays what an
 // untextured surface of colour c would have).

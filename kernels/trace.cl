@@ -106,6 +106,8 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
         // --- emission, weighted against light sampling and merging -------------------------
         vmask sees;
         V3 Le = path_emission(sc, pl, &ps, &v, &sees);
+        if (L.hide_emitters != 0u)  // camera rays see no emission
+            sees = sees && ps.depth > R(0);
         ps.L = v3_sel(ps.L, v3_add(ps.L, Le), sees);
 #if CLPT_AUX
         v3_add_where(&vis.emission, Le, sees && before_x);

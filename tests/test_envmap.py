@@ -16,7 +16,7 @@
 - Photons from a directional light: zero photons give the path tracer's
   image exactly; the caustic under a glass ball carries what a far point
   light's (another emission path through the kernels) carries; a glass ball
-  under an environment alone (which emits no photons) is path traced.
+  under an environment alone gets photons from it (tests/test_env_photons.py).
 - tests/data/env_spheres.xml against a stored Mitsuba 3 reference.
 """
 
@@ -387,11 +387,12 @@ def test_env_spheres_render_as_in_mitsuba(device_spec):
     assert np.abs(z).max() < 4, f"a block is {np.abs(z).max():.1f} sigma off"
 
 
-def test_environment_lit_glass_is_path_traced_by_default(device_spec):
-    """An environment emits no photons: a glass ball under one alone gets
-    no photon map from the pilot (its photons would carry nothing), so the
-    default render is the path tracer's image exactly."""
+def test_environment_lit_glass_photons_count_in_the_pilot(device_spec):
+    """An environment emits photons (tests/test_env_photons.py): the pilot's
+    map of a glass ball under one alone stores photons whose power is a
+    share of the environment's, and the render follows the pilot's choice."""
     scene = _glass_ball(EnvironmentLight(image=sun_map(), scale=0.5, to_world=ROT), size=12)
-    pt = clpt.Renderer(scene, device=device_spec, photons=False).render(spp=8, seed=4, max_depth=6)
     default = clpt.Renderer(scene, device=device_spec).render(spp=8, seed=4, max_depth=6)
-    assert np.array_equal(pt.image, default.image)
+    pilot = default.stats.photon_pilot
+    assert pilot is not None and 0 < pilot["caustic_share"] < 1
+    assert pilot["choice"] in ("photon merging", "path tracing")

@@ -92,7 +92,8 @@ def test_feature_buffers_only_with_the_filter(device_spec):
     res2 = aux.render(2, width=8, height=8)
     assert aux.features.aux and "-DCLPT_AUX=1" in aux.features.options()
     assert np.array_equal(res.image, res2.image)
-    assert set(res2.aux) == {"normal", "albedo", "depth", "emission", "emitter", "caustic", "caustic_var"}
+    assert set(res2.aux) == {"normal", "albedo", "depth", "emission", "emitter", "caustic", "caustic_var",
+                             "caustic_sq"}
 
 
 def _function_lengths():

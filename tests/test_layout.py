@@ -126,6 +126,7 @@ def _reversed(r):
                                    str(Path(__file__).parent / "data" / "plastic_spheres.xml"),
                                    str(Path(__file__).parent / "data" / "rough_glass.xml"),
                                    str(Path(__file__).parent / "data" / "cbox_textured.xml"),
+                                   str(Path(__file__).parent / "data" / "cbox_textured_lights.xml"),
                                    str(Path(__file__).parent / "data" / "env_spheres.xml"),
                                    str(Path(__file__).parent / "data" / "brushed.xml")])
 def test_reordered_fields_render_the_same_image(device_spec, monkeypatch, scene):
@@ -133,8 +134,8 @@ def test_reordered_fields_render_the_same_image(device_spec, monkeypatch, scene)
     structs alike: the host fills by name and the kernels read by name, so
     the image is the same to the bit (the BVH, mesh lights, sphere,
     triangle and quad lights, photon mapping, rough conductors, plastics,
-    rough dielectrics, textures, an environment map and anisotropic lobes'
-    tangents included)."""
+    rough dielectrics, textures, textured lights, an environment map and
+    anisotropic lobes' tangents included)."""
     ref = clpt.Renderer(scene, device=device_spec, aux=True).render(2, width=16, height=16)
     for name in ("MATERIAL", "SPHERE", "PLANAR", "PLANE", "LIGHT", "CAUSTIC", "BVH_NODE", "BVH_LEAF", "NORMALS",
                  "LIGHT_TRI", "TEXTURE_SLOTS", "TEXTURE", "UV", "TANGENT", "ENV_TEXEL", "ENV_PACKED", "SCENE_INFO", "CAMERA",

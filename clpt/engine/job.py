@@ -95,6 +95,7 @@ class RenderJob:
     adaptive: AdaptiveSettings | None = None
     filter: object | None = None               # FilterSettings or OidnSettings
     aux_specular: str = "glass"                # what the feature buffers show of mirrors and glass (AUX_SPECULAR)
+    hide_emitters: bool = False                # camera rays see no emission (RenderSettings.hide_emitters)
     moments: bool = False                      # the pilot's trial: merges estimate path tracing's second
                                                # moment in the caustic plane (builds with feature buffers)
 

@@ -115,7 +115,7 @@ for _record, _names in ((TraceArgs, TRACE_ARGS + AUX_ARGS + PHOTON_ARGS), (Photo
 # The TraceLaunch fields a launch sets for its item; start() sets the others.
 ITEM_FIELDS = ("seed", "sample_begin", "n_samples", "n_list", "photons")
 IMAGE_FIELDS = ("scene", "camera", "lum_scale", "width", "height", "group_offset", "max_depth", "rr_depth",
-                "aux_specular", "pixel_filter")
+                "aux_specular", "hide_emitters", "pixel_filter")
 
 
 FILTER_LOCAL_SIZE = 64  # the cone filter's work-groups (kernels/filter.cl)
@@ -170,7 +170,7 @@ class TracePass:
         values = {"lum_scale": packed.lum_scale, "width": job.width, "height": job.height,
                   "group_offset": 0,  # a launch covers the image from its first pixel
                   "max_depth": min(job.max_depth, 2**31), "rr_depth": min(job.rr_depth, 2**31),
-                  "aux_specular": AUX_SPECULAR.index(job.aux_specular)}
+                  "aux_specular": AUX_SPECULAR.index(job.aux_specular), "hide_emitters": int(job.hide_emitters)}
         for k, v in values.items():
             rec[k] = v
         fill_pixel_filter(rec["pixel_filter"], job.scene.camera.pixel_filter)
