@@ -281,11 +281,12 @@ FILTER = Record("FilterRec", (("radius", "real"), ("sample_border", "uint")),
 PHOTON_LOOKUP = Record("PhotonLookup", (
     ("mask", "uint"), ("max_photons", "uint"), ("budget", "uint"), ("occ_mask", "uint"),
     ("merge_vertices", "uint"), ("aim", "uint"),
-    ("merge", "uint"), ("gather", "uint"), ("owns", "uint"), ("stop_at_x", "uint"),
+    ("merge", "uint"), ("gather", "uint"), ("owns", "uint"), ("stop_at_x", "uint"), ("moments", "uint"),
     ("radius", "real"), ("inv_cell", "real"), ("cone_k", "real"), ("mis_k", "real"), ("merge_p", "real")),
     "the photon map as trace_paths reads it (kernels/photon_grid.h) and what a launch does with it: merge at "
     "non-delta vertices (merge), gather at the first one (gather), the paths the map owns not path traced "
-    "(owns), camera paths ending there (stop_at_x: the offline pre-pass)")
+    "(owns), camera paths ending there (stop_at_x: the offline pre-pass), merges that also estimate path "
+    "tracing's second moment in the caustic plane (moments: the pilot's trial, with feature buffers)")
 TRACE_LAUNCH = Record("TraceLaunch", (
     ("scene", SCENE_INFO), ("camera", CAMERA), ("photons", PHOTON_LOOKUP), ("lum_scale", "real"),
     ("width", "uint"), ("height", "uint"), ("group_offset", "uint"), ("sample_begin", "uint"),

@@ -186,6 +186,7 @@ def pilot_choice(settings: PhotonSettings, power, max_flux: float, stored: int,
 # this many samples per pixel, with each technique.
 TRIAL_PIXELS = 64 * 64
 TRIAL_SPP = 8
+TRIAL_ROUNDS = 3  # the pilot's trial: rounds of TRIAL_SPP per technique (Renderer._pilot_trial)
 RELMSE_EPS = 1e-2  # as in relMSE: (x - ref)^2 / (ref^2 + eps), on luminance
 
 
@@ -204,6 +205,19 @@ def relmse_per_sample(trials: dict) -> dict:
     ref = np.mean([np.asarray(t[0], np.float64) for t in trials.values()], axis=0)
     den = ref * ref + RELMSE_EPS
     return {k: float(np.mean(np.asarray(v, np.float64) / den)) for k, (_, v) in trials.items()}
+
+
+def path_variance(path_var, merge_var, moment):
+    """Path tracing's per-sample luminance variance per pixel, for the pilot:
+    its trial's own figure, or, where larger, merging's variance plus path
+    tracing's second moment on the paths the merges took (moment, estimated
+    from the merges' photons: kernels/photon_grid.h). Merging's variance
+    stands for the paths both techniques make alike; on the merged paths,
+    which path tracing finds only by hitting a light through mirrors and
+    glass, an 8-sample trial of path tracing rarely sees the rare, bright
+    samples that make its error, and the moment counts them."""
+    est = np.asarray(merge_var, np.float64) + np.maximum(np.asarray(moment, np.float64), 0.0)
+    return np.maximum(np.asarray(path_var, np.float64), np.where(np.isfinite(est), est, 0.0))
 
 
 def weigh_cost(settings: PhotonSettings, info: dict, n_pix: int, per_sample: dict,

@@ -39,7 +39,7 @@ from .engine.schedule import Schedule
 from .errors import CheckpointError, DeviceError, SettingsError
 from .features import KERNEL_MODES, Experimental, Features
 from .loading import load_scene
-from .photons import (TRIAL_SPP, PhotonSettings, pilot_choice, relmse_per_sample, trial_size,
+from .photons import (TRIAL_ROUNDS, TRIAL_SPP, PhotonSettings, path_variance, pilot_choice, relmse_per_sample, trial_size,
                       weigh_cost)
 from .preview import RenderUpdate  # noqa: F401 - part of the API
 from .result import RenderResult, RenderStats  # noqa: F401 - part of the API
@@ -267,19 +267,39 @@ class Renderer:
 
     def _pilot_trial(self, job: RenderJob, pset: PhotonSettings, info: dict, executor):
         """The pilot's weighing of cost against gain (photons.weigh_cost): the
-        job at a small resolution and few samples per pixel, once with photon
-        merging and once path tracing alone on the same build, each timed by
-        its kernels' device seconds (photon maps included)."""
+        job at a small resolution and few samples per pixel, with photon
+        merging and with path tracing alone on the same build, in
+        TRIAL_ROUNDS alternating rounds of their own seeds; each technique's
+        variance is the rounds' mean, its cost the fastest round's kernel
+        device seconds per sample (photon maps included: on a machine shared
+        with other work, the least disturbed round is the closest to the
+        cost)."""
         w, h = trial_size(job.width, job.height)
         small = replace(job, spp=min(TRIAL_SPP, job.spp), width=w, height=h, filter=None)
-        trials, seconds = {}, {}
-        for name, ps in (("path", replace(pset, count=0)), ("merge", pset)):
-            r = self._run(replace(small, photons=ps), None, None, 0.0, executor=executor)
-            trials[name] = (luminance(r.image), r.lum_var)
-            seconds[name] = sum(sum(v) for v in r.stats.kernel_seconds.values()) / max(r.samples, 1)
+        techniques = (("path", replace(pset, count=0)), ("merge", pset))
+        images, variances, seconds = ({k: [] for k, _ in techniques} for _ in range(3))
+        for i in range(TRIAL_ROUNDS):
+            for name, ps in techniques:
+                r = self._run(replace(small, photons=ps, seed=(job.seed + i) % 2**32), None, None, 0.0,
+                              executor=executor)
+                images[name].append(luminance(r.image))
+                variances[name].append(r.lum_var)
+                seconds[name].append(sum(sum(v) for v in r.stats.kernel_seconds.values()) / max(r.samples, 1))
+        trials = {k: (np.mean(images[k], axis=0), np.mean(variances[k], axis=0)) for k in images}
+        seconds = {k: min(v) for k, v in seconds.items()}
+        # Path tracing's error on the paths merging takes: its own trial rarely meets them (a small
+        # light through glass), so it is estimated from the merges instead (kernels/photon_grid.h),
+        # by a build with feature buffers. Path tracing's variance is then at least merging's on
+        # the other paths plus that second moment (photons.path_variance).
+        twin = self._twin(aux=True)
+        m = twin._run(replace(small, options=twin.options, photons=pset, moments=True), None, None, 0.0)
+        trials["path"] = (trials["path"][0], path_variance(trials["path"][1], trials["merge"][1],
+                                                           m.aux["caustic_sq"]))
+        info = dict(info, path_moment=float(np.mean(m.aux["caustic_sq"])))
         # The costs of a trial are measured once per device and trial and then
         # taken from the cache, so a render's choice is reproducible from its seed.
-        key = hashlib.sha256(repr(([s.dctx.identity() for s in self.states], small.key)).encode()).hexdigest()[:32]
+        key = hashlib.sha256(repr(([s.dctx.identity() for s in self.states], small.key,
+                                   TRIAL_ROUNDS)).encode()).hexdigest()[:32]
         cached = tune.load_measured("pilot", key) if self.options.use_cache else None
         if cached is not None and set(cached.get("seconds_per_sample", ())) == {"path", "merge"}:
             seconds = {k: float(v) for k, v in cached["seconds_per_sample"].items()}

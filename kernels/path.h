@@ -197,8 +197,9 @@ inline void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState 
     vmask first_nd = v->hit && ps->own == (real)OWN_BEFORE_X && v->m.nondelta != R(0);
     v->at_x = first_nd && material_mergeable(&v->m);
     if (pl->gather && VANY(v->at_x)) {
+        vreal m2;  // (no moments: the gather does not merge)
         V3 Lc = photon_gather(pm, &v->m, v->pr, v->x, v->n, ps->d, sample_merge(sp, ps->depth), v->at_x, 0,
-                              max_depth - ps->depth - R(1));
+                              max_depth - ps->depth - R(1), v3_zero(), &m2);
         ps->L = v3_sel(ps->L, v3_add(ps->L, v3_mul(ps->beta, Lc)), v->at_x);
 #if CLPT_AUX
         visible_add_caustic(vis, v3_mul(ps->beta, Lc), v->at_x, lum_scale);
@@ -211,13 +212,27 @@ inline void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState 
         vreal u = sample_merge(sp, ps->depth);
         vmask merges = v->merge_here && u < pl->merge_p;
         if (VANY(merges)) {
+            // The luminance weights of the merge's contributions, for the moments (photon_grid.h).
+            V3 lw = v3_scale(ps->beta, lum_scale / pl->merge_p);
+            lw.x *= R(CLPT_LUMA_R); lw.y *= R(CLPT_LUMA_G); lw.z *= R(CLPT_LUMA_B);
+            vreal m2;
             V3 Lm = photon_gather(pm, &v->m, v->pr, v->x, v->n, ps->d, u / pl->merge_p, merges, 1,
-                                  max_depth - ps->depth - R(1));
+                                  max_depth - ps->depth - R(1), lw, &m2);
             ps->L = v3_sel(ps->L, v3_fma(v3_mul(ps->beta, Lm), R(1) / pl->merge_p, ps->L), merges);
 #if CLPT_AUX
-            // The merge at the first non-delta vertex: the caustic as seen.
-            visible_add_caustic(vis, v3_scale(v3_mul(ps->beta, Lm), R(1) / pl->merge_p),
-                                merges && ps->nd_count == R(0), lum_scale);
+            if (pl->moments) {
+                // The pilot's trial: the caustic plane's w sums path tracing's second moment for
+                // the merged paths (in lum_scale^2 units, as the squares it otherwise holds).
+                // With merge probability p, a merge adds (c / p)^2 / q with q's p_m counting p:
+                // its expectation over the coin is the moment of one sample.
+                v3_add_where(&vis->caustic, v3_scale(v3_mul(ps->beta, Lm), R(1) / pl->merge_p),
+                             merges && ps->nd_count == R(0));
+                vreal_add_where(&vis->caustic_sq, m2, merges && isfinite(m2));
+            } else {
+                // The merge at the first non-delta vertex: the caustic as seen.
+                visible_add_caustic(vis, v3_scale(v3_mul(ps->beta, Lm), R(1) / pl->merge_p),
+                                    merges && ps->nd_count == R(0), lum_scale);
+            }
 #endif
         }
     }

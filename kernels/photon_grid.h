@@ -60,6 +60,7 @@ typedef struct {
     real mis_k;                   // pi r^2 N photons: the merge's pdf is pf cos mis_k (path.h)
     __global const uint *occ;     // occupancy bits (grid.cl photon_occupancy)
     uint occ_mask;                // bits in the table - 1
+    uint moments;                 // merges also estimate path tracing's second moment (CLPT_AUX; below)
 } PhotonMap;
 
 // The photon map of a launch: its buffers and the launch record's settings.
@@ -77,6 +78,7 @@ inline void photon_map_init(PhotonMap *pm, const PhotonLookup *pl, __global cons
     pm->radius = pl->radius; pm->inv_cell = pl->inv_cell; pm->cone_k = pl->cone_k;
     pm->mis_k = pl->mis_k;
     pm->occ = occ; pm->occ_mask = pl->occ_mask;
+    pm->moments = pl->moments;
 }
 
 #if CLPT_LANES == 1
@@ -110,8 +112,20 @@ inline vmask photon_maybe(const PhotonMap *pm, V3 x, vmask active)
 // merge's pdf pf cos mis_k against the BSDF pdf (p_d cos / pi + p_s Phong pdf)
 // of the direction the photon came from. One query, in scalar code: each lane
 // walks its own cells, so no lane waits for a denser neighbour.
+//
+// With pm->moments (builds with feature buffers: the pilot's trial,
+// clpt/photons.py), *m2 gets the second moment path tracing alone would have
+// for the paths this gather merges, estimated from the photons themselves:
+// a photon's path x, merged with pdf p_m and contribution c = f / p_m, is a
+// path path tracing makes with pdf p_pt, so f^2 / p_pt = c^2 p_m / p_pt is
+// an unbiased sample of path tracing's second moment (its rare paths are
+// what an equal-sample trial of path tracing misses). c is the luminance
+// (weights lw) of the photon's contribution before the MIS weight; the cone
+// filter's weights square to kappa = pi r^2 int K^2 times the uniform
+// kernel's, and are divided out; with subsampling (stride s) each visited
+// photon stands for s, so it adds c^2 / s.
 INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, real3 kd, real3 ks, real shininess,
-                                    real u, real p_d, real p_s, int mis, real max_bounces)
+                                    real u, real p_d, real p_s, int mis, real max_bounces, real3 lw, real *m2)
 {
     real r2 = pm->radius * pm->radius;
     real inv_kr = R(1) / (pm->cone_k * pm->radius);
@@ -171,6 +185,20 @@ INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3
                         lobe_s = ca > R(0) ? exp(shininess * log(fmax(ca, R(1e-30)))) : R(0);
                     }
 #endif
+#if CLPT_AUX
+                    if (pm->moments) {
+                        real3 f = kd * R(M_1_PI);
+#if CLPT_HAS_PHONG
+                        f += ks * ((shininess + R(2)) * R(0.5 * M_1_PI)) * lobe_s;
+#endif
+                        real c = dot(lw, f * REAL3(pm->pow[i].xyz)) * w;
+                        real p_pt = p_d * cos_n * R(M_1_PI) + p_s * (shininess + R(1)) * R(0.5 * M_1_PI) * lobe_s;
+                        real q = p_pt / ((real)dir.w * cos_n * pm->mis_k);
+                        // (q = 0: a path path tracing cannot make; its error there is the path's whole
+                        // contribution, counted as c^2.)
+                        *m2 += c * c / (weight * (q > R(0) && isfinite(q) ? q : R(1)));
+                    }
+#endif
                     if (mis) {
                         real p_pt = p_d * cos_n * R(M_1_PI) + p_s * (shininess + R(1)) * R(0.5 * M_1_PI) * lobe_s;
                         real q = p_pt / ((real)dir.w * cos_n * pm->mis_k);
@@ -197,16 +225,27 @@ done:;
 #if CLPT_HAS_PHONG
     f_sum += ks * ((shininess + R(2)) * R(0.5 * M_1_PI)) * sum_s;
 #endif
-    return f_sum / ((R(1) - R(2) / (R(3) * pm->cone_k)) * R(M_PI) * r2);
+    real norm = (R(1) - R(2) / (R(3) * pm->cone_k)) * R(M_PI) * r2;
+#if CLPT_AUX
+    if (pm->moments) {
+        real k = pm->cone_k, a = R(1) - R(2) / (R(3) * k);
+        real kappa = R(2) * (R(0.5) - R(2) / (R(3) * k) + R(0.25) / (k * k)) / (a * a);
+        *m2 /= norm * norm * kappa;
+    }
+#endif
+    return f_sum / norm;
 }
 
 // The gather for the lanes in `active`, one lane at a time (u: per-lane
 // random numbers for the subsampling offsets).
 inline V3 photon_gather(const PhotonMap *pm, const Material *m, LobeProbs pr, V3 x, V3 n, V3 d, vreal u,
-                        vmask active, int mis, vreal max_bounces)
+                        vmask active, int mis, vreal max_bounces, V3 lw, vreal *m2)
 {
     active = photon_maybe(pm, x, active);
     V3 out = v3_zero();
+#if CLPT_AUX
+    *m2 = (vreal)R(0);
+#endif
     for (int l = 0; l < CLPT_LANES; l++) {
         if (VLANE_M(active, l) == 0)
             continue;
@@ -215,8 +254,17 @@ inline V3 photon_gather(const PhotonMap *pm, const Material *m, LobeProbs pr, V3
         real3 dl = (real3)(VLANE_R(d.x, l), VLANE_R(d.y, l), VLANE_R(d.z, l));
         real3 kd = (real3)(VLANE_R(m->kd.x, l), VLANE_R(m->kd.y, l), VLANE_R(m->kd.z, l));
         real3 ks = (real3)(VLANE_R(m->ks.x, l), VLANE_R(m->ks.y, l), VLANE_R(m->ks.z, l));
+        real m2l = R(0);
+#if CLPT_AUX
+        real3 lwl = (real3)(VLANE_R(lw.x, l), VLANE_R(lw.y, l), VLANE_R(lw.z, l));
+#else
+        real3 lwl = (real3)(R(0));  // (no moments without feature buffers)
+#endif
         real3 L = photon_gather_one(pm, xl, nl, dl, kd, ks, VLANE_R(m->shininess, l), VLANE_R(u, l),
-                                    VLANE_R(pr.d, l), VLANE_R(pr.s, l), mis, VLANE_R(max_bounces, l));
+                                    VLANE_R(pr.d, l), VLANE_R(pr.s, l), mis, VLANE_R(max_bounces, l), lwl, &m2l);
+#if CLPT_AUX
+        VLANE_R(*m2, l) = m2l;
+#endif
         VLANE_R(out.x, l) = L.x;
         VLANE_R(out.y, l) = L.y;
         VLANE_R(out.z, l) = L.z;

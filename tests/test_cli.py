@@ -131,3 +131,31 @@ def test_denoise_options(tmp_path, device_spec, capsys):
         assert "pip install 'clpt[oidn]'" in capsys.readouterr().err
     else:
         assert main([*base, "--denoise", "oidn", "--oidn-aux", "noisy", "-o", str(out)]) == 0
+
+
+def test_devices_tune_measures_and_caches_for_later_renders(device_spec, monkeypatch, tmp_path, capsys):
+    """`clpt devices --tune SCENE` measures lanes and local size for the
+    scene's kernel (the trial renders are faked here: tests/test_tune.py
+    measures for real) and caches the choice, which a later render with the
+    default policy takes without measuring."""
+    from clpt import tune
+
+    if not clpt.Renderer("cornell_box", device=device_spec).states[0].dctx.is_cpu:
+        pytest.skip("lanes are measured on CPU runtimes")
+    monkeypatch.setattr(tune, "_path", lambda key: tmp_path / "tune" / f"{key}.json")
+    wide = {}
+
+    def fake_candidates(states, trial):
+        wide["lanes"] = max(st.features.lanes for st in states)
+        return {"msamples_per_s": {st.features.lanes: float(st.features.lanes) for st in states},
+                "launch_seconds": 1e-4}
+
+    monkeypatch.setattr(tune, "measure_candidates", fake_candidates)
+    monkeypatch.setattr(tune, "measure_local_sizes", lambda st, trial, sizes: {s: 1.0 for s in sizes})
+    assert main(["devices", "--tune", "cornell_box", "--device", device_spec]) == 0
+    out = capsys.readouterr().out
+    assert f"cornell_box: lanes {wide['lanes']}, local size {tune.LOCAL_SIZE_CPU}" in out and "measured" in out
+    assert len(list((tmp_path / "tune").glob("*.json"))) == 1
+    monkeypatch.setenv("CLPT_TUNE", "auto")
+    t = clpt.Renderer("cornell_box", device=device_spec).states[0].tuning
+    assert (t.lanes, t.how) == (wide["lanes"], "cached")

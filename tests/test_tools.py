@@ -110,6 +110,25 @@ def test_shared_options_are_the_same_option_everywhere():
                 assert flags[f].type is int, (name, f)
 
 
+def test_relmse_luma_takes_the_references_noise_out():
+    from clpt.tools.metrics import relmse, relmse_luma
+
+    rng = np.random.default_rng(5)
+    truth = np.full((64, 64, 3), 0.5)
+    sigma = 0.05  # each reference pixel's luminance mean: truth + N(0, sigma^2)
+    ref = truth + rng.normal(0.0, sigma, (64, 64, 1))
+    img = truth + rng.normal(0.0, 0.02, (64, 64, 1))
+    exact = relmse_luma(img, truth)
+    assert relmse_luma(img, ref) > 5 * exact  # the reference's noise dominates
+    corrected = relmse_luma(img, ref, np.full((64, 64), sigma ** 2))
+    # Unbiased: per pixel, (e_i - e_r)^2 - sigma^2 has mean e_i's variance and
+    # variance 2 (s_i^2 + s_r^2)^2 (Gaussian errors); over the 4096 pixels
+    # the mean's standard error is that over 64, divided by r^2 + eps.
+    se = np.sqrt(2.0) * (0.02 ** 2 + sigma ** 2) / 64 / (0.25 + 1e-2)
+    assert abs(corrected - exact) < 4 * se
+    assert relmse_luma(img, truth) == pytest.approx(relmse(img, truth), rel=1e-12)  # grey: luminance = channels
+
+
 def test_reference_renders_saves_and_reads_back(tmp_path, device_spec):
     from clpt.image import read_metadata
     from clpt.scene import SettingsError
@@ -130,6 +149,9 @@ def test_reference_renders_saves_and_reads_back(tmp_path, device_spec):
     assert int(meta["clpt:reference_spp"]) == 16 and int(meta["clpt:max_depth"]) == 3
     again = reference_image("cornell_box", 12, 8, 16, path, device_spec, max_depth=3)  # read, not rendered
     assert np.array_equal(again, ref) and again.noise == pytest.approx(noise, rel=1e-6)
+    # The noise per pixel, saved beside the image.
+    per_pixel = res.lum_var / np.maximum(res.sample_count, 1)
+    assert np.allclose(ref.noise_map, per_pixel, rtol=1e-12) and np.allclose(again.noise_map, per_pixel, rtol=1e-6)
     with pytest.raises(SettingsError, match=r"is 12x8, not 8x8$"):
         reference_image("cornell_box", 8, 8, 16, path, device_spec)
 

@@ -20,6 +20,9 @@ def add_parser(sub):
     p.add_argument("--cpu-time", action="store_true",
                    help="equal CPU time of this process instead of equal wall time (for a machine shared with "
                         "other work)")
+    p.add_argument("--methods", default=None,
+                   help="equal-time methods to run (comma list of: path, default, trial, forced, first, "
+                        "online, progressive, offline; default all)")
     common.device(p)
     common.json(p)
     p.set_defaults(func=run)

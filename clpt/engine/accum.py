@@ -153,6 +153,9 @@ class Accumulator:
                 c_lum = (c_mean @ LUMA) * lum_scale
                 c_var = np.maximum(csum[:, 3] / n - c_lum ** 2, 0.0) * (n / np.maximum(n - 1.0, 1.0)) / lum_scale ** 2
                 aux["caustic"], aux["caustic_var"] = img(c_mean), c_var.reshape(height, width)
+                # The plane's w per sample, as it is: in the pilot's trial (RenderJob.moments), path
+                # tracing's second moment for the merged paths (kernels/photon_grid.h).
+                aux["caustic_sq"] = (csum[:, 3] / n / lum_scale ** 2).reshape(height, width).astype(np.float32)
         return image, var.reshape(height, width), count.reshape(height, width), caustic, aux
 
     def finish(self, width: int, height: int, lum_scale: float = 1.0, length_scale: float = 1.0, **result):

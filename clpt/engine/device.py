@@ -223,7 +223,8 @@ class DeviceWorker:
         lookup = None
         if self.features.photons:
             pset = kernel_photons(job.photons, self.packed.length_scale) or PhotonSettings()
-            lookup = partial(self.photon.lookup, settings=pset, mode=PM_PREPASS if prepass else job.pm_mode)
+            lookup = partial(self.photon.lookup, settings=pset, mode=PM_PREPASS if prepass else job.pm_mode,
+                             moments=job.moments and self.features.aux)
         rec, global_size = self.trace.item_record((job.seed ^ PREPASS_SEED_SALT) if prepass else job.seed, item,
                                                   lookup)
         sums = self.film.caustic if prepass else self.film.main

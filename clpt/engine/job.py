@@ -89,6 +89,8 @@ class RenderJob:
     adaptive: AdaptiveSettings | None = None
     filter: object | None = None               # FilterSettings or OidnSettings
     aux_specular: str = "surface"              # what the feature buffers show of mirrors and glass
+    moments: bool = False                      # the pilot's trial: merges estimate path tracing's second
+                                               # moment in the caustic plane (builds with feature buffers)
 
     # --- identity ----------------------------------------------------------------
     def scene_key(self) -> str:

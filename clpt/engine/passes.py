@@ -381,10 +381,12 @@ class PhotonPass:
             cl.enqueue_copy(self.dctx.queue, power, self.sorted[2])
         return [float(x) for x in power[:, :3].sum(axis=0, dtype=np.float64)]
 
-    def lookup(self, rec, settings: PhotonSettings, mode: int):
+    def lookup(self, rec, settings: PhotonSettings, mode: int, moments: bool = False):
         """Fill rec, a PhotonLookup record (clpt/layout.py), for a trace_paths
         launch over this map in mode PM_*: the map's grid, the gather's
-        settings, and what the launch does with them (kernels/path.h)."""
+        settings, and what the launch does with them (kernels/path.h);
+        moments: merges also estimate path tracing's second moment (the
+        pilot's trial, kernels/photon_grid.h)."""
         # The merge's pdf is pf cos pi r^2 N (kernels/path.h, photon merging).
         p = float(settings.merge_probability)
         rec["mask"], rec["occ_mask"] = self.mask, self.occ_bits - 1
@@ -401,6 +403,7 @@ class PhotonPass:
         rec["gather"] = mode in (PM_OWNED, PM_PREPASS)
         rec["owns"] = mode in (PM_OWNED, PM_OFFLINE, PM_PREPASS)
         rec["stop_at_x"] = mode == PM_PREPASS
+        rec["moments"] = moments and mode == PM_MERGE
 
     def fill(self, args: TraceArgs):
         """Put the map's buffers into trace_paths' arguments."""

@@ -427,15 +427,36 @@ def caustic_reference(scene, *, device=None, width=128, height=128, max_depth=64
     return img, lum >= 0.05 * max(float(lum.max()), 1e-300)
 
 
+def equal_time_methods() -> dict:
+    """The methods caustic_equal_time compares: key -> (name, PhotonSettings,
+    None for path tracing alone)."""
+    from ..photons import PhotonSettings
+
+    return {
+        "path": ("path tracing", None),
+        "default": ("merging (default: MIS, progressive, pilot)", PhotonSettings()),
+        "trial": ("merging, pilot with its timed trial", PhotonSettings(pilot_trial=True)),
+        "forced": ("merging, forced (no pilot)", PhotonSettings(pilot=False)),
+        "first": ("merging, first vertex only", PhotonSettings(pilot=False, merge_vertices=1)),
+        "online": ("owned map, online (10^6 photons)", PhotonSettings(mode="online")),
+        "progressive": ("owned map, progressive", PhotonSettings(mode="online", progressive=True, count=100_000)),
+        "offline": ("owned map, offline", PhotonSettings(mode="offline")),
+    }
+
+
 def caustic_equal_time(scene, *, device=None, width=128, height=128, seconds=(2.0, 4.0, 16.0), reference=None,
                        ref_spp=16384, max_depth=64, methods=None, cpu=False) -> dict:
     """relMSE against a path-traced reference (caustic_reference), in the
     caustic region and over the whole image, for path tracing alone and the
-    photon methods, each rendered for the same wall time (the pilot's time
-    counted in), or with cpu, for the same CPU time of this process (each
-    method's CPU time per spp calibrated on a 16-spp render, then the spp
-    that fills the budget): on a machine shared with other work, CPU time is
-    what the methods' costs can still be compared in."""
+    photon methods (methods: keys of equal_time_methods, default all), each
+    rendered for the same wall time (the pilot's time counted in), or with
+    cpu, for the same CPU time of this process (each method's CPU time per
+    spp calibrated on a 16-spp render, then the spp that fills the budget):
+    on a machine shared with other work, CPU time is what the methods' costs
+    can still be compared in. Besides relMSE over RGB, each run has the
+    luminance relMSE less the reference's own noise (metrics.relmse_luma),
+    where the reference has its noise per pixel: the caustic region of a
+    path-traced reference is noisy enough to hide a good method's error."""
     from . import metrics
     from ..photons import PhotonSettings
     from ..render import Renderer
@@ -444,32 +465,37 @@ def caustic_equal_time(scene, *, device=None, width=128, height=128, seconds=(2.
                                     reference=reference, ref_spp=ref_spp)
     pm = Renderer(scene, device=device)
     pt = Renderer(scene, device=device, photons=False)
-    methods = methods or {
-        "path tracing": None,
-        "merging (default: MIS, progressive, pilot)": PhotonSettings(),
-        "merging, forced (no pilot)": PhotonSettings(pilot=False),
-        "merging, first vertex only": PhotonSettings(pilot=False, merge_vertices=1),
-        "owned map, online (10^6 photons)": PhotonSettings(mode="online"),
-        "owned map, progressive": PhotonSettings(mode="online", progressive=True, count=100_000),
-        "owned map, offline": PhotonSettings(mode="offline"),
-    }
+    methods = {name: ps for key, (name, ps) in equal_time_methods().items() if methods is None or key in methods}
     for r in (pt, pm):  # the lazy device compiles, not timed
         r.render(1, width=width, height=height, max_depth=max_depth)
     pm.render(4, width=width, height=height, max_depth=max_depth, photons=PhotonSettings(mode="offline", offline_spp=1))
     out = {"caustic_pixels": int(region.sum()), "budget": "cpu seconds" if cpu else "wall seconds", "runs": []}
+    if ref.noise_map is not None:  # what the reference's own noise adds to a luminance relMSE
+        out["reference_noise_luma"] = {
+            "caustic": metrics.relmse_luma(ref[region], ref[region], -ref.noise_map[region]),
+            "image": metrics.relmse_luma(ref, ref, -ref.noise_map)}
     per_spp = {}
+    fixed = {}
     if cpu:
+        # Each method's CPU seconds per spp and per render (its pilot, a build made on the first
+        # render: a twin's), from a warm-up render and two timed ones of 16 and 48 spp.
         for name, ps in methods.items():
-            c = time.process_time()
-            (pt if ps is None else pm).render(16, width=width, height=height, seed=1, photons=ps, max_depth=max_depth)
-            per_spp[name] = (time.process_time() - c) / 16
+            r = pt if ps is None else pm
+            r.render(1, width=width, height=height, seed=1, photons=ps, max_depth=max_depth)
+            cost = {}
+            for n in (16, 48):
+                c = time.process_time()
+                r.render(n, width=width, height=height, seed=1, photons=ps, max_depth=max_depth)
+                cost[n] = time.process_time() - c
+            per_spp[name] = max((cost[48] - cost[16]) / 32, 1e-9)
+            fixed[name] = max(cost[16] - 16 * per_spp[name], 0.0)
     for t in seconds:
         for name, ps in methods.items():
             r = pt if ps is None else pm
             c = time.process_time()
             if cpu:
-                res = r.render(max(1, int(t / per_spp[name])), width=width, height=height, seed=7, photons=ps,
-                               max_depth=max_depth)
+                res = r.render(max(1, int((t - fixed[name]) / per_spp[name])), width=width, height=height, seed=7,
+                               photons=ps, max_depth=max_depth)
             else:
                 res = r.render(1 << 24, width=width, height=height, seed=7, time_limit=t, photons=ps,
                                max_depth=max_depth)
@@ -479,6 +505,10 @@ def caustic_equal_time(scene, *, device=None, width=128, height=128, seconds=(2.
                                 "spp": float(res.sample_count.mean()),
                                 "relmse_caustic": metrics.relmse(img[region], ref[region]),
                                 "relmse_image": metrics.relmse(img, ref),
+                                **({} if ref.noise_map is None else {
+                                    "relmse_caustic_luma": metrics.relmse_luma(img[region], ref[region],
+                                                                               ref.noise_map[region]),
+                                    "relmse_image_luma": metrics.relmse_luma(img, ref, ref.noise_map)}),
                                 "choice": (res.stats.photon_pilot or {}).get("choice")})
     return out
 
@@ -492,7 +522,8 @@ def run_bench_photons(a) -> int:
         result["equal_time"] = caustic_equal_time(a.scene, device=a.device, width=a.width, height=a.height,
                                                   seconds=[float(s) for s in a.equal_time.split(",")],
                                                   reference=a.reference, ref_spp=a.ref_spp, max_depth=a.max_depth,
-                                                  cpu=a.cpu_time)
+                                                  cpu=a.cpu_time,
+                                                  methods=a.methods.split(",") if a.methods else None)
     if a.json:
         print(json.dumps(result, indent=2))
         return 0
@@ -512,8 +543,17 @@ def run_bench_photons(a) -> int:
                 base = run
             gain = (f"  (vs path tracing: caustic {base['relmse_caustic'] / run['relmse_caustic']:.2f}x, "
                     f"image {base['relmse_image'] / run['relmse_image']:.2f}x)") if base else ""
+            choice = f" [{run['choice']}]" if run.get("choice") else ""
             print(f"  {run['method']:44s} {run['seconds']:6.2f} s ({run['cpu_seconds']:6.2f} CPU s) {run['spp']:8.1f} spp  relMSE caustic "
-                  f"{run['relmse_caustic']:.3e}, image {run['relmse_image']:.3e}{gain}")
+                  f"{run['relmse_caustic']:.3e}, image {run['relmse_image']:.3e}{gain}{choice}")
+            if "relmse_caustic_luma" in run:
+                gain = (f"  (vs path tracing: caustic {base['relmse_caustic_luma'] / run['relmse_caustic_luma']:.2f}x, "
+                        f"image {base['relmse_image_luma'] / run['relmse_image_luma']:.2f}x)") if base else ""
+                print(f"  {'':44s} luminance, reference noise out: caustic {run['relmse_caustic_luma']:.3e}, "
+                      f"image {run['relmse_image_luma']:.3e}{gain}")
+        if "reference_noise_luma" in et:
+            rn = et["reference_noise_luma"]
+            print(f"  (the reference's own noise: luminance relMSE caustic {rn['caustic']:.3e}, image {rn['image']:.3e})")
     return 0
 
 

@@ -4,6 +4,10 @@ sampling, the filter, the speed/accuracy trade-off).
 - rmse: root mean squared error over pixels and channels.
 - relmse: mean of (x - r)^2 / (r^2 + eps), the relative MSE renderers report
   (eps = 1e-2 keeps dark pixels from dominating).
+- relmse_luma: the same on luminance, less the reference's own noise (the
+  variance of each reference pixel's mean): (x - r)^2 overestimates the
+  squared error by that variance on average, and in the caustics of a
+  path-traced reference it can be as large as a good estimator's error.
 - ssim: structural similarity of the luminance (Wang et al. 2004, Gaussian
   window sigma 1.5), on the tone-mapped (clamped sRGB) images, so it judges
   what a viewer sees.
@@ -27,6 +31,18 @@ def rmse(img, ref) -> float:
 def relmse(img, ref, eps: float = 1e-2) -> float:
     img, ref = np.asarray(img, np.float64), np.asarray(ref, np.float64)
     return float(((img - ref) ** 2 / (ref * ref + eps)).mean())
+
+
+def relmse_luma(img, ref, ref_var=None, eps: float = 1e-2) -> float:
+    """Luminance relMSE against ref (both H x W x 3, or N x 3 for a region),
+    with ref_var (per pixel: the variance of the reference's luminance mean)
+    taken out; without it, the plain luminance relMSE."""
+    y = np.asarray(img, np.float64) @ LUMA
+    yr = np.asarray(ref, np.float64) @ LUMA
+    se = (y - yr) ** 2
+    if ref_var is not None:
+        se = se - np.asarray(ref_var, np.float64)
+    return float((se / (yr * yr + eps)).mean())
 
 
 def _gauss_blur(x, sigma=1.5, radius=5):

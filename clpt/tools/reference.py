@@ -5,7 +5,10 @@ when one is there, else rendered and saved there.
 The saved EXR keeps its sample count, its path depth (when one was set) and
 its noise level (the mean variance of its pixel means, which its own noise
 adds to any MSE against it) in the metadata, so a study that reads it back
-can take that noise out again.
+can take that noise out again. The noise per pixel (the variance of each
+pixel's luminance mean) is saved beside it, in <stem>.noise.exr: caustics
+concentrate a path-traced reference's noise in a few pixels, where the mean
+says little.
 """
 
 from __future__ import annotations
@@ -19,9 +22,17 @@ SEED = 0x5EED  # the references' seed unless a caller keeps its own
 
 class Reference(np.ndarray):
     """A reference image (float64, H x W x 3); .noise is the mean variance of
-    its pixel means, 0 if unknown."""
+    its pixel means, 0 if unknown; .noise_map the variance of each pixel's
+    luminance mean (H x W), None if unknown."""
 
     noise = 0.0
+    noise_map = None
+
+
+def noise_path(path) -> Path:
+    """Where the per-pixel noise of the reference saved at path is kept."""
+    path = Path(path)
+    return path.with_name(path.stem + ".noise.exr")
 
 
 def cached_path(folder, scene, width: int, height: int, spp: int, max_depth: int | None = None) -> Path:
@@ -47,16 +58,22 @@ def reference_image(scene, width: int, height: int, spp: int, path=None, device=
             raise SettingsError(f"reference {path} is {img.shape[1]}x{img.shape[0]}, not {width}x{height}")
         out = img.astype(np.float64).view(Reference)
         out.noise = float(read_metadata(path).get("clpt:noise", 0.0))
+        if noise_path(path).exists():
+            out.noise_map = load_image(noise_path(path))[..., 0].astype(np.float64)
         return out
     res = Renderer(scene, device=device, photons=False).render(spp, width=width, height=height, seed=seed,
                                                               max_depth=max_depth)
-    noise = float((res.lum_var / np.maximum(res.sample_count, 1)).mean())
+    noise_map = res.lum_var.astype(np.float64) / np.maximum(res.sample_count, 1)
+    noise = float(noise_map.mean())
     if path is not None:
         meta = {"clpt:reference_spp": spp, "clpt:noise": noise}
         if max_depth is not None:
             meta["clpt:max_depth"] = max_depth
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         save_image(path, res.image, metadata=meta)
+        save_image(noise_path(path), noise_map, metadata={"clpt:reference_spp": spp,
+                                                         "clpt:content": "variance of each pixel's luminance mean"})
     out = res.image.astype(np.float64).view(Reference)
     out.noise = noise
+    out.noise_map = noise_map
     return out
