@@ -2,10 +2,12 @@
 Image Denoise (OIDN) when pyoidn is installed (pip install 'clpt[oidn]').
 
 Both are fed from the renderer's feature buffers (render.py, CLPT_AUX):
-per pixel the normal, albedo and depth of the first surface seen (mirrors
-and glass as surfaces of albedo kr + kt; or, with aux_specular="through",
-the first non-delta vertex seen through them, their throughput folded into
-its albedo), the share of samples that see an emitter directly or through
+per pixel the normal, albedo and depth of the first surface seen (by
+default, aux_specular="glass", mirrors as surfaces of albedo kr and what is
+seen through glass: the first vertex that is not glass, the glass's
+throughput folded into its albedo; "surface": glass too as a surface of
+albedo kr + kt; "through": the first non-delta vertex seen through both),
+the share of samples that see an emitter directly or through
 mirrors and glass (where it is most, the pixel is flagged; an emitter that is
 the feature vertex gives its own colour as albedo), the emission seen so, and
 the photon map's caustic part. Both leave that emission out and add it back
@@ -19,8 +21,8 @@ filtering them again spreads them). The rest is divided by the albedo
 all 8 neighbours by more than `firefly_k` standard errors, unless its own
 samples confirm it to `confirm_k` of its own standard errors), and `iterations`
 a-trous passes of a cone kernel of `width` pixels (steps 1, 2, 4, ...)
-smooth it where normals, depths, albedos, emitter flags and values (beyond
-the pixel's noise) agree. A numpy twin (`reference_cone_filter`) is there for the tests.
+smooth it where normals, depths, albedos, emitter flags and values (their
+3x3 means, beyond the pixel's noise) agree. A numpy twin (`reference_cone_filter`) is there for the tests.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ class FilterSettings:
     sigma_normal: int = 32       # exponent of the normals' cosine, 1 to 127
     sigma_depth: float = 0.1     # relative depth change per pixel of distance that costs a factor e
     sigma_albedo: float = 0.1
-    sigma_luminance: float = 5.0  # value differences, in standard errors of the pixel's noise
+    sigma_luminance: float = 2.5  # differences of 3x3-smoothed values, in standard errors of the pixel's noise
     guide_floor: float = 0.3     # least guide weight of a tap (edge pixels, whose guides are mixtures)
     firefly_k: float = 3.0       # clamp pixels above all 8 neighbours by this many standard errors; 0: off
     confirm_k: float = 2.0       # a bright value the pixel's own samples confirm to this many standard errors
@@ -108,7 +110,7 @@ def oidn_module():
 def demodulate(color, var, albedo):
     """Colour / albedo (where the albedo is not black), and its variance."""
     alb = np.where(albedo > ALBEDO_FLOOR, albedo, 1.0)
-    lum_alb = np.maximum(alb @ LUMA, ALBEDO_FLOOR)
+    lum_alb = np.maximum(alb @ LUMA.astype(alb.dtype), ALBEDO_FLOOR)  # in the inputs' precision
     return color / alb, var / lum_alb ** 2, alb
 
 
@@ -122,9 +124,10 @@ class Planar:
         self.margin = radius * max_step + 16
         self.plane = self.pitch * height + 2 * self.margin
 
-    def pack(self, planes) -> np.ndarray:
-        out = np.zeros((len(planes), self.plane), np.float32)
-        body = out[:, self.margin:self.margin + self.pitch * self.height].reshape(len(planes), self.height,
+    def pack(self, planes, extra: int = 0) -> np.ndarray:
+        """The planes laid out, then `extra` planes of zeros."""
+        out = np.zeros((len(planes) + extra, self.plane), np.float32)
+        body = out[:len(planes), self.margin:self.margin + self.pitch * self.height].reshape(len(planes), self.height,
                                                                                    self.pitch)
         for k, p in enumerate(planes):
             body[k, :, :self.width] = p
@@ -165,6 +168,15 @@ def reference_firefly(c, v, k, k_confirm=None):
     return (c * s[..., None]).astype(np.float32), np.where(clip, vmed, v).astype(np.float32)
 
 
+def smooth3(x):
+    """x (H x W) averaged over each pixel's 3x3 in the image, weights (1 2 1) x (1 2 1)."""
+    h, w = x.shape
+    kern = np.array([1, 2, 1], np.float32)
+    xp, wp = np.pad(x, 1), np.pad(np.ones((h, w), np.float32), 1)
+    s = sum(kern[a] * kern[b] * xp[a:a + h, b:b + w] for a in range(3) for b in range(3))
+    return s / sum(kern[a] * kern[b] * wp[a:a + h, b:b + w] for a in range(3) for b in range(3))
+
+
 def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
     """numpy twin of the cone filter (clpt/engine/passes.py FilterPass; slow, for tests on small images)."""
     h, w = color.shape[:2]
@@ -181,13 +193,8 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
     r_ = min(settings.width, max(w, h))
     for it in range(settings.passes(w, h)):
         step = 1 << it
-        lp = _lum(c)
-        vp = np.pad(v, 1)
-        wp = np.pad(np.ones((h, w), np.float32), 1)
-        kern = np.array([1, 2, 1], np.float32)
-        vs = sum(kern[a] * kern[b] * vp[a:a + h, b:b + w] for a in range(3) for b in range(3))
-        vw = sum(kern[a] * kern[b] * wp[a:a + h, b:b + w] for a in range(3) for b in range(3))
-        sl = settings.sigma_luminance * np.sqrt(vs / vw) + 1e-6
+        lp = smooth3(_lum(c))
+        sl = settings.sigma_luminance * np.sqrt(smooth3(v)) + 1e-6
         acc = np.zeros_like(c)
         wsum = np.ones((h, w), np.float32)
         w2v = v.copy()
@@ -239,12 +246,15 @@ def kept_emission(aux, count, k: float):
 
 def dilate(mask, r: int):
     """mask (H x W bool) grown by r pixels in each direction (a square)."""
-    pad = np.pad(mask, r)
     h, w = mask.shape
+    pad = np.pad(mask, ((0, 0), (r, r)))
+    rows = np.zeros_like(mask)
+    for dx in range(2 * r + 1):  # a square is a row's dilation, then a column's
+        rows |= pad[:, dx:dx + w]
+    pad = np.pad(rows, ((r, r), (0, 0)))
     out = np.zeros_like(mask)
     for dy in range(2 * r + 1):
-        for dx in range(2 * r + 1):
-            out |= pad[dy:dy + h, dx:dx + w]
+        out |= pad[dy:dy + h]
     return out
 
 

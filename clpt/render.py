@@ -33,7 +33,7 @@ from .engine.checkpoint import Checkpoint
 from .engine.device import DeviceWorker, device_features, kernel_source
 from .engine.driver import Driver, run_item
 from .engine.executors import DaskExecutor, LocalExecutor
-from .engine.job import DeviceOptions, RenderJob, WorkItem, kernel_photons
+from .engine.job import AUX_SPECULAR, DeviceOptions, RenderJob, WorkItem, kernel_photons
 from .engine.processes import ProcessExecutor
 from .engine.schedule import Schedule
 from .errors import CheckpointError, DeviceError, SettingsError
@@ -153,7 +153,7 @@ class Renderer:
     def job(self, spp: int | None = None, *, seed: int | None = None, max_depth: int | None = None,
             rr_depth: int | None = None, width: int | None = None, height: int | None = None,
             photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
-            filter=None, aux_specular: str = "surface") -> RenderJob:
+            filter=None, aux_specular: str = "glass") -> RenderJob:
         """The RenderJob of render()'s settings (checked; the scene's where not given)."""
         return self._job(self.features, spp, seed=seed, max_depth=max_depth, rr_depth=rr_depth, width=width,
                          height=height, photons=photons, adaptive=adaptive, filter=filter, aux_specular=aux_specular)
@@ -161,7 +161,7 @@ class Renderer:
     def _job(self, features: Features, spp: int | None = None, *, seed: int | None = None,
              max_depth: int | None = None, rr_depth: int | None = None, width: int | None = None,
              height: int | None = None, photons: PhotonSettings | None = None,
-             adaptive: AdaptiveSettings | None = None, filter=None, aux_specular: str = "surface") -> RenderJob:
+             adaptive: AdaptiveSettings | None = None, filter=None, aux_specular: str = "glass") -> RenderJob:
         """job() for workers of the given build."""
         if photons is None:
             photons = self.photon_settings
@@ -187,15 +187,15 @@ class Renderer:
             kernel_photons(pset, self.packed.length_scale).check_radius(self.packed.size, features.double)
         aset = adaptive.check() if adaptive is not None else None
         fset = filter.check() if filter is not None else None
-        if aux_specular not in ("through", "surface"):
-            raise SettingsError(f"render: aux_specular must be 'through' or 'surface' (got {aux_specular!r})")
+        if aux_specular not in AUX_SPECULAR:
+            raise SettingsError(f"render: aux_specular must be one of {', '.join(AUX_SPECULAR)} (got {aux_specular!r})")
         return RenderJob(self.scene, int(spp), int(seed), int(max_depth), int(rr_depth), int(width), int(height),
                          self.options, pset, aset, fset, aux_specular)
 
     def render(self, spp: int | None = None, *, seed: int | None = None, max_depth: int | None = None,
                rr_depth: int | None = None, width: int | None = None, height: int | None = None,
                photons: PhotonSettings | None = None, adaptive: AdaptiveSettings | None = None,
-               filter=None, aux_specular: str = "surface", progress=None, preview=None,
+               filter=None, aux_specular: str = "glass", progress=None, preview=None,
                time_limit: float | None = None, pass_seconds: float | None = None, executor=None,
                checkpoint=None, checkpoint_every: float | None = None, on_update=None,
                update_interval: float = 0.25, stop=None) -> RenderResult:
@@ -207,8 +207,10 @@ class Renderer:
         pass; preview(image) every filter.interval passes with the filtered
         image so far; filter: the cone filter (FilterSettings) or OIDN
         (OidnSettings) on the final image; aux_specular: what the feature
-        buffers show of mirrors and glass, "surface" (the default) or
-        "through" (the first non-delta vertex seen through them);
+        buffers show of mirrors and glass: "glass" (the default; mirrors
+        as surfaces, what is seen through glass), "surface" (both as
+        surfaces) or "through" (the first non-delta vertex seen through
+        both);
         on_update(update) is called between passes, at most every
         update_interval seconds, with a clpt.preview.RenderUpdate (the image
         so far, counts, variances, feature images, statistics), and once at

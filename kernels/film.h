@@ -168,7 +168,8 @@ inline void film_add_sample(Film *f, vmask done, V3 L, real lum_scale, uint *non
 // gather there, or its merge; rgb; w: its squared luminance times
 // lum_scale^2). The feature vertex is the first vertex with a non-delta part
 // (aux_specular 0: mirrors and glass are seen through) or the first vertex
-// (1: they are surfaces with albedo kr + kt). An emitter's albedo is its
+// (1: they are surfaces with albedo kr + kt), or the first that is not glass
+// (2: mirrors are surfaces, glass is seen through). An emitter's albedo is its
 // emission over its largest component, times the throughput; paths that meet
 // no feature vertex get albedo 1 and no normal. The four sums are planes of
 // one buffer, n_pix float4 each: normal, albedo, emission, caustic.
@@ -251,7 +252,9 @@ inline vmask visible_add_vertex(VisibleSurface *v, vmask hit, vreal t, const Mat
     vreal_add_where(&v->lights, (vreal)R(1), seen);
     v->lit = v->lit || seen;
     v->chain = v->chain && !(hit && m->nondelta != R(0));
-    vmask rec = hit && !v->found && (m->nondelta != R(0) || aux_specular != 0u);
+    // aux_specular 1: mirrors and glass are surfaces; 2: mirrors are, glass is seen through
+    vmask clear = fmax(m->kt.x, fmax(m->kt.y, m->kt.z)) > R(0);
+    vmask rec = hit && !v->found && (m->nondelta != R(0) || aux_specular == 1u || (aux_specular == 2u && !clear));
     if (VANY(rec)) {
         V3 surf = v3_add(m->kd, m->ks);
 #if CLPT_HAS_MICROFACET

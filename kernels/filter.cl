@@ -1,4 +1,4 @@
-// filter.cl: the edge-aware cone filter, as two kernels.
+// filter.cl: the edge-aware cone filter, as three kernels.
 //
 // Both work on the demodulated image (colour divided by the first-hit albedo,
 // so texture and colour edges are not blurred; the host multiplies the albedo
@@ -23,10 +23,14 @@
 //   depth     exp(-|z_p - z_q| / (sigma_depth * z_p * r * step))
 //   albedo    exp(-|a_p - a_q|^2 / sigma_albedo^2)
 //   emitter   a pixel that sees a light and one that does not: 0
-//   value     exp(-|l_p - l_q| / (sigma_lum * s_p + 1e-6)), s_p the standard error
-//             of p's mean smoothed over its 3x3 (SVGF's choice): differences
-//             beyond p's noise (edges of shadows) are kept, and a firefly
-//             next to a calm pixel is not taken in by it
+//   value     exp(-|L_p - L_q| / (sigma_lum * s_p + 1e-6)), L the luminance
+//             smoothed over the 3x3 (1 2 1 weights, filter_luma) and s_p the
+//             standard error of p's mean smoothed the same way (SVGF's
+//             choice): differences beyond p's noise (edges of shadows) are
+//             kept, and a firefly next to a calm pixel is not taken in by it.
+//             The smoothed luminances compare with a third of the noise of
+//             the pixels' own, so the test can be tighter for the same
+//             acceptance of noise: shading edges are kept better.
 // The guides' factor g (normals, depth, albedo) gets a floor: w = w_s (g +
 // guide_floor) exp(-value term), so pixels on an edge, whose guides are a mix
 // of both sides' and match neither, still average with their neighbours where
@@ -38,9 +42,9 @@
 // Layout: planar images of `pitch` (the width rounded up to 8) columns, each
 // plane `plane` floats long with `margin` floats before and after the pixels
 // (zeros, so that lanes outside the image read finite values):
-//   color: r, g, b, variance of the pixel mean
+//   color: r, g, b, variance of the pixel mean, smoothed luminance and variance (filter_luma)
 //   guides: normal x, y, z (0 if none), emitter flag (0/1), albedo r, g, b, depth
-// filter_firefly: one work-item per pixel (global size width * height).
+// filter_firefly, filter_luma: one work-item per pixel (global size width * height).
 // filter_cone: one work-item per 8 pixels of a row, in float8 lanes (global
 // size height * pitch / 8); any local size.
 
@@ -58,28 +62,32 @@ __kernel void filter_firefly(__global const float *color_in, uint width, uint he
     int x = (int)(i % width), y = (int)(i / width);
     int xm = (int)width - 1, ym = (int)height - 1;
     uint o = margin + (uint)y * pitch + (uint)x;
+    // Branch-free (lanes of neighbouring pixels stay together): pixels outside
+    // the image read a clamped address and count as +inf variance, n as 0 luminance.
     float v[9];
     int n = 0;
     float lmax = -INFINITY;
     for (int dy = -1; dy <= 1; dy++) {
         for (int dx = -1; dx <= 1; dx++) {
             int qx = x + dx, qy = y + dy;
-            if (qx < 0 || qy < 0 || qx > xm || qy > ym)
-                continue;
-            uint q = margin + (uint)qy * pitch + (uint)qx;
-            float t = color_in[3 * plane + q];
-            int j = n++;  // insertion into the sorted variances
-            while (j > 0 && v[j - 1] > t) {
-                v[j] = v[j - 1];
-                j--;
-            }
-            v[j] = t;
-            if (dx != 0 || dy != 0)
+            int in = qx >= 0 && qy >= 0 && qx <= xm && qy <= ym;
+            uint q = margin + (uint)clamp(qy, 0, ym) * pitch + (uint)clamp(qx, 0, xm);
+            v[(dy + 1) * 3 + dx + 1] = in ? color_in[3 * plane + q] : INFINITY;
+            n += in;
+            if ((dx != 0 || dy != 0) && in)
                 lmax = fmax(lmax, luma(color_in[q], color_in[plane + q], color_in[2 * plane + q]));
         }
     }
+    // The median of the n variances in the image: the one of rank n / 2 (ties
+    // ranked by position), without sorting.
+    float vmed = 0.0f;
+    for (int a = 0; a < 9; a++) {
+        int rank = 0;
+        for (int b = 0; b < 9; b++)
+            rank += v[b] < v[a] || (b < a && v[b] == v[a]);
+        vmed = rank == n / 2 ? v[a] : vmed;
+    }
     float r = color_in[o], g = color_in[plane + o], b = color_in[2 * plane + o], var = color_in[3 * plane + o];
-    float vmed = v[n / 2];
     float bound = lmax + k * sqrt(vmed);
     float lp = luma(r, g, b);
     // Brightness the pixel's own samples confirm is kept: it is clamped only
@@ -91,6 +99,33 @@ __kernel void filter_firefly(__global const float *color_in, uint width, uint he
         r *= s; g *= s; b *= s; var = vmed;
     }
     color_out[o] = r; color_out[plane + o] = g; color_out[2 * plane + o] = b; color_out[3 * plane + o] = var;
+}
+
+// filter_luma: planes 4 and 5 of color, the luminance of planes 0-2 and the
+// variance (plane 3) averaged over the pixel's 3x3 in the image with weights
+// (1 2 1) x (1 2 1).
+__kernel void filter_luma(__global float *color, uint width, uint height, uint pitch, uint plane, uint margin)
+{
+    uint i = get_global_id(0);
+    if (i >= width * height)
+        return;
+    int x = (int)(i % width), y = (int)(i / width);
+    float s = 0.0f, sv = 0.0f, ws = 0.0f;
+    for (int dy = -1; dy <= 1; dy++) {
+        for (int dx = -1; dx <= 1; dx++) {
+            int qx = x + dx, qy = y + dy;
+            if (qx < 0 || qy < 0 || qx >= (int)width || qy >= (int)height)
+                continue;
+            uint q = margin + (uint)qy * pitch + (uint)qx;
+            float w = (float)((2 - abs(dx)) * (2 - abs(dy)));
+            s += w * luma(color[q], color[plane + q], color[2 * plane + q]);
+            sv += w * color[3 * plane + q];
+            ws += w;
+        }
+    }
+    uint o = margin + (uint)y * pitch + (uint)x;
+    color[4 * plane + o] = s / ws;
+    color[5 * plane + o] = sv / ws;
 }
 
 #define LD8(buf, k, off) vload8(0, (buf) + (k) * plane + (off))
@@ -114,22 +149,9 @@ __kernel void filter_cone(__global const float *color_in, __global const float *
     float8 ar = LD8(guides, 4, row0), ag = LD8(guides, 5, row0), ab = LD8(guides, 6, row0);
     float8 dz = LD8(guides, 7, row0);
     int8 has_n = (nx * nx + ny * ny + nz * nz) > 0.0f;
-    float8 lp = (float)CLPT_LUMA_R * cr + (float)CLPT_LUMA_G * cg + (float)CLPT_LUMA_B * cb;
-    // p's noise: its variance smoothed over the 3x3 (1 2 1 weights)
-    float8 vs = 0.0f, vw = 0.0f;
-    for (int dy = -1; dy <= 1; dy++) {
-        int qy = y + dy;
-        if (qy < 0 || qy > ym)
-            continue;
-        for (int dx = -1; dx <= 1; dx++) {
-            int8 qx = xs + dx;
-            int8 in = qx >= 0 && qx < (int)width;
-            float8 wv = select((float8)(0.0f), (float8)((float)((2 - abs(dx)) * (2 - abs(dy)))), in);
-            vs += wv * LD8(color_in, 3, (int)margin + qy * (int)pitch + x0 + dx);
-            vw += wv;
-        }
-    }
-    float8 inv_sl = 1.0f / (sigma_lum * sqrt(vs / fmax(vw, 1.0f)) + 1e-6f);
+    float8 lp = LD8(color_in, 4, row0);
+    // p's noise: its variance smoothed over the 3x3 (filter_luma)
+    float8 inv_sl = 1.0f / (sigma_lum * sqrt(LD8(color_in, 5, row0)) + 1e-6f);
     float inv_sa = 1.0f / (sigma_albedo * sigma_albedo);
     float8 inv_sd = 1.0f / (sigma_depth * fmax(dz, 1e-6f) * (float)step);
     float8 accr = 0.0f, accg = 0.0f, accb = 0.0f;
@@ -162,7 +184,7 @@ __kernel void filter_cone(__global const float *color_in, __global const float *
             g *= exp(-((dar * dar + dag * dag + dab * dab) * inv_sa + dd * inv_sd / r));
             float8 qr = LD8(color_in, 0, off), qg = LD8(color_in, 1, off), qb = LD8(color_in, 2, off);
             float8 qv = LD8(color_in, 3, off);
-            float8 lq = (float)CLPT_LUMA_R * qr + (float)CLPT_LUMA_G * qg + (float)CLPT_LUMA_B * qb;
+            float8 lq = LD8(color_in, 4, off);
             float8 w = ws * (g + guide_floor) * exp(-fabs(lp - lq) * inv_sl);
             w = select((float8)(0.0f), w, use && w > 0.0f);
             accr += w * (qr - cr); accg += w * (qg - cg); accb += w * (qb - cb);

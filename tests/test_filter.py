@@ -230,6 +230,15 @@ def test_feature_buffers_see_through_glass_or_stop_at_it(device_spec):
                        aux_specular="surface").aux
     nearer = surface["depth"] < through["depth"] - 1e-3
     assert 10 < nearer.sum() < 400 and (surface["depth"] <= through["depth"] + 1e-4).all()
+    # "glass" (the default): the mirror ball as a surface, what is seen through the glass ball
+    glass = r.render(2, width=32, height=32, seed=4, photons=clpt.PhotonSettings(count=10_000)).aux
+    as_surface = nearer & np.isclose(glass["depth"], surface["depth"], rtol=1e-5)
+    as_through = nearer & np.isclose(glass["depth"], through["depth"], rtol=1e-5)
+    assert as_surface.sum() > 5 and as_through.sum() > 5
+    assert (as_surface | as_through).sum() >= 0.8 * nearer.sum()  # the rest: rims, where both balls' samples mix
+    xs = np.nonzero(nearer)[1]
+    # the two balls sit side by side: the pixels described as surfaces and as seen through are apart
+    assert abs(np.nonzero(as_surface)[1].mean() - np.nonzero(as_through)[1].mean()) > 0.2 * (xs.max() - xs.min())
     with pytest.raises(clpt.SceneError, match="aux_specular"):
         r.render(1, width=8, height=8, aux_specular="mirror")
 
@@ -311,3 +320,31 @@ def test_firefly_clamp_spares_what_the_pixels_own_samples_confirm():
     assert c[10, 10] @ LUMA < 2.0 and np.array_equal(c[20, 20], img[20, 20])
     c, _ = reference_firefly(img, var, 3.0, 12.0)  # demanding more than 10 standard errors: clamped too
     assert c[20, 20] @ LUMA < 2.0
+
+
+def test_value_term_compares_3x3_smoothed_luminance():
+    """smooth3: (1 2 1) x (1 2 1) weights over the pixels in the image; a corner
+    pixel averages its 2x2 with weights 4, 2, 2, 1."""
+    from clpt.denoise import smooth3
+    x = np.zeros((4, 5), np.float32)
+    x[0, 0] = 9.0
+    s = smooth3(x)
+    assert s[0, 0] == pytest.approx(4 * 9 / 9)
+    assert s[0, 1] == pytest.approx(2 * 9 / 12)
+    assert s[1, 1] == pytest.approx(9 / 16)
+    assert s[2, 2] == 0
+    c = np.full((6, 7), 0.25, np.float32)
+    assert np.allclose(smooth3(c), 0.25)
+
+
+def test_dilate_is_a_square_of_radius_r():
+    from clpt.denoise import dilate
+    rng = np.random.default_rng(3)
+    m = rng.random((23, 29)) > 0.97
+    for r in (1, 2):
+        pad = np.pad(m, r)
+        want = np.zeros_like(m)
+        for dy in range(2 * r + 1):
+            for dx in range(2 * r + 1):
+                want |= pad[dy:dy + 23, dx:dx + 29]
+        assert (dilate(m, r) == want).all()

@@ -118,6 +118,7 @@ def _add_photon_options(p):
 def _add_quality_options(p):
     from ..adaptive import AdaptiveSettings
     from ..denoise import FilterSettings, OidnSettings
+    from ..engine.job import AUX_SPECULAR
     from ..options import ADAPTIVE_OPTIONS, CONE_FILTER_OPTIONS, DENOISER_OPTIONS, OIDN_OPTIONS, add_options
 
     g = p.add_argument_group("adaptive sampling")
@@ -132,9 +133,9 @@ def _add_quality_options(p):
                         "cone filter, or Intel Open Image Denoise (pip install 'clpt[oidn]')")
     g.add_argument("--filter", action="store_true", help="the same as --denoise cone")
     add_options(g, OidnSettings, OIDN_OPTIONS)
-    g.add_argument("--aux-specular", choices=("surface", "through"), default=None,
-                   help="feature buffers of mirrors and glass: the surface itself (default) or what is seen "
-                        "through it")
+    g.add_argument("--aux-specular", choices=AUX_SPECULAR, default=None,
+                   help="feature buffers of mirrors and glass: mirrors as surfaces and what is seen through "
+                        "glass (glass, the default), both as surfaces, or what is seen through both")
     add_options(g, FilterSettings, CONE_FILTER_OPTIONS + DENOISER_OPTIONS)
     g.add_argument("--write-aux", action="store_true",
                    help="write the feature buffers: <out>.normal.exr, .albedo.exr, .depth.exr, .variance.exr")
@@ -325,7 +326,7 @@ def run(a) -> int:
             else:
                 res = r.render(a.spp, seed=a.seed, max_depth=a.max_depth, rr_depth=a.rr_depth, width=a.width,
                                height=a.height, photons=photons, adaptive=adaptive, filter=filt,
-                               aux_specular=a.aux_specular or "surface", **run)
+                               aux_specular=a.aux_specular or "glass", **run)
         finally:
             if client is not None and client != "processes":
                 client.close()

@@ -46,6 +46,12 @@ def _digest(obj, h):
         h.update(b";")
 
 
+# What the feature buffers show of mirrors and glass (the kernels' aux_specular
+# is the index): "through", the first non-delta vertex seen through them;
+# "surface", the mirror or glass itself (albedo kr + kt); "glass", mirrors as
+# surfaces and what is seen through glass.
+AUX_SPECULAR = ("through", "surface", "glass")
+
 @dataclass(frozen=True)
 class DeviceOptions:
     """How a device builds its kernels (Renderer's keywords)."""
@@ -88,7 +94,7 @@ class RenderJob:
     photons: PhotonSettings | None = None      # None: the kernels have no photon code
     adaptive: AdaptiveSettings | None = None
     filter: object | None = None               # FilterSettings or OidnSettings
-    aux_specular: str = "surface"              # what the feature buffers show of mirrors and glass
+    aux_specular: str = "glass"                # what the feature buffers show of mirrors and glass (AUX_SPECULAR)
     moments: bool = False                      # the pilot's trial: merges estimate path tracing's second
                                                # moment in the caustic plane (builds with feature buffers)
 

@@ -26,6 +26,7 @@ from ..errors import DeviceError
 from ..photons import (GRID_CELL_RADII, MAX_TABLE_BITS, PM_MERGE, PM_OFFLINE, PM_OWNED, PM_PREPASS, RADIX_BITS,
                        PhotonSettings)
 from ..program import event_seconds
+from .job import AUX_SPECULAR
 from .launch import (AUX_ARGS, PHOTON_ARGS, PHOTON_PASS_ARGS, TRACE_ARGS, RecordBuffer, fill_pixel_filter, fill_scene_info,
                      photon_record, trace_record)
 
@@ -169,7 +170,7 @@ class TracePass:
         values = {"lum_scale": packed.lum_scale, "width": job.width, "height": job.height,
                   "group_offset": 0,  # a launch covers the image from its first pixel
                   "max_depth": min(job.max_depth, 2**31), "rr_depth": min(job.rr_depth, 2**31),
-                  "aux_specular": int(job.aux_specular == "surface")}
+                  "aux_specular": AUX_SPECULAR.index(job.aux_specular)}
         for k, v in values.items():
             rec[k] = v
         fill_pixel_filter(rec["pixel_filter"], job.scene.camera.pixel_filter)
@@ -425,8 +426,20 @@ class FilterPass:
     def __init__(self, dctx, program):
         self.dctx = dctx
         self.firefly = cl.Kernel(program, "filter_firefly")
+        self.luma = cl.Kernel(program, "filter_luma")
         self.kernel = cl.Kernel(program, "filter_cone")
         self.counters = Counters()
+        self._kept = None  # (plane length, [colour, colour], guides): buffers kept for the next image of that size
+
+    def _buffers(self, plane: int):
+        """The two colour buffers (6 planes) and the guides' (8), made once
+        per image size (making them cost more than the filter's passes)."""
+        if self._kept is None or self._kept[0] != plane:
+            self._kept = None  # the old ones go before the new are made
+            ctx, mf, nb = self.dctx.context, cl.mem_flags, 4 * plane
+            self._kept = (plane, [cl.Buffer(ctx, mf.READ_WRITE, 6 * nb), cl.Buffer(ctx, mf.READ_WRITE, 6 * nb)],
+                          cl.Buffer(ctx, mf.READ_ONLY, 8 * nb))
+        return self._kept[1], self._kept[2]
 
     def __call__(self, color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
         """Filtered colour (H x W x 3 float32) from the guides (H x W arrays);
@@ -435,38 +448,39 @@ class FilterPass:
         h, w = color.shape[:2]
         if settings.width == 0:
             return color.astype(np.float32).copy()
-        irr, v, alb = demodulate(color.astype(np.float64), var.astype(np.float64), albedo.astype(np.float64))
-        ctx, q = self.dctx.context, self.dctx.queue
-        mf = cl.mem_flags
+        f32 = np.float32
+        irr, v, alb = demodulate(np.asarray(color, f32), np.asarray(var, f32), np.asarray(albedo, f32))
+        q = self.dctx.queue
         passes = settings.passes(w, h)
         radius = min(int(settings.width), max(w, h))
         lay = Planar(w, h, radius, 1 << (passes - 1))
         flag = np.zeros((h, w)) if emitter is None else (emitter > 0.5)
-        c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v])
+        c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v], extra=2)  # planes 4, 5: filter_luma's
         g0 = lay.pack([normal[..., 0], normal[..., 1], normal[..., 2], flag,
                        albedo[..., 0], albedo[..., 1], albedo[..., 2], depth])
-        c = [cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0),
-             cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=c0)]
-        gb = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=g0)
+        c, gb = self._buffers(lay.plane)
+        for buf, host in ((c[0], c0), (c[1], c0), (gb, g0)):  # both colour buffers: margins of zeros
+            cl.enqueue_copy(q, buf, host, is_blocking=False)
         dims = (np.uint32(w), np.uint32(h), np.uint32(lay.pitch), np.uint32(lay.plane), np.uint32(lay.margin))
         src = 0
         local = FILTER_LOCAL_SIZE
+        psize = -(-(w * h) // local) * local  # filter_firefly and filter_luma: one item per pixel
         if settings.firefly_k > 0:
-            gsize = -(-(w * h) // local) * local
-            self.counters.launched("filter_firefly", self.firefly(q, (gsize,), (local,), c[0], *dims,
+            self.counters.launched("filter_firefly", self.firefly(q, (psize,), (local,), c[0], *dims,
                                                                   np.float32(settings.firefly_k),
                                                                   np.float32(settings.confirm_k), c[1]))
             src = 1
         items = h * lay.pitch // 8
         gsize = -(-items // local) * local
         for it in range(passes):
+            self.counters.launched("filter_luma", self.luma(q, (psize,), (local,), c[src], *dims))
             self.counters.launched("filter_cone", self.kernel(
                 q, (gsize,), (local,), c[src], gb, *dims, np.int32(radius), np.int32(1 << it),
                 np.int32(settings.sigma_normal), np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
                 np.float32(settings.sigma_luminance), np.float32(settings.guide_floor), c[1 - src]))
             src = 1 - src
-        out = np.empty_like(c0)
+        out = np.empty(3 * lay.plane, np.float32)  # the colour planes only
         cl.enqueue_copy(q, out, c[src])
         q.finish()
         self.counters.settle()
-        return (lay.unpack(out, 4)[..., :3] * alb).astype(np.float32)
+        return lay.unpack(out, 3) * alb

@@ -1,9 +1,10 @@
 """`clpt bench-denoise`: the denoisers measured against a path-traced reference.
 
-For each scene and spp, renders of two seeds (feature buffers on) are
-denoised by the cone filter and by OIDN in its three modes (cleaned
-albedo+normal, albedo+normal as they are, colour only), and for each the
-relMSE against the reference, the energy kept over the caustic's core (the
+For each scene and spp, renders of --seeds seeds (feature buffers on, each
+feature-buffer choice) are denoised by the cone filter and by OIDN in its
+three modes (cleaned albedo+normal, albedo+normal as they are, colour only),
+and for each the relMSE against the reference (means over the seeds, with
+their standard errors), the energy kept over the caustic's core (the
 pixels where the photon map's part is at least half its peak; against the
 raw image and against the reference), and the 2-pixel ring around the lights
 (pixels beside a lamp that see none of it in 256 samples) against the
@@ -29,18 +30,20 @@ from .reference import cached_path, reference_image
 
 def methods(with_oidn: bool) -> dict:
     """name -> (settings, aux_specular): what each row of the bench runs.
-    Both feature-buffer choices are measured for every denoiser that reads
-    them ("surface": mirrors and glass as surfaces; "through": what is seen
-    through them)."""
-    m = {"raw": (None, "surface"),
-         "cone": (FilterSettings(), "surface"),
+    The three feature-buffer choices are measured for every denoiser that
+    reads them ("glass", the default: mirrors as surfaces, what is seen
+    through glass; "surface": both as surfaces; "through": what is seen
+    through both)."""
+    m = {"raw": (None, "glass"),
+         "cone": (FilterSettings(), "glass"),
+         "cone (surface)": (FilterSettings(), "surface"),
          "cone (through)": (FilterSettings(), "through")}
     if with_oidn:
-        m.update({"oidn albedo+normal (cleaned)": (OidnSettings(aux="clean"), "surface"),
+        m.update({"oidn albedo+normal (cleaned)": (OidnSettings(aux="clean"), "glass"),
+                  "oidn albedo+normal (cleaned, surface)": (OidnSettings(aux="clean"), "surface"),
                   "oidn albedo+normal (cleaned, through)": (OidnSettings(aux="clean"), "through"),
-                  "oidn albedo+normal": (OidnSettings(aux="noisy"), "surface"),
-                  "oidn albedo+normal (through)": (OidnSettings(aux="noisy"), "through"),
-                  "oidn colour only": (OidnSettings(aux="none"), "surface")})
+                  "oidn albedo+normal": (OidnSettings(aux="noisy"), "glass"),
+                  "oidn colour only": (OidnSettings(aux="none"), "glass")})
     return m
 
 
@@ -63,7 +66,8 @@ def shape_coverage(scene, index, width, height, spp=64, device=None):
     (two-sided, every other shape black and dark), emitters only."""
     from dataclasses import replace
 
-    from ..scene import Material, load_scene
+    from ..loading import load_scene
+    from ..scene import Material
     sc = load_scene(scene) if not hasattr(scene, "shapes") else scene
     black = Material()
     shapes = [replace(s, material=black, emission=(1.0, 1.0, 1.0) if i == index else (0.0, 0.0, 0.0),
@@ -85,7 +89,7 @@ def regions(scene, width, height, ref, *, device=None, spp=64) -> dict:
     where the lamps, seen through the specular chain, bring at least half
     of the reference's luminance) and "brightest 1%" (of the reference's lower half: the
     caustic and the highlights, which a filter must not cut)."""
-    from ..scene import load_scene
+    from ..loading import load_scene
     sc = load_scene(scene) if not hasattr(scene, "shapes") else scene
     out = {}
     diffuse = np.zeros((height, width), bool)
@@ -180,12 +184,19 @@ def measure_quality(scene, *, spp_list=(16, 64), seeds=(1, 2), width=128, height
                     if box is not None:
                         side_by_side(str(crop_path).format(spp=spp), [im[box] for im in shown], scale=3)
         for name, a in acc.items():
-            reg = {k: {q: float(np.mean([d[k][q] for d in a["regions"]])) for q in ("relmse", "energy")}
+            reg = {k: {**{q: float(np.mean([d[k][q] for d in a["regions"]])) for q in ("relmse", "energy")},
+                       **{q + "_se": _se([d[k][q] for d in a["regions"]]) for q in ("relmse", "energy")}}
                    for k in masks}
             rows.append({"scene": scene, "spp": spp, "method": name, "aux_specular": ms[name][1],
                          **{k: (float(np.mean(v)) if v else None) for k, v in a.items() if k != "regions"},
+                         "relmse_se": _se(a["relmse"]),
                          "regions": reg, "region_pixels": {k: int(v.sum()) for k, v in masks.items()}})
     return rows
+
+
+def _se(values) -> float | None:
+    """The standard error of the mean of per-seed values (None for one seed)."""
+    return float(np.std(values, ddof=1) / np.sqrt(len(values))) if len(values) > 1 else None
 
 
 def _crop_box(masks, pad=4):
@@ -217,7 +228,7 @@ def measure_time(scene, *, size=512, rounds=2, device=None) -> dict:
     r = Renderer(scene, device=device, aux=True)
     r.render(1, width=size, height=size)  # the lazy device compile
     small = r.render(1, width=64, height=64)
-    ms = {k: v for k, (v, mode) in methods(_oidn_available()).items() if v is not None and mode == "surface"}
+    ms = {k: v for k, (v, mode) in methods(_oidn_available()).items() if v is not None and mode == "glass"}
     for s in ms.values():  # warm every kernel and OIDN's device
         apply_denoiser(r.states[0].filter, small.image, small.lum_var, small.sample_count, small.aux, s)
     times = {"render 16 spp": [], **{k: [] for k in ms}}
@@ -264,12 +275,16 @@ def run_bench_denoise(a) -> int:
           f"means of {a.seeds} seeds); caustic core energy against the raw image and the reference; light ring "
           f"against the reference's")
     for r in out["quality"]:
-        print(f"  {r['scene']:22s} {r['spp']:4d} spp  {r['method']:38s} relMSE {r['relmse'] * 1e3:7.3f}  "
+        print(f"  {r['scene']:22s} {r['spp']:4d} spp  {r['method']:38s} relMSE {r['relmse'] * 1e3:7.3f}"
+              f"{'' if r['relmse_se'] is None else ' +-' + format(r['relmse_se'] * 1e3, '.3f')}  "
               f"core/raw {f(r['core_vs_raw'], '{:.3f}')}  core/ref {f(r['core_vs_ref'], '{:.3f}')}  "
               f"ring {f(r['ring'], '{:+.3f}')}")
-    print("per region: relMSE x1e3 / mean luminance over the reference's (energy)")
+    print("per region: relMSE x1e3 / mean luminance over the reference's "
+          "(energy, +- its standard error over the seeds)")
     for r in out["quality"]:
-        cells = "  ".join(f"{k} {v['relmse'] * 1e3:7.3f} / {v['energy']:.3f}" for k, v in r["regions"].items())
+        cells = "  ".join(f"{k} {v['relmse'] * 1e3:7.3f} / {v['energy']:.3f}"
+                          + (f" (+-{v['energy_se']:.3f})" if v["energy_se"] is not None else "")
+                          for k, v in r["regions"].items())
         print(f"  {r['scene']:22s} {r['spp']:4d} spp  {r['method']:38s} {cells}")
     for scene, t in out["time"].items():
         print(f"time at {a.time_size}x{a.time_size}, {scene} (medians of 2):")

@@ -245,10 +245,10 @@ __kernel void probe_gather(__global const float4 *ph_pos, __global const float4 
     PhotonMap pm;
     pm.pos = ph_pos; pm.dir = ph_dir; pm.pow = ph_pow; pm.bucket_start = bucket_start;
     pm.mask = mask; pm.max_photons = max_photons; pm.budget = budget;
-    pm.radius = radius; pm.inv_cell = inv_cell; pm.cone_k = cone_k; pm.mis_k = R(0); pm.moments = 0;
+    pm.radius = radius; pm.inv_cell = inv_cell; pm.cone_k = cone_k; pm.mis_k = R(0);
     __global const real *a = q + 10 * i;
     real3 x = (real3)(a[0], a[1], a[2]), n = (real3)(a[3], a[4], a[5]), d = (real3)(a[6], a[7], a[8]);
-    real m2 = R(0);  // (no second moments: pm.moments is 0)
+    real m2 = R(0);  // (no second moment: lw = 0)
     real3 L = photon_gather_one(&pm, x, n, d, kd.xyz, ks_n.xyz, ks_n.w, a[9], R(1), R(0), 0, R(INFINITY),
                                 (real3)(R(0)), &m2);
     out[3 * i] = L.x; out[3 * i + 1] = L.y; out[3 * i + 2] = L.z;
