@@ -566,7 +566,14 @@ class _Builder:
                 self.tangents.append(_planar_tangents(u, w, tri_uv))
         self.bounds.append((np.minimum(np.minimum(v0, v1), v2), np.maximum(np.maximum(v0, v1), v2)))
         if p.normals is not None:
-            self.normals.append((recs, p.normals[t]))
+            # Triangles whose three vertex normals are their face normal (a
+            # box's faces given smooth normals) shade as flat ones: no
+            # interpolation, and the BVH may keep a big one out of its tree.
+            nv = p.normals[t]
+            cos = np.einsum("mkj,mj->mk", nv, n) / np.maximum(np.linalg.norm(nv, axis=2), 1e-300)
+            curved = ~(cos >= 1.0 - FLAT_NORMAL_EPS).all(axis=1)
+            if curved.any():
+                self.normals.append((recs[curved], nv[curved]))
         if m.is_emissive:
             areas = 0.5 * ln
             prob, alias = alias_table(areas)
@@ -603,6 +610,9 @@ def _sphere_records(spheres):
 # area stay in the plain loops when there is a BVH, at most BIG_MAX of them.
 BIG_SHARE = 0.05
 BIG_MAX = 16
+# Smooth triangles whose vertex normals all lie within about 1.4e-6 rad (1 - cos
+# below this) of their face normal are packed as flat ones (_Builder.mesh).
+FLAT_NORMAL_EPS = 1e-12
 
 
 def _big_primitives(lo, hi, exclude):

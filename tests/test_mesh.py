@@ -244,3 +244,22 @@ def test_polygons_are_fan_triangulated(tmp_path, fmt, faces):
     shoelace = sum(0.5 * abs(sum(v[f[i], 0] * v[f[(i + 1) % len(f)], 1] - v[f[(i + 1) % len(f)], 0] * v[f[i], 1]
                                  for i in range(len(f)))) for f in polys)
     assert np.isclose(0.5 * cz.sum(), shoelace)
+
+
+def test_flat_vertex_normals_pack_as_flat_triangles():
+    """Triangles whose vertex normals are their face normal are packed flat
+    (and a big one leaves the BVH); curved ones keep their normals."""
+    from clpt.pack import pack_scene
+
+    cam = clpt.Camera(origin=(0.0, 0.5, 3.0), target=(0.0, 0.0, 0.0), fov=60, width=8, height=8)
+    gv, gt = grid(2, size=4.0)
+    sv, st, sn = uv_sphere((0.0, 0.3, 0.0), 0.3, n_theta=8, n_phi=16)
+    floor = clpt.Mesh(vertices=gv, triangles=gt, normals=np.tile((0.0, 0.0, 1.0), (len(gv), 1)), material="white")
+    ball = clpt.Mesh(vertices=sv, triangles=st, normals=sn, material="white")
+    lamp = clpt.Quad(corner=(-0.2, 2, -0.2), edge_u=(0.4, 0, 0), edge_v=(0, 0, 0.4), material="white",
+                     emission=(5, 5, 5))
+    p = pack_scene(clpt.Scene(camera=cam, shapes=[floor, ball, lamp]))
+    assert p.smooth and p.count("triangles") == len(gt)  # the floor in the plain loops, flat
+    assert len(p.section("triangles")) and p.bvh is not None and p.bvh.count[0] == len(st) + 1
+    p = pack_scene(clpt.Scene(camera=cam, shapes=[floor, lamp]))
+    assert not p.smooth
