@@ -25,7 +25,8 @@ def test_features_follow_the_scene():
     assert "CLPT_NUM_QUADS=18" in " ".join(f.options())
     assert "specialized" in f.describe() and "quads" in f.describe()
     generic = scene_features(pack_scene(clpt.load_scene("cornell_box")), mode="generic")
-    assert generic == Features(mode="generic", photons=False, textures=False, anisotropy=False)
+    assert generic == Features(mode="generic", photons=False, textures=False, anisotropy=False,
+                               textured_emitters=False)
     assert "CLPT_NUM_QUADS" not in " ".join(generic.options())
 
 
