@@ -152,7 +152,9 @@ def test_devices_tune_measures_and_caches_for_later_renders(device_spec, monkeyp
 
     monkeypatch.setattr(tune, "measure_candidates", fake_candidates)
     monkeypatch.setattr(tune, "measure_local_sizes", lambda st, trial, sizes: {s: 1.0 for s in sizes})
+    monkeypatch.setenv("CLPT_TUNE", "query")
     assert main(["devices", "--tune", "cornell_box", "--device", device_spec]) == 0
+    assert os.environ["CLPT_TUNE"] == "query"  # measuring was for the command only
     out = capsys.readouterr().out
     assert f"cornell_box: lanes {wide['lanes']}, local size {tune.LOCAL_SIZE_CPU}" in out and "measured" in out
     assert len(list((tmp_path / "tune").glob("*.json"))) == 1

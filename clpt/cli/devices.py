@@ -26,18 +26,34 @@ def add_parser(sub):
 def run_tune(a) -> int:
     """Measure (CLPT_TUNE=measure) for each scene on each device, and say what was chosen."""
     import os
-    import time
 
     from .. import device as devmod
+
+    before = os.environ.get("CLPT_TUNE")
+    os.environ["CLPT_TUNE"] = "measure"  # (for this command only: put back below)
+    try:
+        return _tune_each(a, _targets(a, devmod))
+    finally:
+        if before is None:
+            os.environ.pop("CLPT_TUNE", None)
+        else:
+            os.environ["CLPT_TUNE"] = before
+
+
+def _targets(a, devmod) -> list:
+    """The devices `--tune` measures: --device's, or each CPU device that is not a simulator."""
+    if a.device is not None:
+        return [a.device]
+    return [str(d.index) for d in devmod.list_devices()
+            if d.kind == "CPU" and not devmod.is_simulator(devmod._all_devices()[d.index][3])]
+
+
+def _tune_each(a, targets) -> int:
+    import time
+
     from ..errors import DeviceError
     from ..render import Renderer
 
-    os.environ["CLPT_TUNE"] = "measure"
-    if a.device is not None:
-        targets = [a.device]
-    else:
-        targets = [str(d.index) for d in devmod.list_devices()
-                   if d.kind == "CPU" and not devmod.is_simulator(devmod._all_devices()[d.index][3])]
     if not targets:
         print("clpt: no CPU device to tune (GPUs take their defaults from device queries)", file=sys.stderr)
         return 1
