@@ -100,6 +100,15 @@ def compare_to_reference(res, ref):
     return mean_err, z
 
 
+def assert_matches_reference(res, ref, mean_tol=0.005, z_max=4.0):
+    """The check every Mitsuba-reference scene makes: the image's mean colour
+    within mean_tol of the reference's and no block beyond z_max sigma of
+    both renders' noise (compare_to_reference)."""
+    mean_err, z = compare_to_reference(res, ref)
+    assert mean_err < mean_tol, f"image mean off by {mean_err:.2%}"
+    assert np.abs(z).max() < z_max, f"a block is {np.abs(z).max():.1f} sigma off:\n{np.round(z, 1)}"
+
+
 def ring_z(res, ref):
     """The z-score of the image's outermost ring of pixels (mean luminance)
     against the reference's ("ring_luminance")."""
