@@ -226,9 +226,13 @@ inline void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState 
         vreal u = sample_merge(sp, ps->depth);
         vmask merges = v->merge_here && u < pl->merge_p;
         if (VANY(merges)) {
-            // The luminance weights of the merge's contributions, for the moments (photon_grid.h).
-            V3 lw = v3_scale(ps->beta, lum_scale / pl->merge_p);
-            lw.x *= R(CLPT_LUMA_R); lw.y *= R(CLPT_LUMA_G); lw.z *= R(CLPT_LUMA_B);
+            V3 lw = v3_zero();  // the luminance weights of the merge's contributions, for the moments
+#if CLPT_AUX
+            if (pl->moments) {  // (photon_grid.h; only the pilot's trial asks)
+                lw = v3_scale(ps->beta, lum_scale / pl->merge_p);
+                lw.x *= R(CLPT_LUMA_R); lw.y *= R(CLPT_LUMA_G); lw.z *= R(CLPT_LUMA_B);
+            }
+#endif
             vreal m2;
             V3 Lm = photon_gather(pm, &v->m, v->pr, v->x, v->n, ps->d, u / pl->merge_p, merges, 1,
                                   max_depth - ps->depth - R(1), lw, &m2);
