@@ -15,8 +15,9 @@ where the pixel's samples confirm it (`kept_emission`: a lamp, its
 reflections and refractions; not a lamp that one sample in sixteen met
 through the edge of a glass ball, which is noise and is filtered).
 
-The cone filter also leaves out the caustics (already a density estimate;
-filtering them again spreads them). The rest is divided by the albedo
+The cone filter also leaves out the caustics where they are concentrated
+(already a density estimate; filtering them again spreads them); the few
+photons scattered over the walls are filtered with the rest. The rest is divided by the albedo
 (demodulated), its fireflies are clamped (filter.cl: a pixel brighter than
 all 8 neighbours by more than `firefly_k` standard errors, unless its own
 samples confirm it to `confirm_k` of its own standard errors), and `iterations`
@@ -51,7 +52,10 @@ class FilterSettings:
     firefly_k: float = 3.0       # clamp pixels above all 8 neighbours by this many standard errors; 0: off
     confirm_k: float = 2.0       # a bright value the pixel's own samples confirm to this many standard errors
                                  # is kept (lamps seen directly or in mirrors and glass; the clamp's exemption)
-    keep_caustics: bool = True   # add the photon map's caustics back unfiltered
+    keep_caustics: bool = True   # add the photon map's caustics back unfiltered (where they are concentrated)
+    caustic_share: float = 0.2   # ... where they bring at least this share of the 3x3's luminance (a ramp from half
+                                 # to 1.5 times it); elsewhere (the few photons scattered over the walls, noise) they
+                                 # are filtered with the rest; 0: all of them kept out
     interval: int = 0            # filter the preview every N passes (0: only the final image)
 
     def check(self):
@@ -71,6 +75,8 @@ class FilterSettings:
             raise SettingsError("filter: firefly_k must be >= 0")
         if not self.confirm_k >= 0:
             raise SettingsError("filter: confirm_k must be >= 0")
+        if not 0 <= self.caustic_share <= 1:
+            raise SettingsError("filter: caustic_share must be from 0 to 1")
         return self
 
     def passes(self, width: int, height: int) -> int:
@@ -244,6 +250,29 @@ def kept_emission(aux, count, k: float):
     return np.where(dilate(confirmed, 1)[..., None], emission, 0.0).astype(np.float32)
 
 
+def kept_caustic_share(caustic, image, share: float):
+    """The part (H x W, 0 to 1) of each pixel's photon-map caustic the cone
+    filter leaves out: the caustic's share of the luminance over the pixel's
+    3x3 (clipped to the image), s, ramped from 0 at s = share / 2 to 1 at
+    s = 1.5 share. A caustic's core is kept (it is a density estimate already,
+    filtering it again spreads it); the scattered photons of a mirror's or
+    glass ball's light on the walls, a few percent of their luminance, are
+    filtered with the rest. share 0: all of it kept."""
+    if not share > 0:
+        return np.ones(caustic.shape[:2], np.float32)
+    c = box3(caustic.astype(np.float32) @ LUMA.astype(np.float32))
+    lum = box3(np.asarray(image, np.float32) @ LUMA.astype(np.float32))
+    s = c / np.maximum(lum, 1e-30)
+    return np.clip((s - 0.5 * share) / share, 0.0, 1.0).astype(np.float32)
+
+
+def box3(x):
+    """x (H x W) summed over each pixel's 3x3, the image's edge pixels repeated outside."""
+    p = np.pad(x, 1, mode="edge")
+    rows = p[:-2] + p[1:-1] + p[2:]
+    return rows[:, :-2] + rows[:, 1:-1] + rows[:, 2:]
+
+
 def dilate(mask, r: int):
     """mask (H x W bool) grown by r pixels in each direction (a square)."""
     h, w = mask.shape
@@ -273,10 +302,13 @@ def apply_denoiser(cone, image, lum_var, count, aux, settings):
         return keep + oidn_denoise(image - keep, aux["albedo"], aux["normal"], settings)
     # Nor are the photon map's caustics, for the cone filter: a density
     # estimate already, filtering them again would spread them.
+    # Only where they are concentrated, though: the few photons scattered over
+    # the walls (a mirror's and a glass ball's light) are noise like the rest.
     rest_var = lum_var
     if settings.keep_caustics:
-        keep = keep + aux["caustic"]
-        rest_var = np.maximum(lum_var - aux["caustic_var"], 0.0)
+        share = kept_caustic_share(aux["caustic"], image, settings.caustic_share)
+        keep = keep + aux["caustic"] * share[..., None]
+        rest_var = np.maximum(lum_var - aux["caustic_var"] * share, 0.0)
     mean_var = rest_var / np.maximum(count, 1.0)
     out = keep + cone(image - keep, mean_var, aux["normal"], aux["albedo"], aux["depth"], settings,
                       emitter=aux["emitter"])
