@@ -247,20 +247,25 @@ def kept_emission(aux, count, k: float):
     f = np.clip(aux["emitter"], 0.0, 1.0)
     confirmed = (f > 0) & (f * np.maximum(count, 1.0) >= k * k * (1.0 - f))
     # The edge of a confirmed image (a lamp's, or its reflection's) is kept too.
-    return np.where(dilate(confirmed, 1)[..., None], emission, 0.0).astype(np.float32)
+    # (a float32 zero: the choice made in float32, without a float64 image in between)
+    return np.where(dilate(confirmed, 1)[..., None], np.asarray(emission, np.float32), np.float32(0))
 
 
 def kept_caustic_share(caustic, image, share: float):
     """The part (H x W, 0 to 1) of each pixel's photon-map caustic the cone
     filter leaves out: the caustic's share of the luminance over the pixel's
-    3x3 (clipped to the image), s, ramped from 0 at s = share / 2 to 1 at
+    3x3 (edge pixels repeated outside the image), s, ramped from 0 at s = share / 2 to 1 at
     s = 1.5 share. A caustic's core is kept (it is a density estimate already,
     filtering it again spreads it); the scattered photons of a mirror's or
     glass ball's light on the walls, a few percent of their luminance, are
-    filtered with the rest. share 0: all of it kept."""
+    filtered with the rest. share 0: all of it kept; None where the image has
+    no caustic."""
     if not share > 0:
         return np.ones(caustic.shape[:2], np.float32)
-    c = box3(caustic.astype(np.float32) @ LUMA.astype(np.float32))
+    c = caustic.astype(np.float32, copy=False) @ LUMA.astype(np.float32)
+    if not c.any():  # no caustic (no photon map, or nothing specular): nothing to weigh
+        return None
+    c = box3(c)
     lum = box3(np.asarray(image, np.float32) @ LUMA.astype(np.float32))
     s = c / np.maximum(lum, 1e-30)
     return np.clip((s - 0.5 * share) / share, 0.0, 1.0).astype(np.float32)
@@ -307,8 +312,9 @@ def apply_denoiser(cone, image, lum_var, count, aux, settings):
     rest_var = lum_var
     if settings.keep_caustics:
         share = kept_caustic_share(aux["caustic"], image, settings.caustic_share)
-        keep = keep + aux["caustic"] * share[..., None]
-        rest_var = np.maximum(lum_var - aux["caustic_var"] * share, 0.0)
+        if share is not None:
+            keep = keep + aux["caustic"] * share[..., None]
+            rest_var = np.maximum(lum_var - aux["caustic_var"] * share, 0.0)
     mean_var = rest_var / np.maximum(count, 1.0)
     out = keep + cone(image - keep, mean_var, aux["normal"], aux["albedo"], aux["depth"], settings,
                       emitter=aux["emitter"])

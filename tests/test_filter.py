@@ -11,6 +11,7 @@ import pytest
 import clpt
 from clpt.denoise import LUMA, FilterSettings, OidnSettings, apply_denoiser, reference_cone_filter, reference_firefly
 from clpt.engine.passes import FilterPass
+from clpt.errors import SettingsError
 from clpt.tools.metrics import relmse
 
 
@@ -167,6 +168,42 @@ def test_caustics_and_emission_are_kept_exactly(cone):
     img = caustic + emission
     out = apply_denoiser(cone, img, np.full((h, w), 0.3, np.float32), np.full((h, w), 16.0), aux, FilterSettings())
     assert np.array_equal(out, img)
+
+
+def test_only_concentrated_caustics_are_kept_out(cone):
+    """The photon map's caustic is kept out of the cone filter where it is a
+    large share of the 3x3's luminance (a ramp from 0.1 to 0.3 at the
+    default 0.2), and filtered with the rest where a few photons are scattered
+    over a wall; caustic_share=0 keeps all of it out, as before."""
+    from clpt.denoise import kept_caustic_share
+    h, w = 16, 16
+    n, a, d = guides(h, w)
+    wall = np.full((h, w, 3), 1.0, np.float32)
+    caustic = np.zeros((h, w, 3), np.float32)
+    caustic[4, 4] = 0.5                 # one photon on the wall: under 5% of its 3x3
+    caustic[9:15, 9:15] = 4.0           # a caustic's core
+    img = wall + caustic
+    share = kept_caustic_share(caustic, img, 0.2)
+    assert share[4, 4] == 0 and (share[10:14, 10:14] == 1).all()
+    # the ramp: a uniform caustic bringing a fraction s of the light keeps (s - 0.1) / 0.2 of it
+    for s_, want in ((0.05, 0.0), (0.15, 0.25), (0.2, 0.5), (0.35, 1.0)):
+        c = np.full((h, w, 3), s_ / (1 - s_), np.float32)
+        assert np.allclose(kept_caustic_share(c, 1 + c, 0.2), want, atol=1e-5)
+    assert kept_caustic_share(np.zeros_like(caustic), img, 0.2) is None  # no caustic: nothing to weigh
+    aux = {"normal": n, "albedo": a, "depth": d, "emission": np.zeros_like(img),
+           "emitter": np.zeros((h, w), np.float32), "caustic": caustic, "caustic_var": np.zeros((h, w), np.float32)}
+    var, count = np.full((h, w), 0.3, np.float32), np.full((h, w), 16.0)
+    out = apply_denoiser(cone, img, var, count, aux, FilterSettings())
+    assert np.allclose(out[10:14, 10:14], img[10:14, 10:14], rtol=1e-3)  # the core as it was (the photon: 1e-4)
+    assert out[4, 4, 0] < 1.1  # the photon spread over the wall
+    # its light stays on the wall but for the filter's bias on a lone bright pixel
+    # (the firefly clamp's, and its weights': 25% at this contrast, 3.7 of the pixel's standard errors)
+    kept_light = 1 + (out - img).sum() / (img[:9, :9] - 1).sum()
+    assert 0.6 < kept_light < 1.0, kept_light
+    kept = apply_denoiser(cone, img, var, count, aux, FilterSettings(caustic_share=0.0))
+    assert np.allclose(kept[:8, :8], img[:8, :8], rtol=1e-6)
+    with pytest.raises(SettingsError):
+        FilterSettings(caustic_share=1.5).check()
 
 
 @pytest.fixture(scope="module")
