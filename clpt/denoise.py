@@ -262,10 +262,9 @@ def kept_caustic_share(caustic, image, share: float):
     no caustic."""
     if not share > 0:
         return np.ones(caustic.shape[:2], np.float32)
-    c = caustic.astype(np.float32, copy=False) @ LUMA.astype(np.float32)
-    if not c.any():  # no caustic (no photon map, or nothing specular): nothing to weigh
+    if not caustic.any():  # no caustic (no photon map, or nothing specular): nothing to weigh
         return None
-    c = box3(c)
+    c = box3(caustic.astype(np.float32, copy=False) @ LUMA.astype(np.float32))
     lum = box3(np.asarray(image, np.float32) @ LUMA.astype(np.float32))
     s = c / np.maximum(lum, 1e-30)
     return np.clip((s - 0.5 * share) / share, 0.0, 1.0).astype(np.float32)
