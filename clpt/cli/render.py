@@ -152,10 +152,10 @@ def _adaptive_settings(a):
 
 DENOISE_HELP = (
     "Measured with clpt bench-denoise (128x128, 16 and 64 spp, against path-traced references): OIDN has less "
-    "error than the cone filter in every case (1.3-1.6x with cleaned albedo+normal, the default of --denoise "
+    "error than the cone filter in every case (1.1-1.3x with cleaned albedo+normal, the default of --denoise "
     "oidn) and keeps caustics within 2%, but costs 45-118% of a 16-spp render's CPU time at 512x512 with "
     "cleaned guides (10-28% with --oidn-aux noisy or none). The cone filter (--denoise cone) costs 3-5%, needs "
-    "no extra package and leaves the photon map's caustics as rendered: use it for previews "
+    "no extra package and leaves the photon map's concentrated caustics as rendered: use it for previews "
     "(--filter-interval) and quick renders, OIDN for final images.")
 
 
