@@ -17,8 +17,8 @@ through the edge of a glass ball, which is noise and is filtered).
 
 The cone filter also leaves out the caustics where they are concentrated
 (already a density estimate; filtering them again spreads them); the few
-photons scattered over the walls are filtered with the rest. The rest is divided by the albedo
-(demodulated), its fireflies are clamped (filter.cl: a pixel brighter than
+photons scattered over the walls are filtered with the rest
+(`kept_caustic_share`). The rest is divided by the albedo (demodulated), its fireflies are clamped (filter.cl: a pixel brighter than
 all 8 neighbours by more than `firefly_k` standard errors, unless its own
 samples confirm it to `confirm_k` of its own standard errors), and `iterations`
 a-trous passes of a cone kernel of `width` pixels (steps 1, 2, 4, ...)
@@ -247,15 +247,15 @@ def kept_emission(aux, count, k: float):
     f = np.clip(aux["emitter"], 0.0, 1.0)
     confirmed = (f > 0) & (f * np.maximum(count, 1.0) >= k * k * (1.0 - f))
     # The edge of a confirmed image (a lamp's, or its reflection's) is kept too.
-    # (a float32 zero: the choice made in float32, without a float64 image in between)
+    # (chosen in float32: no float64 image in between)
     return np.where(dilate(confirmed, 1)[..., None], np.asarray(emission, np.float32), np.float32(0))
 
 
 def kept_caustic_share(caustic, image, share: float):
     """The part (H x W, 0 to 1) of each pixel's photon-map caustic the cone
     filter leaves out: the caustic's share of the luminance over the pixel's
-    3x3 (edge pixels repeated outside the image), s, ramped from 0 at s = share / 2 to 1 at
-    s = 1.5 share. A caustic's core is kept (it is a density estimate already,
+    3x3 (edge pixels repeated outside the image), s, ramped from 0 at
+    s = share / 2 to 1 at s = 1.5 share. A caustic's core is kept (it is a density estimate already,
     filtering it again spreads it); the scattered photons of a mirror's or
     glass ball's light on the walls, a few percent of their luminance, are
     filtered with the rest. share 0: all of it kept; None where the image has
