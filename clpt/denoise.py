@@ -18,9 +18,10 @@ through the edge of a glass ball, which is noise and is filtered).
 The cone filter also leaves out the caustics where they are concentrated
 (already a density estimate; filtering them again spreads them); the few
 photons scattered over the walls are filtered with the rest
-(`kept_caustic_share`). The rest is divided by the albedo (demodulated), its fireflies are clamped (filter.cl: a pixel brighter than
-all 8 neighbours by more than `firefly_k` standard errors, unless its own
-samples confirm it to `confirm_k` of its own standard errors), and `iterations`
+(`kept_caustic_share`). The rest is divided by the albedo (demodulated),
+its fireflies are clamped (filter.cl: a pixel brighter than all 8
+neighbours by more than `firefly_k` standard errors, unless its own samples
+confirm it to `confirm_k` of its own standard errors), and `iterations`
 a-trous passes of a cone kernel of `width` pixels (steps 1, 2, 4, ...)
 smooth it where normals, depths, albedos, emitter flags and values (their
 3x3 means, beyond the pixel's noise) agree. A numpy twin (`reference_cone_filter`) is there for the tests.
