@@ -412,7 +412,7 @@ inline void sample_rough_conductor(const Material *m, LobeProbs pr, V3 d, V3 n, 
     vmask bk = m->beckmann != R(0);
     V3 s = MF_S(m, n);
     vreal av = MF_AV(m, m->alpha);
-    V3 h = sample_half_vector(d, n, s, m->alpha, av, bk, u.u1, u.u2);
+    V3 h = sample_half_vector(d, n, s, m->alpha, av, bk && *is_m, u.u1, u.u2);
     vreal oh = -v3_dot(d, h);
     V3 wm = v3_reflect(d, h);
     vreal cos_i = v3_dot(wm, n);
@@ -439,7 +439,7 @@ inline void sample_plastic(const Material *m, LobeProbs pr, V3 d, V3 n, BsdfU u,
     vmask rs = spec && rough;
     if (VANY(rs && *is_p)) {
         vreal a = VSEL((vreal)R(1), m->c_alpha, rough);
-        V3 h = sample_half_vector(d, n, MF_S(m, n), a, a, m->c_beckmann != R(0), u.u1, u.u2);
+        V3 h = sample_half_vector(d, n, MF_S(m, n), a, a, m->c_beckmann != R(0) && rs && *is_p, u.u1, u.u2);
         wp = v3_sel(wp, v3_reflect(d, h), rs);
     }
     vmask sd = spec && !rough;  // smooth: the mirror direction, a delta lobe
@@ -468,7 +468,7 @@ inline void sample_rough_dielectric(const Material *m, LobeProbs pr, V3 d, V3 n,
     vmask bk = m->g_beckmann != R(0), vis = m->g_visible != R(0);
     V3 s = MF_S(m, n);
     vreal av = MF_AV(m, m->g_alpha);
-    V3 h = sample_half_vector(d, n, s, m->g_alpha, av, bk, u.u1, u.u2);
+    V3 h = sample_half_vector(d, n, s, m->g_alpha, av, bk && *is_g, u.u1, u.u2);
     if (VANY(!vis && *is_g)) {
         // D(h) cos h: tan^2 theta = a^2 u1 / (1 - u1) (GGX) or -a^2 log(1 - u1) (Beckmann).
         vreal a = rough_dielectric_sample_alpha(m, co);
