@@ -281,6 +281,24 @@ def test_loader_maps_plastics(tmp_path):
         clpt.load_scene(p)
 
 
+@pytest.mark.parametrize("given", [
+    '<texture type="checkerboard" name="alpha"><float name="color0" value="0.1"/></texture>',
+    '<ref name="alpha" id="t"/>'])
+def test_loader_refuses_a_textured_roughplastic_alpha(tmp_path, given):
+    """Mitsuba 3 refuses a texture as roughplastic's alpha ("The property
+    "alpha" has the wrong type (expected float, got object)", at the BSDF's
+    line): so does clpt, in one line naming the element and its line."""
+    p = tmp_path / "s.xml"
+    p.write_text(_xml('<texture type="checkerboard" id="t"/>\n<bsdf type="roughplastic">' + given + '</bsdf>'))
+    with pytest.raises(clpt.SceneError) as e:
+        clpt.load_scene(p)
+    msg = str(e.value)
+    assert msg.startswith(f'{p}:2: <bsdf type="roughplastic">: \'alpha\' must be a float'), msg
+    assert "texture" in msg and "\n" not in msg
+    p.write_text(_xml('<bsdf type="roughconductor"><texture type="checkerboard" name="alpha"/></bsdf>'))
+    clpt.load_scene(p)  # a rough conductor's alpha may be a texture (in Mitsuba 3 as well)
+
+
 def test_scene_without_plastic_compiles_without_it():
     from clpt.features import scene_features
     from clpt.pack import pack_scene
