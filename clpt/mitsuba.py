@@ -979,6 +979,13 @@ class _Loader:
 
     def _alpha(self, p: _Props) -> float:
         """A roughplastic's alpha (isotropic in Mitsuba: an anisotropic pair is averaged, with a warning)."""
+        # Mitsuba 3 reads roughplastic's alpha as a plain float and refuses a
+        # texture ("The property "alpha" has the wrong type (expected float,
+        # got object)"): so does clpt, rather than render another roughness.
+        given = p.props.get("alpha")
+        if (given is not None and given.tag == "ref") or any(nm == "alpha" for nm, _ in p.objects):
+            p.node.fail("'alpha' must be a float: roughplastic's roughness cannot be a texture (Mitsuba 3 refuses "
+                        "it too)")
         if p.has("alpha_u") or p.has("alpha_v"):
             au, av = p.float("alpha_u", 0.1, lo=0.0), p.float("alpha_v", 0.1, lo=0.0)
             if au != av:

@@ -75,6 +75,27 @@ inline vreal microfacet_pdf(const Material *m, V3 d, V3 n, V3 wi)
     vreal pdf = D * mf_G1_w(co, d, n, s, oh, m->alpha, av, bk) / (R(4) * co);
     return VSEL((vreal)R(0), pdf, co > R(0) && ci > R(0) && oh > R(0) && v3_dot(wi, h) > R(0) && D > R(0));
 }
+
+// The rough conductor's f without Fresnel's colour (km F(-d.h) times *k, F
+// returned) and microfacet_pdf of wi in *pdf: the half vector, D and G1(-d, h)
+// shared.
+inline V3 microfacet_eval_pdf(const Material *m, V3 d, V3 n, V3 wi, vreal *k, vreal *pdf)
+{
+    vreal co = -v3_dot(d, n), ci = v3_dot(wi, n);
+    V3 h = v3_normalize(v3_sub(wi, d));
+    vreal oh = -v3_dot(d, h), ih = v3_dot(wi, h);
+    vmask bk = m->beckmann != R(0);
+    V3 s = MF_S(m, n);
+    vreal av = MF_AV(m, m->alpha);
+    vreal D = mf_D_w(h, n, s, m->alpha, av, bk);
+    vreal g1o = mf_G1_w(co, d, n, s, oh, m->alpha, av, bk);
+    vreal G = g1o * mf_G1_w(ci, wi, n, s, ih, m->alpha, av, bk);
+    vreal kk = D * G / (R(4) * co * ci);
+    *k = VSEL((vreal)R(0), kk, co > R(0) && ci > R(0) && D > R(0));
+    vreal pd = D * g1o / (R(4) * co);
+    *pdf = VSEL((vreal)R(0), pd, co > R(0) && ci > R(0) && oh > R(0) && ih > R(0) && D > R(0));
+    return v3_mul(m->km, fresnel_conductor3(oh, m->eta, m->k));
+}
 #endif
 
 #if CLPT_HAS_PLASTIC
@@ -170,6 +191,40 @@ inline vreal plastic_pdf(const Material *m, V3 d, V3 n, V3 wi)
         pdf = VSEL(pdf, pdf + q * ps, rough && D > R(0));
     }
     return VSEL((vreal)R(0), pdf, co > R(0) && ci > R(0) && m->p_p > R(0));
+}
+
+// plastic_eval and, in *pdf_out, plastic_pdf of wi: the coating's
+// transmittance at cos_o, the half vector, D and G1(-d, h) shared.
+inline V3 plastic_eval_pdf(const Material *m, V3 d, V3 n, V3 wi, vreal *pdf_out)
+{
+    vreal co = -v3_dot(d, n), ci = v3_dot(wi, n);
+    vmask ok = co > R(0) && ci > R(0);
+    vreal t_o = plastic_transmittance(m, co), t_i = plastic_transmittance(m, ci);
+    vreal k = t_o * t_i * R(M_1_PI) / (m->c_eta * m->c_eta);
+    vmask nl = m->c_nonlinear != R(0);
+    vreal fl = R(1) - m->c_fdr;
+    V3 f = v3(m->kp.x / VSEL(fl, R(1) - m->kp.x * m->c_fdr, nl), m->kp.y / VSEL(fl, R(1) - m->kp.y * m->c_fdr, nl),
+              m->kp.z / VSEL(fl, R(1) - m->kp.z * m->c_fdr, nl));
+    f = v3_scale(f, k);
+    vreal q = plastic_spec_prob(m, t_o);
+    vreal pdf = (R(1) - q) * ci * R(M_1_PI);
+    vmask rough = m->c_alpha > R(0);
+    if (VANY(rough)) {
+        vmask bk = m->c_beckmann != R(0);
+        vreal a = VSEL((vreal)R(1), m->c_alpha, rough);
+        V3 h = v3_normalize(v3_sub(wi, d));
+        vreal hn = v3_dot(h, n), oh = -v3_dot(d, h), ct;
+        vreal D = mf_D(hn, mf_sin2(h, n), a, bk);
+        vreal g1o = mf_G1(co, mf_sin2(d, n), oh, a, bk);
+        vreal G = g1o * mf_G1(ci, mf_sin2(wi, n), v3_dot(wi, h), a, bk);
+        vreal F = fresnel_dielectric(oh, m->c_eta, &ct);
+        vreal s = D * F * G / (R(4) * co * ci);
+        f = v3_sel(f, v3_fma(m->kps, s, f), rough && D > R(0));
+        vreal ps = D * g1o / (R(4) * co);
+        pdf = VSEL(pdf, pdf + q * ps, rough && D > R(0));
+    }
+    *pdf_out = VSEL((vreal)R(0), pdf, ok && m->p_p > R(0));
+    return v3_sel(v3_zero(), f, ok && m->p_p > R(0));
 }
 #endif
 
@@ -303,25 +358,49 @@ inline vreal bsdf_pdf(const Material *m, LobeProbs p, V3 d, V3 n, V3 wi)
 #endif
 }
 
-#if CLPT_HAS_ROUGH_DIELECTRIC
-// bsdf_eval and, in *pdf, bsdf_pdf of wi, the rough dielectric evaluated once for both.
+// bsdf_eval and, in *pdf, bsdf_pdf of wi (the same values), each lobe's
+// shared terms computed once for both: Phong's cos^n, the microfacet lobes'
+// half vector, D and G1(-d, h), the coating's transmittance at cos_o.
 inline V3 bsdf_eval_pdf(const Material *m, LobeProbs p, V3 d, V3 n, V3 wi, vreal *pdf)
 {
-    Material o = *m;
-    LobeProbs po = p;
-    o.p_g = po.g = (vreal)R(0);  // the other lobes
-    V3 f = bsdf_eval(&o, d, n, wi);
-    vreal pd = bsdf_pdf(&o, po, d, n, wi);
+    vreal c = v3_dot(n, wi);
+    V3 f = v3_scale(m->kd, (vreal)R(M_1_PI));
+    vreal pd = p.d * cosine_hemisphere_pdf(c);
+#if CLPT_HAS_PHONG
+    vreal ca = v3_dot(v3_reflect(d, n), wi);
+    vreal cp = phong_cos_pow(ca, m->shininess);
+    vreal k = (m->shininess + R(2)) * R(0.5 * M_1_PI) * cp;
+    f = v3_fma(m->ks, k, f);
+    pd += p.s * ((m->shininess + R(1)) * R(0.5 * M_1_PI) * cp);
+#endif
+#if CLPT_HAS_MICROFACET
+    vmask mf = m->p_m > R(0), pm = p.m > R(0);
+    if (VANY(mf || pm)) {
+        vreal km, pdf_m;
+        V3 kf = microfacet_eval_pdf(m, d, n, wi, &km, &pdf_m);
+        f = v3_sel(f, v3_fma(kf, km, f), mf);
+        pd = VSEL(pd, pd + p.m * pdf_m, pm);
+    }
+#endif
+#if CLPT_HAS_PLASTIC
+    if (VANY(m->p_p > R(0) || p.p > R(0))) {
+        vreal pdf_p;
+        f = v3_add(f, plastic_eval_pdf(m, d, n, wi, &pdf_p));
+        pd = VSEL(pd, pd + p.p * pdf_p, p.p > R(0));
+    }
+#endif
+    pd = VSEL(pd, (vreal)R(0), c <= R(0));
+#if CLPT_HAS_ROUGH_DIELECTRIC
     vmask g = m->p_g > R(0);
     if (VANY(g)) {
         vreal pg;
         f = v3_sel(f, v3_add(f, rough_dielectric_eval_pdf(m, d, n, wi, &pg)), g);
         pd = VSEL(pd, pd + p.g * pg, p.g > R(0));
     }
+#endif
     *pdf = pd;
     return f;
 }
-#endif
 
 // Power heuristic (beta = 2) weight of a technique with pdf a against one with pdf b.
 // Formed from b / a so that neither square can overflow.
@@ -412,7 +491,7 @@ inline void sample_rough_conductor(const Material *m, LobeProbs pr, V3 d, V3 n, 
     vmask bk = m->beckmann != R(0);
     V3 s = MF_S(m, n);
     vreal av = MF_AV(m, m->alpha);
-    V3 h = sample_half_vector(d, n, s, m->alpha, av, bk, u.u1, u.u2);
+    V3 h = sample_half_vector(d, n, s, m->alpha, av, bk && *is_m, u.u1, u.u2);
     vreal oh = -v3_dot(d, h);
     V3 wm = v3_reflect(d, h);
     vreal cos_i = v3_dot(wm, n);
@@ -439,14 +518,15 @@ inline void sample_plastic(const Material *m, LobeProbs pr, V3 d, V3 n, BsdfU u,
     vmask rs = spec && rough;
     if (VANY(rs && *is_p)) {
         vreal a = VSEL((vreal)R(1), m->c_alpha, rough);
-        V3 h = sample_half_vector(d, n, MF_S(m, n), a, a, m->c_beckmann != R(0), u.u1, u.u2);
+        V3 h = sample_half_vector(d, n, MF_S(m, n), a, a, m->c_beckmann != R(0) && rs && *is_p, u.u1, u.u2);
         wp = v3_sel(wp, v3_reflect(d, h), rs);
     }
     vmask sd = spec && !rough;  // smooth: the mirror direction, a delta lobe
     wp = v3_sel(wp, v3_reflect(d, n), sd);
     V3 wpn = v3_normalize(wp);
-    vreal pdf = plastic_pdf(m, d, n, wpn);
-    V3 wnd = v3_scale(plastic_eval(m, d, n, wpn), v3_dot(wpn, n) / (pdf * pr.p));
+    vreal pdf;
+    V3 fp = plastic_eval_pdf(m, d, n, wpn, &pdf);
+    V3 wnd = v3_scale(fp, v3_dot(wpn, n) / (pdf * pr.p));
     V3 wd = v3_scale(m->kps, fresnel_dielectric(co, m->c_eta, &ct) / (q * pr.p));
     *wi = v3_sel(*wi, wpn, *is_p);
     *w = v3_sel(*w, v3_sel(wnd, wd, sd), *is_p);
@@ -468,7 +548,7 @@ inline void sample_rough_dielectric(const Material *m, LobeProbs pr, V3 d, V3 n,
     vmask bk = m->g_beckmann != R(0), vis = m->g_visible != R(0);
     V3 s = MF_S(m, n);
     vreal av = MF_AV(m, m->g_alpha);
-    V3 h = sample_half_vector(d, n, s, m->g_alpha, av, bk, u.u1, u.u2);
+    V3 h = sample_half_vector(d, n, s, m->g_alpha, av, bk && *is_g, u.u1, u.u2);
     if (VANY(!vis && *is_g)) {
         // D(h) cos h: tan^2 theta = a^2 u1 / (1 - u1) (GGX) or -a^2 log(1 - u1) (Beckmann).
         vreal a = rough_dielectric_sample_alpha(m, co);

@@ -607,6 +607,84 @@ CLPT_INLINE void infinite_light_sample(const Scene *sc, uint r, int kind, real4 
 }
 #endif
 
+#if CLPT_HAS_SPHERE_LIGHTS && !CLPT_HAS_TEXTURED_EMITTERS
+// Next event estimation's sample of the sphere lights, all at once: the
+// lanes of li (light_pick_index's, +inf where done) whose light is a sphere
+// take its centre, radius, area, pick probability and radiance lane by lane,
+// then one pass does what light_sample's loop does for one light at a time
+// (the same arithmetic on each lane's values, so the same result), and
+// those lanes are marked done in li. Scenes with several sphere lights so
+// pay for one sphere light per vertex, not for each sphere the lanes picked.
+CLPT_INLINE void sphere_lights_sample_at(const Scene *sc, V3 x, LightU u, vreal *li, LightSample *ls)
+{
+    vmask pick = *li != *li;  // none
+    V3 pc = v3_zero(), Le = v3_zero();
+    vreal rad = (vreal)R(1), area = (vreal)R(1), prob = (vreal)R(0), two = (vreal)R(0);
+    for (int l = 0; l < CLPT_LANES; l++) {
+        real lf = VLANE_R(*li, l);
+        if (!(lf < R(INFINITY)))
+            continue;
+        uint r = OFF_LIGHTS + LIGHT_STRIDE * (uint)lf;
+        real4 p = scene_rec(sc, r + LIGHT_P_KIND);
+        if ((int)p.w != LIGHT_KIND_SPHERE)
+            continue;
+        real4 info = scene_rec(sc, r + LIGHT_INFO);
+        real4 m = scene_rec(sc, MAT_STRIDE * (uint)info.w + MAT_LE_SIDES);
+        VLANE_M(pick, l) = CLPT_LANES == 1 ? 1 : -1;
+        VLANE_R(*li, l) = R(INFINITY);
+        VLANE_R(pc.x, l) = p.x; VLANE_R(pc.y, l) = p.y; VLANE_R(pc.z, l) = p.z;
+        VLANE_R(rad, l) = scene_rec(sc, r + LIGHT_U).x;
+        VLANE_R(area, l) = info.x;
+        VLANE_R(prob, l) = info.y;
+        VLANE_R(Le.x, l) = m.x; VLANE_R(Le.y, l) = m.y; VLANE_R(Le.z, l) = m.z;
+        VLANE_R(two, l) = m.w;
+    }
+    if (!VANY(pick))
+        return;
+    // light_point's sphere point, then light_sample's sphere case (per lane, as there).
+    V3 n = sample_uniform_sphere(u.u1, u.u2);
+    V3 y = v3_fma(n, rad, pc);
+    ls->Le = v3_sel(ls->Le, Le, pick);
+    V3 w = v3_sub(y, x);
+    vreal d2 = v3_dot(w, w);
+    vreal dist = sqrt(d2);
+    V3 wi = v3_scale(w, R(1) / dist);
+    vreal cos_l = -v3_dot(wi, n);
+    vreal pdf_sa = d2 / (area * fabs(cos_l));
+    V3 dc = v3_sub(pc, x);
+    vreal dc2 = v3_dot(dc, dc);
+    vreal r2 = rad * rad;
+    vmask outside = dc2 > r2 * R(1.001);
+    vreal sin2 = fmin(r2 / dc2, R(1));  // sphere_cone_omc, each lane's radius
+    vreal omc = sin2 / (R(1) + vsafe_sqrt(R(1) - sin2));
+    V3 axis = v3_scale(dc, vrsqrt(dc2));
+    V3 lc = sample_uniform_cone(u.u1, u.u2, omc);
+    V3 wc = frame_to_world(axis, lc.x, lc.y, lc.z);
+    // intersect_sphere, each lane's sphere.
+    V3 oc = v3_sub(x, pc);
+    vreal b = v3_dot(oc, wc);
+    V3 f = v3_fma(wc, -b, oc);
+    vreal disc = r2 - v3_dot(f, f);
+    vreal c = v3_dot(oc, oc) - r2;
+    vreal q = -b - copysign(sqrt(fmax(disc, R(0))), b);
+    vreal t0 = c / q, t1 = q;
+    vreal tn = fmin(t0, t1), tf = fmax(t0, t1);
+    vreal t = VSEL(tf, tn, tn > R(0));
+    vreal tc = VSEL((vreal)R(INFINITY), t, disc >= R(0) && t > R(0));
+    tc = VSEL(tc, v3_dot(dc, wc), isinf(tc));
+    wi = v3_sel(wi, wc, outside);
+    dist = VSEL(dist, tc, outside);
+    pdf_sa = VSEL(pdf_sa, uniform_cone_pdf(omc), outside);
+    cos_l = VSEL(cos_l, (vreal)R(1), outside);
+    vmask emits = cos_l > R(0) || (two != R(0) && cos_l < R(0));
+    ls->wi = v3_sel(ls->wi, wi, pick);
+    ls->p = v3_sel(ls->p, v3_fma(wi, dist, x), pick);
+    ls->dist = VSEL(ls->dist, dist, pick);
+    ls->pdf = VSEL(ls->pdf, pdf_sa * prob, pick);
+    ls->valid = ls->valid || (pick && emits && pdf_sa > R(0) && pdf_sa < R(INFINITY));
+}
+#endif
+
 // A light picked by power and a point on it, for the lanes in active, into *out. With at_x (a
 // constant where this is inlined), as seen from the shading point x, for
 // next event estimation: wi, dist, the solid-angle pdf and validity are
@@ -632,6 +710,10 @@ CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, vmask a
     vreal li = VSEL((vreal)R(INFINITY), light_pick_index(sc, u.pick), active);  // only the active lanes pick
     uint i, r;
     vmask pick;
+#if CLPT_HAS_SPHERE_LIGHTS && !CLPT_HAS_TEXTURED_EMITTERS
+    if (at_x && NUM_LIGHTS > 1)
+        sphere_lights_sample_at(sc, x, u, &li, &ls);
+#endif
     while (light_next(sc, &li, &i, &pick, &r)) {
         real4 info = scene_rec(sc, r + LIGHT_INFO);  // area, pick probability, alias probability, material
         int kind = (int)scene_rec(sc, r + LIGHT_P_KIND).w;

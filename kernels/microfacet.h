@@ -102,6 +102,10 @@ inline vreal mf_erfinv(vreal x)
     p1 = mad(p1, w1, (vreal)R(-0.00417768164));
     p1 = mad(p1, w1, (vreal)R(0.246640727));
     p1 = mad(p1, w1, (vreal)R(1.50140941));
+    // The tail's polynomial (|x| > ~0.9966) only where a lane needs it.
+    vmask tail = w >= R(5);
+    if (!VANY(tail))
+        return p1 * x;
     vreal w2 = sqrt(w) - R(3);
     vreal p2 = (vreal)R(-0.000200214257);
     p2 = mad(p2, w2, (vreal)R(0.000100950558));
@@ -141,25 +145,38 @@ inline void mf_sample_slopes(vreal ci, vreal u1, vreal u2, vmask beckmann, vreal
     vreal ux = fmax(u1, R(1e-6));
     vreal th = acos(ci);
     vreal fit = R(1) + th * (R(-0.876) + th * (R(0.4265) - R(0.0594) * th));
-    vreal b = c - (R(1) + c) * pow(R(1) - ux, fit);
+    // (1 - ux)^fit as exp(fit log(1 - ux)): PoCL's vector pow is several times slower.
+    vreal b = c - (R(1) + c) * exp(fit * log(R(1) - ux));
     const real sqrt_pi_inv = R(0.56418958354775628);
     vreal norm = R(1) / (R(1) + c + sqrt_pi_inv * tan_i * exp(-cot_i * cot_i));
-    for (int it = 0; it < 10; it++) {
+    // pbrt-v3's iteration: a lane stops where its CDF is within 1e-5 of ux
+    // (its slope the erfinv just taken), the loop once every lane has, or
+    // after 9 steps. Each lane's result is its own, whatever its neighbours do.
+    vmask normal = ci > R(0.9999);
+    vreal bx = (vreal)R(0);
+    vmask done = !beckmann || normal;
+    for (int it = 0; it < 9; it++) {
         b = VSEL(R(0.5) * (a + c), b, b >= a && b <= c);
         vreal ie = mf_erfinv(b);
         vreal value = norm * (R(1) + b + sqrt_pi_inv * tan_i * exp(-ie * ie)) - ux;
         vreal deriv = norm * (R(1) - ie * tan_i);
+        vmask conv = !done && fabs(value) < R(1e-5);
+        bx = VSEL(bx, ie, conv);
+        done = done || conv;
+        if (VALL(done))
+            break;
         vmask pos = value > R(0);
-        c = VSEL(c, b, pos);
-        a = VSEL(b, a, pos);
-        b = b - value / deriv;
+        c = VSEL(c, VSEL(c, b, pos), !done);
+        a = VSEL(a, VSEL(b, a, pos), !done);
+        b = VSEL(b, b - value / deriv, !done);
     }
-    b = VSEL(R(0.5) * (a + c), b, b >= a && b <= c);
-    vreal bx = mf_erfinv(b);
+    if (!VALL(done)) {
+        b = VSEL(R(0.5) * (a + c), b, b >= a && b <= c);
+        bx = VSEL(mf_erfinv(b), bx, done);
+    }
     vreal by = mf_erfinv(R(2) * fmax(u2, R(1e-6)) - R(1));
     // Normal incidence: the distribution itself.
     vreal rr = sqrt(-log(fmax(R(1) - u1, R(1e-30))));
-    vmask normal = ci > R(0.9999);
     bx = VSEL(bx, rr * cphi, normal);
     by = VSEL(by, rr * sphi, normal);
     *sx = VSEL(gx, bx, beckmann);

@@ -278,14 +278,9 @@ inline uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, v
 #endif
     if (!VANY(nee))
         return 0;
-#if CLPT_HAS_ROUGH_DIELECTRIC
     vreal pdf_b;
     V3 f = bsdf_eval_pdf(&v->m, v->pr, ps->d, v->n, ls.wi, &pdf_b);
     vreal w = mis_power(ls.pdf, pdf_b);
-#else
-    V3 f = bsdf_eval(&v->m, ps->d, v->n, ls.wi);
-    vreal w = mis_power(ls.pdf, bsdf_pdf(&v->m, v->pr, ps->d, v->n, ls.wi));
-#endif
 #if CLPT_HAS_DELTA_LIGHTS
     w = VSEL(w, (vreal)R(1), ls.delta);  // no BSDF sample finds a point or spot light
 #endif
