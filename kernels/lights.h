@@ -282,30 +282,37 @@ inline vreal infinite_dist(real4 c, real area, V3 x)
 #if CLPT_HAS_ENV_LIGHT
 #define ENV_LIGHT_REC (OFF_LIGHTS + LIGHT_STRIDE * (NUM_LIGHTS - 1u))
 
-// Entry k of an environment table (ENV_PACKED: 4 entries a record) starting at record tbase.
-inline real env_table(const Scene *sc, uint tbase, uint k)
-{
-    real4 q = scene_rec(sc, tbase + k / ENVP_ENTRIES);
-    uint c = k % ENVP_ENTRIES;
-    return c == 0u ? q.x : c == 1u ? q.y : c == 2u ? q.z : q.w;
-}
-
 // The map's radiance between texels (x0, y0) and (x0 + 1 (wrapping), y0 + 1),
 // bilinear at (fx, fy), as Mitsuba looks it up; *cell: the sampling
-// probability of cell (x0, y0).
-inline real4 env_texels(const Scene *sc, uint base, uint w, uint h, uint x0, uint y0, real fx, real fy, real *cell)
+// probability of cell (x0, y0) (its first texel's w).
+inline real4 env_texels(const Scene *sc, uint base, uint w, uint x0, uint y0, real fx, real fy, real *cell)
 {
     uint x1 = x0 + 1u == w ? 0u : x0 + 1u;
     uint r0 = base + w * y0, r1 = r0 + w;
     real4 t00 = scene_rec(sc, r0 + x0), t10 = scene_rec(sc, r0 + x1);
     real4 t01 = scene_rec(sc, r1 + x0), t11 = scene_rec(sc, r1 + x1);
-    uint xp = x0 - 1u;  // the cell before (when x0 > 0)
-    real pc = t00.w - (x0 > 0u ? scene_rec(sc, r0 + xp).w : R(0));
-    uint mbase = base + w * h;
-    real pm = env_table(sc, mbase, y0) - (y0 > 0u ? env_table(sc, mbase, y0 - 1u) : R(0));
-    *cell = pc * pm;
+    *cell = t00.w;
     real4 a = t00 * (R(1) - fx) + t10 * fx, b = t01 * (R(1) - fx) + t11 * fx;
     return a * (R(1) - fy) + b * fy;
+}
+
+// Slot j of the alias table at entry k0 of the environment tables starting
+// at record tbase (ENV_ALIAS, 2 entries a record), for a sample whose slot
+// is j and whose fraction within the slot is *f: the cell or row it gives
+// (j, or the slot's alias), and (*f) the fraction rescaled to [0, 1)
+// within that choice.
+inline uint env_alias(const Scene *sc, uint tbase, uint k0, uint j, real *f)
+{
+    uint k = k0 + j;
+    real4 q = scene_rec(sc, tbase + k / ENVA_ENTRIES);
+    real keep = (k & 1u) ? q.z : q.x, alias = (k & 1u) ? q.w : q.y;
+    real g = *f;
+    if (g < keep) {
+        *f = g / keep;
+        return j;
+    }
+    *f = (g - keep) / (R(1) - keep);
+    return (uint)alias;
 }
 
 // The frame of the environment whose record is at r: columns c0, c1, c2 of to_world's rotation.
@@ -342,7 +349,7 @@ inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
             continue;
         real x = VLANE_R(gx, k), y = VLANE_R(gy, k);
         uint x0 = min((uint)x, w - 1u), y0 = min((uint)y, h - 2u);
-        real4 t = env_texels(sc, base, w, h, x0, y0, x - (real)x0, y - (real)y0, &VLANE_R(cell, k));
+        real4 t = env_texels(sc, base, w, x0, y0, x - (real)x0, y - (real)y0, &VLANE_R(cell, k));
         VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
     }
     vreal sin_t = sqrt(fmax(l.x * l.x + l.z * l.z, (vreal)(REAL_EPS * REAL_EPS)));
@@ -351,10 +358,11 @@ inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
 }
 
 // A direction d (unit, world) from the environment at r for the lanes in m:
-// a row of cells by the marginal cdf (u2), a cell in it by the row's cdf
-// (u1), a uniform point in the cell; its radiance (unscaled) and solid-angle
-// pdf. A constant: a uniform direction. The searches and fetches go lane by
-// lane, the angles for all lanes at once.
+// a row of cells by the marginal's alias table (u2), a cell in it by the
+// row's (u1), in O(1), a uniform point in the cell (the fractions the alias
+// choices leave); its radiance (unscaled) and solid-angle pdf. A constant:
+// a uniform direction. The fetches go lane by lane, the angles for all
+// lanes at once.
 inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d, vreal *pdf_sa)
 {
     real4 c0, c1, c2;
@@ -365,38 +373,20 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
         *pdf_sa = (vreal)R(0.25 * M_1_PI);
         return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
     }
-    uint mbase = base + w * h;                       // the marginal cdf (clpt/layout.py ENV_PACKED)
-    uint grows = mbase + (h + ENVP_ENTRIES - 2u) / ENVP_ENTRIES;           // the rows' guides
-    uint gmarg = grows + (w * (h - 1u) + ENVP_ENTRIES - 1u) / ENVP_ENTRIES;  // the marginal's guide
+    uint rows = base + w * h;                                              // the rows' alias tables (ENV_ALIAS)
+    uint marg = rows + (w * (h - 1u) + ENVA_ENTRIES - 1u) / ENVA_ENTRIES;  // the marginal's
+    vreal sx = u1 * (real)w, sy = u2 * (real)(h - 1u);
+    vreal jx = fmin(floor(sx), (vreal)(real)(w - 1u)), jy = fmin(floor(sy), (vreal)(real)(h - 2u));
+    vreal fxs = fmin(sx - jx, (vreal)(R(1) - REAL_EPS)), fys = fmin(sy - jy, (vreal)(R(1) - REAL_EPS));
     V3 Le = v3_zero();
     vreal gx = (vreal)R(0), gy = (vreal)R(0), cell = (vreal)R(0);
     for (int k = 0; k < CLPT_LANES; k++) {
         if (VLANE_M(m, k) == 0)
             continue;
-        real a = VLANE_R(u1, k), b = VLANE_R(u2, k);
-        // The first row whose cdf passes b, then the first cell of that row
-        // whose cdf passes a, each from its guide table's entry (the first
-        // cell past that entry's value: fewer than 2 steps on average).
-        uint y0 = (uint)env_table(sc, gmarg, min((uint)(b * (real)(h - 1u)), h - 2u));
-        while (y0 > 0u && env_table(sc, mbase, y0 - 1u) > b)
-            y0--;
-        while (y0 < h - 2u && env_table(sc, mbase, y0) <= b)
-            y0++;
-        real m0 = y0 > 0u ? env_table(sc, mbase, y0 - 1u) : R(0);
-        real fy = fmin(fmax((b - m0) / (env_table(sc, mbase, y0) - m0), R(0)), R(1));
-        uint row = base + w * y0;
-        uint x0 = (uint)env_table(sc, grows, w * y0 + min((uint)(a * (real)w), w - 1u));
-        uint xp = x0 - 1u;  // the cell before x0 (when x0 > 0)
-        while (x0 > 0u && scene_rec(sc, row + xp).w > a) {
-            x0--;
-            xp--;
-        }
-        while (x0 < w - 1u && scene_rec(sc, row + x0).w <= a)
-            x0++;
-        xp = x0 - 1u;
-        real c = x0 > 0u ? scene_rec(sc, row + xp).w : R(0);
-        real fx = fmin(fmax((a - c) / (scene_rec(sc, row + x0).w - c), R(0)), R(1));
-        real4 t = env_texels(sc, base, w, h, x0, y0, fx, fy, &VLANE_R(cell, k));
+        real fy = VLANE_R(fys, k), fx = VLANE_R(fxs, k);
+        uint y0 = env_alias(sc, marg, 0u, (uint)VLANE_R(jy, k), &fy);
+        uint x0 = env_alias(sc, rows, w * y0, (uint)VLANE_R(jx, k), &fx);
+        real4 t = env_texels(sc, base, w, x0, y0, fx, fy, &VLANE_R(cell, k));
         VLANE_R(gx, k) = (real)x0 + fx;
         VLANE_R(gy, k) = (real)y0 + fy;
         VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
