@@ -307,12 +307,9 @@ inline uint env_alias(const Scene *sc, uint tbase, uint k0, uint j, real *f)
     real4 q = scene_rec(sc, tbase + k / ENVA_ENTRIES);
     real keep = (k & 1u) ? q.z : q.x, alias = (k & 1u) ? q.w : q.y;
     real g = *f;
-    if (g < keep) {
-        *f = g / keep;
-        return j;
-    }
-    *f = (g - keep) / (R(1) - keep);
-    return (uint)alias;
+    int own = g < keep;  // (selects, not branches: the lanes' loops unroll)
+    *f = own ? g / keep : (g - keep) / (R(1) - keep);
+    return own ? j : (uint)alias;
 }
 
 // The frame of the environment whose record is at r: columns c0, c1, c2 of to_world's rotation.
@@ -342,16 +339,21 @@ inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
     vreal u = atan2(l.x, -l.z) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
     vreal gx = (u - floor(u)) * (real)w;
     vreal gy = acos(fmin(fmax(l.y, (vreal)R(-1)), (vreal)R(1))) * (R(M_1_PI) * (real)(h - 1u));
+    // The cells for all lanes at once (fmin and fmax keep a NaN's lane in range), then every lane's
+    // fetches, unrolled, their results masked below.
+    vreal xf = fmax(fmin(floor(gx), (vreal)(real)(w - 1u)), (vreal)R(0));
+    vreal yf = fmax(fmin(floor(gy), (vreal)(real)(h - 2u)), (vreal)R(0));
+    vreal fx = gx - xf, fy = gy - yf;
     V3 Le = v3_zero();
     vreal cell = (vreal)R(0);
+#pragma unroll
     for (int k = 0; k < CLPT_LANES; k++) {
-        if (VLANE_M(m, k) == 0)
-            continue;
-        real x = VLANE_R(gx, k), y = VLANE_R(gy, k);
-        uint x0 = min((uint)x, w - 1u), y0 = min((uint)y, h - 2u);
-        real4 t = env_texels(sc, base, w, x0, y0, x - (real)x0, y - (real)y0, &VLANE_R(cell, k));
+        real4 t = env_texels(sc, base, w, (uint)VLANE_R(xf, k), (uint)VLANE_R(yf, k), VLANE_R(fx, k), VLANE_R(fy, k),
+                             &VLANE_R(cell, k));
         VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
     }
+    Le = v3_sel(v3_zero(), Le, m);
+    cell = VSEL((vreal)R(0), cell, m);
     vreal sin_t = sqrt(fmax(l.x * l.x + l.z * l.z, (vreal)(REAL_EPS * REAL_EPS)));
     *pdf_sa = cell * ((real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI)) / sin_t;
     return Le;
@@ -380,9 +382,9 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
     vreal fxs = fmin(sx - jx, (vreal)(R(1) - REAL_EPS)), fys = fmin(sy - jy, (vreal)(R(1) - REAL_EPS));
     V3 Le = v3_zero();
     vreal gx = (vreal)R(0), gy = (vreal)R(0), cell = (vreal)R(0);
+    // Every lane (an idle one's numbers are in range too), unrolled, its results masked below.
+#pragma unroll
     for (int k = 0; k < CLPT_LANES; k++) {
-        if (VLANE_M(m, k) == 0)
-            continue;
         real fy = VLANE_R(fys, k), fx = VLANE_R(fxs, k);
         uint y0 = env_alias(sc, marg, 0u, (uint)VLANE_R(jy, k), &fy);
         uint x0 = env_alias(sc, rows, w * y0, (uint)VLANE_R(jx, k), &fx);
@@ -391,6 +393,8 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
         VLANE_R(gy, k) = (real)y0 + fy;
         VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
     }
+    Le = v3_sel(v3_zero(), Le, m);
+    cell = VSEL((vreal)R(0), cell, m);
     vreal phi = (gx + R(0.5)) * (R(2 * M_PI) / (real)w);
     vreal theta = gy * (R(M_PI) / (real)(h - 1u));
     vreal st = sin(theta), ct = cos(theta), sp = sin(phi), cp = cos(phi);
