@@ -296,22 +296,6 @@ inline real4 env_texels(const Scene *sc, uint base, uint w, uint x0, uint y0, re
     return a * (R(1) - fy) + b * fy;
 }
 
-// Slot j of the alias table at entry k0 of the environment tables starting
-// at record tbase (ENV_ALIAS, 2 entries a record), for a sample whose slot
-// is j and whose fraction within the slot is *f: the cell or row it gives
-// (j, or the slot's alias), and (*f) the fraction rescaled to [0, 1)
-// within that choice.
-inline uint env_alias(const Scene *sc, uint tbase, uint k0, uint j, real *f)
-{
-    uint k = k0 + j;
-    real4 q = scene_rec(sc, tbase + k / ENVA_ENTRIES);
-    real keep = (k & 1u) ? q.z : q.x, alias = (k & 1u) ? q.w : q.y;
-    real g = *f;
-    int own = g < keep;  // (selects, not branches: the lanes' loops unroll)
-    *f = own ? g / keep : (g - keep) / (R(1) - keep);
-    return own ? j : (uint)alias;
-}
-
 // The frame of the environment whose record is at r: columns c0, c1, c2 of to_world's rotation.
 inline void env_frame(const Scene *sc, uint r, real4 *c0, real4 *c1, real4 *c2)
 {
@@ -380,24 +364,45 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
     vreal sx = u1 * (real)w, sy = u2 * (real)(h - 1u);
     vreal jx = fmin(floor(sx), (vreal)(real)(w - 1u)), jy = fmin(floor(sy), (vreal)(real)(h - 2u));
     vreal fxs = fmin(sx - jx, (vreal)(R(1) - REAL_EPS)), fys = fmin(sy - jy, (vreal)(R(1) - REAL_EPS));
-    V3 Le = v3_zero();
-    vreal gx = (vreal)R(0), gy = (vreal)R(0), cell = (vreal)R(0);
-    // Every lane (an idle one's numbers are in range too), unrolled, its results masked below.
+    // Every lane (an idle one's numbers are in range too) in unrolled loops that only fetch: the row's
+    // slot (keep probability, alias), the cell's slot in that row, the cell's texels; the choices and
+    // the fractions they leave for all lanes at once. The results are masked below.
+    vreal keep = (vreal)R(0), alias = (vreal)R(0);
 #pragma unroll
     for (int k = 0; k < CLPT_LANES; k++) {
-        real fy = VLANE_R(fys, k), fx = VLANE_R(fxs, k);
-        uint y0 = env_alias(sc, marg, 0u, (uint)VLANE_R(jy, k), &fy);
-        uint x0 = env_alias(sc, rows, w * y0, (uint)VLANE_R(jx, k), &fx);
-        real4 t = env_texels(sc, base, w, x0, y0, fx, fy, &VLANE_R(cell, k));
-        VLANE_R(gx, k) = (real)x0 + fx;
-        VLANE_R(gy, k) = (real)y0 + fy;
+        uint j = (uint)VLANE_R(jy, k);
+        real4 q = scene_rec(sc, marg + j / ENVA_ENTRIES);
+        VLANE_R(keep, k) = (j & 1u) ? q.z : q.x;
+        VLANE_R(alias, k) = (j & 1u) ? q.w : q.y;
+    }
+    vmask own = fys < keep;
+    vreal y0 = VSEL(alias, jy, own);
+    vreal fy = VSEL(fys - keep, fys, own) / VSEL(R(1) - keep, keep, own);
+#pragma unroll
+    for (int k = 0; k < CLPT_LANES; k++) {
+        uint j = w * (uint)VLANE_R(y0, k) + (uint)VLANE_R(jx, k);
+        real4 q = scene_rec(sc, rows + j / ENVA_ENTRIES);
+        VLANE_R(keep, k) = (j & 1u) ? q.z : q.x;
+        VLANE_R(alias, k) = (j & 1u) ? q.w : q.y;
+    }
+    own = fxs < keep;
+    vreal x0 = VSEL(alias, jx, own);
+    vreal fx = VSEL(fxs - keep, fxs, own) / VSEL(R(1) - keep, keep, own);
+    V3 Le = v3_zero();
+    vreal cell = (vreal)R(0);
+#pragma unroll
+    for (int k = 0; k < CLPT_LANES; k++) {
+        real4 t = env_texels(sc, base, w, (uint)VLANE_R(x0, k), (uint)VLANE_R(y0, k), VLANE_R(fx, k), VLANE_R(fy, k),
+                             &VLANE_R(cell, k));
         VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
     }
+    vreal gx = x0 + fx, gy = y0 + fy;
     Le = v3_sel(v3_zero(), Le, m);
     cell = VSEL((vreal)R(0), cell, m);
     vreal phi = (gx + R(0.5)) * (R(2 * M_PI) / (real)w);
     vreal theta = gy * (R(M_PI) / (real)(h - 1u));
-    vreal st = sin(theta), ct = cos(theta), sp = sin(phi), cp = cos(phi);
+    vreal ct, cp;
+    vreal st = sincos(theta, &ct), sp = sincos(phi, &cp);
     V3 l = v3(sp * st, ct, -cp * st);
     *d = v3(l.x * c0.x + l.y * c1.x + l.z * c2.x, l.x * c0.y + l.y * c1.y + l.z * c2.y,
             l.x * c0.z + l.y * c1.z + l.z * c2.z);
