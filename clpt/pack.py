@@ -401,7 +401,10 @@ def env_records(image: np.ndarray) -> np.ndarray:
     h, w = image.shape[:2]
     cells = env_cell_weights(image)
     rows = cells.sum(axis=1)
-    row_prob, row_alias = alias_rows(cells)
+    row_prob, row_alias = np.empty(cells.shape), np.empty(cells.shape, dtype=np.int64)
+    step = max(1, (1 << 22) // w)  # rows at a time: alias_rows' working arrays stay near 0.4 GB
+    for y in range(0, h - 1, step):
+        row_prob[y:y + step], row_alias[y:y + step] = alias_rows(cells[y:y + step])
     marg_prob, marg_alias = alias_rows(rows)
     tables = []
     for prob, alias in ((row_prob.reshape(-1), row_alias.reshape(-1)), (marg_prob, marg_alias)):
