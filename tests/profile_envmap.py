@@ -12,6 +12,7 @@ device time per sample (median of OpenCL profiling events). Variants:
   const        the envmap replaced by a constant environment (radiance 1)
   depth0/1     max_depth 0 (camera rays and the map) and 1
   lanesN       Renderer(lanes=N)
+  localN       Renderer(local_size=N)
 """
 
 from __future__ import annotations
@@ -52,6 +53,8 @@ def main():
     params = {"res": str(a.res)}
     runs = {}
     for v in a.variants.split(","):
+        if v not in VARIANTS and not v.startswith(("lanes", "local", "depth")):
+            raise SystemExit(f"profile_envmap: unknown variant {v} (known: {', '.join(VARIANTS)}, localN)")
         kw = {"device": a.device, "photons": False}
         rkw = {}
         path = xml
@@ -61,6 +64,8 @@ def main():
             kw["nee"] = False
         elif v.startswith("lanes"):
             kw["lanes"] = int(v[5:])
+        elif v.startswith("local"):
+            kw["local_size"] = int(v[5:])
         elif v.startswith("depth"):
             rkw["max_depth"] = int(v[5:])
         sc = clpt.load_scene(path, params=params)
