@@ -230,17 +230,18 @@ TANGENT = Rows("surface tangent", "TAN", _r4("dpdu"),
                "or triangle: dp/du.xyz (0: none, the shading frame's own tangent), TAN_PLANAR; a sphere: its "
                "frame's z axis.xyz (dp/du is z x n), TAN_SPHERE")
 # An environment map's texels (after every other record; its light record points to them): row y of
-# W texels, then its tables, 4 entries a record (ENV_PACKED).
-ENV_TEXEL = Rows("environment texel", "ENVT", _r4("rgb_cdf"),
+# W texels, then its alias tables, 2 entries a record (ENV_ALIAS).
+ENV_TEXEL = Rows("environment texel", "ENVT", _r4("rgb_prob"),
                  "environment map texel (x, y) at record base + W y + x: its radiance r, g, b (linear, unscaled), "
-                 "and (y < H - 1) the cumulative distribution of the sampling cells of row y up to and including "
-                 "cell x (cell (x, y): texels x..x+1 by y..y+1, weight the mean of their luminance times sin theta)")
-ENV_PACKED_ENTRIES = 4  # entries of an environment table a record
-ENV_PACKED = Rows("environment table", "ENVP", _r4("four"),
-                  "4 entries of an environment map's tables a record, after its texels (entry k of a table at "
-                  "record table base + k / 4, component k % 4): the marginal cumulative distribution over its "
-                  "H - 1 rows of cells; the guide tables of its rows, W (H - 1) entries (entry j of row y: the "
-                  "first cell whose cdf passes j / W); the marginal's guide, H - 1 entries")
+                 "and (y < H - 1) the sampling probability of cell (x, y) (texels x..x+1 by y..y+1, weight the "
+                 "mean of their luminance times sin theta; the cells' probabilities sum to one)")
+ENV_ALIAS_ENTRIES = 2  # (keep probability, alias) entries of an environment alias table a record
+ENV_ALIAS = Rows("environment alias table", "ENVA", _r4("four"),
+                 "2 entries of an environment map's alias tables a record, after its texels (entry k of a table "
+                 "at record table base + k / 2, components 2 (k % 2) and 2 (k % 2) + 1: the probability that "
+                 "slot k keeps its own cell or row, and the one it gives otherwise): the rows' tables over their "
+                 "W cells, W (H - 1) entries (row y's slot x at entry W y + x); the marginal's over the H - 1 "
+                 "rows of cells")
 LIGHT_TRI = Rows("mesh-light triangle", "LTRI", _r4("p_alias", "u_prob", "v"),
                  "triangle of a mesh light: v0.xyz, alias | v1 - v0, alias probability | v2 - v0, 0")
 
@@ -310,7 +311,7 @@ PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"),
 def scene_records() -> tuple:
     """The scene's records (Rows), as this module holds them now."""
     return (MATERIAL, SPHERE, PLANAR, PLANE, LIGHT, CAUSTIC, BVH_NODE, BVH_LEAF, NORMALS, LIGHT_TRI, TEXTURE_SLOTS, TEXTURE, UV,
-            TANGENT, ENV_TEXEL, ENV_PACKED)
+            TANGENT, ENV_TEXEL, ENV_ALIAS)
 
 
 def launch_records() -> tuple:
@@ -329,7 +330,7 @@ def c_source() -> str:
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
               f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define ITEM_EMPTY {ITEM_EMPTY}",
               f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}", f"#define COAT_TABLE_ROWS {COAT_TABLE_ROWS}",
-              f"#define ENVP_ENTRIES {ENV_PACKED_ENTRIES}"]
+              f"#define ENVA_ENTRIES {ENV_ALIAS_ENTRIES}"]
     parts += [f"#define {k} {v}" for k, v in (("TEX_BITMAP", TEX_BITMAP), ("TEX_CHECKERBOARD", TEX_CHECKERBOARD),
                                               ("TEX_REPEAT", TEX_REPEAT), ("TEX_MIRROR", TEX_MIRROR),
                                               ("TEX_CLAMP", TEX_CLAMP), ("TEX_BILINEAR", TEX_BILINEAR),

@@ -349,41 +349,76 @@ def env_cell_weights(image: np.ndarray) -> np.ndarray:
     return 0.25 * (row[:-1] + row[1:])
 
 
-def env_guides(cdf: np.ndarray) -> np.ndarray:
-    """Guide tables of rows of cumulative distributions (..., n), each
-    ending at 1: entry j of a row is the first cell whose cdf (as float
-    kernels hold it) passes j / n, so a search for u starts at entry
-    floor(u n) and steps fewer than 2 cells on average whatever the
-    distribution (the cutpoint method)."""
-    c = np.atleast_2d(cdf).astype(np.float32)
-    n = c.shape[1]
-    q = (np.arange(n) / n).astype(np.float32)
-    first = np.stack([np.searchsorted(row, q, side="right") for row in c])
-    return np.minimum(first, n - 1).reshape(cdf.shape)
+def alias_rows(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Walker's alias tables of the rows of weights (..., n) >= 0, all rows
+    at once: slot j of a row keeps j with probability prob[..., j], else
+    gives alias[..., j]. Each row's weights are sorted ascending; while a
+    row has unpaired slots, its largest left (the donor) fills either its
+    smallest one (if the donor still holds at least a slot's mass) or,
+    having fallen below, its own slot from the next largest, so every row
+    needs at most n steps and a step is a few array operations across the
+    rows. A row of zeros gets uniform slots."""
+    w = np.atleast_2d(np.asarray(weights, dtype=np.float64))
+    rows, n = w.shape
+    tot = w.sum(axis=1, keepdims=True)
+    p = np.where(tot > 0, w * (n / np.where(tot > 0, tot, 1.0)), 1.0)
+    order = np.argsort(p, axis=1, kind="stable")
+    q = np.take_along_axis(p, order, axis=1)
+    prob = np.ones((rows, n))
+    alias = np.tile(np.arange(n), (rows, 1))
+    r = np.arange(rows)
+    i = np.zeros(rows, dtype=np.int64)
+    j = np.full(rows, n - 1, dtype=np.int64)
+    for _ in range(n):
+        act = i < j
+        if not act.any():
+            break
+        donor = q[r, j]
+        fill = act & (donor >= 1.0)  # the donor fills the smallest slot i
+        own = act & ~fill            # the donor fell below a slot: the next largest fills its slot
+        rf, rs = r[fill], r[own]
+        fi, fj = i[fill], j[fill]
+        prob[rf, fi] = np.clip(q[rf, fi], 0.0, 1.0)
+        alias[rf, fi] = fj
+        q[rf, fj] -= 1.0 - q[rf, fi]
+        i[fill] += 1
+        sj = j[own]
+        prob[rs, sj] = np.clip(q[rs, sj], 0.0, 1.0)
+        alias[rs, sj] = sj - 1
+        q[rs, sj - 1] -= 1.0 - q[rs, sj]
+        j[own] -= 1
+    out_p, out_a = np.empty_like(prob), np.empty_like(alias)
+    np.put_along_axis(out_p, order, prob, axis=1)
+    np.put_along_axis(out_a, order, np.take_along_axis(order, alias, axis=1), axis=1)
+    shape = np.shape(weights)
+    return out_p.reshape(shape), out_a.reshape(shape)
 
 
 def env_records(image: np.ndarray) -> np.ndarray:
-    """The texel records (ENV_TEXEL) of an environment map and its tables
-    (ENV_PACKED: marginal cdf, the rows' guides, the marginal's guide), as
-    float64 rows."""
+    """The texel records (ENV_TEXEL) of an environment map and its alias
+    tables (ENV_ALIAS: the rows of cells', then the marginal's over the
+    rows), as float64 rows."""
     h, w = image.shape[:2]
-    cond = env_cell_weights(image)
-    rows = cond.sum(axis=1)
-    np.cumsum(cond, axis=1, out=cond)
-    cond /= np.where(rows > 0, rows, 1.0)[:, None]
-    cond[rows == 0] = np.arange(1, w + 1) / w  # an empty row is never picked; its cdf stays valid
-    cond[:, -1] = 1.0
-    marg = np.cumsum(rows) / rows.sum()
-    marg[-1] = 1.0
-    tables = [marg, env_guides(cond).reshape(-1), env_guides(marg)]
-    sizes = [-(-len(t) // layout.ENV_PACKED_ENTRIES) for t in tables]
+    cells = env_cell_weights(image)
+    rows = cells.sum(axis=1)
+    row_prob, row_alias = np.empty(cells.shape), np.empty(cells.shape, dtype=np.int64)
+    step = max(1, (1 << 22) // w)  # rows at a time: alias_rows' working arrays stay near 0.4 GB
+    for y in range(0, h - 1, step):
+        row_prob[y:y + step], row_alias[y:y + step] = alias_rows(cells[y:y + step])
+    marg_prob, marg_alias = alias_rows(rows)
+    tables = []
+    for prob, alias in ((row_prob.reshape(-1), row_alias.reshape(-1)), (marg_prob, marg_alias)):
+        t = np.zeros(2 * len(prob))
+        t[0:2 * len(prob):2], t[1:2 * len(prob):2] = prob, alias
+        tables.append(t)
+    sizes = [-(-len(t) // 4) for t in tables]  # records: ENV_ALIAS_ENTRIES (keep, alias) pairs each
     out = np.zeros((w * h + sum(sizes), 4))
-    tex = layout.ENV_TEXEL.view(out[:w * h])["rgb_cdf"]
+    tex = layout.ENV_TEXEL.view(out[:w * h])["rgb_prob"]
     tex[:, :3] = image.reshape(-1, 3)
-    tex[:w * (h - 1), 3] = cond.reshape(-1)
+    tex[:w * (h - 1), 3] = (cells / cells.sum()).reshape(-1)
     first = w * h
     for t, n in zip(tables, sizes):
-        layout.ENV_PACKED.view(out[first:first + n])["four"].reshape(-1)[:len(t)] = t
+        layout.ENV_ALIAS.view(out[first:first + n])["four"].reshape(-1)[:len(t)] = t
         first += n
     return out
 

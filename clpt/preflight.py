@@ -45,8 +45,9 @@ TEXTURE_BYTES_PER_TEXEL = 12 + 24 + 12
 # An environment map (Intel's CPU runtime): the 8192x4096 map's packed texels,
 # sampling tables and the device's copy raised the peak resident memory of a
 # 32x32 render by 2.84 GiB (3.6 GiB in all), 91 bytes a texel, with the file's
-# float pixels (12) on top.
-ENV_BYTES_PER_TEXEL = 104
+# float pixels (12) on top; the alias tables that replaced its guide tables
+# add 8 bytes a cell packed and 4 on the device (counted, not measured).
+ENV_BYTES_PER_TEXEL = 116
 
 MAX_EXPOSURE = 64.0  # stops; 2^64 already saturates every float image
 

@@ -282,30 +282,41 @@ inline vreal infinite_dist(real4 c, real area, V3 x)
 #if CLPT_HAS_ENV_LIGHT
 #define ENV_LIGHT_REC (OFF_LIGHTS + LIGHT_STRIDE * (NUM_LIGHTS - 1u))
 
-// Entry k of an environment table (ENV_PACKED: 4 entries a record) starting at record tbase.
-inline real env_table(const Scene *sc, uint tbase, uint k)
-{
-    real4 q = scene_rec(sc, tbase + k / ENVP_ENTRIES);
-    uint c = k % ENVP_ENTRIES;
-    return c == 0u ? q.x : c == 1u ? q.y : c == 2u ? q.z : q.w;
-}
-
 // The map's radiance between texels (x0, y0) and (x0 + 1 (wrapping), y0 + 1),
 // bilinear at (fx, fy), as Mitsuba looks it up; *cell: the sampling
-// probability of cell (x0, y0).
-inline real4 env_texels(const Scene *sc, uint base, uint w, uint h, uint x0, uint y0, real fx, real fy, real *cell)
+// probability of cell (x0, y0) (its first texel's w).
+inline real4 env_texels(const Scene *sc, uint base, uint w, uint x0, uint y0, real fx, real fy, real *cell)
 {
     uint x1 = x0 + 1u == w ? 0u : x0 + 1u;
     uint r0 = base + w * y0, r1 = r0 + w;
     real4 t00 = scene_rec(sc, r0 + x0), t10 = scene_rec(sc, r0 + x1);
     real4 t01 = scene_rec(sc, r1 + x0), t11 = scene_rec(sc, r1 + x1);
-    uint xp = x0 - 1u;  // the cell before (when x0 > 0)
-    real pc = t00.w - (x0 > 0u ? scene_rec(sc, r0 + xp).w : R(0));
-    uint mbase = base + w * h;
-    real pm = env_table(sc, mbase, y0) - (y0 > 0u ? env_table(sc, mbase, y0 - 1u) : R(0));
-    *cell = pc * pm;
+    *cell = t00.w;
     real4 a = t00 * (R(1) - fx) + t10 * fx, b = t01 * (R(1) - fx) + t11 * fx;
     return a * (R(1) - fy) + b * fy;
+}
+
+// sin x and (*c) cos x for x in [0, 2 pi] (env_sample's angles): in float
+// builds a quadrant and polynomials on [-pi/4, pi/4] (truncation below
+// 2e-9; no general argument reduction, which the runtimes' sincos pays
+// for every lane); in double builds sincos itself.
+inline vreal env_sincos(vreal x, vreal *c)
+{
+#if CLPT_DOUBLE
+    return sincos(x, c);
+#else
+    vreal q = rint(x * R(M_2_PI));
+    vreal r = (x - q * R(1.5707963705062866)) - q * R(-4.371139000186243e-8);  // x - q pi/2, two parts
+    vreal r2 = r * r;
+    vreal sr = r + r * r2 * (R(-1.0 / 6) + r2 * (R(1.0 / 120) + r2 * (R(-1.0 / 5040) + r2 * R(1.0 / 362880))));
+    vreal cr = R(1) + r2 * (R(-0.5) + r2 * (R(1.0 / 24) + r2 * (R(-1.0 / 720) + r2 * (R(1.0 / 40320) +
+                                                                                      r2 * R(-1.0 / 3628800)))));
+    vreal k = q - R(4) * floor(q * R(0.25));  // the quadrant, 0..3
+    vmask odd = k == R(1) || k == R(3);
+    vreal sn = VSEL(sr, cr, odd), cs = VSEL(cr, sr, odd);
+    *c = VSEL(cs, -cs, k == R(1) || k == R(2));
+    return VSEL(sn, -sn, k >= R(2));
+#endif
 }
 
 // The frame of the environment whose record is at r: columns c0, c1, c2 of to_world's rotation.
@@ -335,26 +346,32 @@ inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
     vreal u = atan2(l.x, -l.z) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
     vreal gx = (u - floor(u)) * (real)w;
     vreal gy = acos(fmin(fmax(l.y, (vreal)R(-1)), (vreal)R(1))) * (R(M_1_PI) * (real)(h - 1u));
+    // The cells for all lanes at once (fmin and fmax keep a NaN's lane in range), then every lane's
+    // fetches, unrolled, their results masked below.
+    vreal xf = fmax(fmin(floor(gx), (vreal)(real)(w - 1u)), (vreal)R(0));
+    vreal yf = fmax(fmin(floor(gy), (vreal)(real)(h - 2u)), (vreal)R(0));
+    vreal fx = gx - xf, fy = gy - yf;
     V3 Le = v3_zero();
     vreal cell = (vreal)R(0);
+#pragma unroll
     for (int k = 0; k < CLPT_LANES; k++) {
-        if (VLANE_M(m, k) == 0)
-            continue;
-        real x = VLANE_R(gx, k), y = VLANE_R(gy, k);
-        uint x0 = min((uint)x, w - 1u), y0 = min((uint)y, h - 2u);
-        real4 t = env_texels(sc, base, w, h, x0, y0, x - (real)x0, y - (real)y0, &VLANE_R(cell, k));
+        real4 t = env_texels(sc, base, w, (uint)VLANE_R(xf, k), (uint)VLANE_R(yf, k), VLANE_R(fx, k), VLANE_R(fy, k),
+                             &VLANE_R(cell, k));
         VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
     }
+    Le = v3_sel(v3_zero(), Le, m);
+    cell = VSEL((vreal)R(0), cell, m);
     vreal sin_t = sqrt(fmax(l.x * l.x + l.z * l.z, (vreal)(REAL_EPS * REAL_EPS)));
     *pdf_sa = cell * ((real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI)) / sin_t;
     return Le;
 }
 
 // A direction d (unit, world) from the environment at r for the lanes in m:
-// a row of cells by the marginal cdf (u2), a cell in it by the row's cdf
-// (u1), a uniform point in the cell; its radiance (unscaled) and solid-angle
-// pdf. A constant: a uniform direction. The searches and fetches go lane by
-// lane, the angles for all lanes at once.
+// a row of cells by the marginal's alias table (u2), a cell in it by the
+// row's (u1), in O(1), a uniform point in the cell (the fractions the alias
+// choices leave); its radiance (unscaled) and solid-angle pdf. A constant:
+// a uniform direction. The fetches go lane by lane, the angles for all
+// lanes at once.
 inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d, vreal *pdf_sa)
 {
     real4 c0, c1, c2;
@@ -365,45 +382,50 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
         *pdf_sa = (vreal)R(0.25 * M_1_PI);
         return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
     }
-    uint mbase = base + w * h;                       // the marginal cdf (clpt/layout.py ENV_PACKED)
-    uint grows = mbase + (h + ENVP_ENTRIES - 2u) / ENVP_ENTRIES;           // the rows' guides
-    uint gmarg = grows + (w * (h - 1u) + ENVP_ENTRIES - 1u) / ENVP_ENTRIES;  // the marginal's guide
-    V3 Le = v3_zero();
-    vreal gx = (vreal)R(0), gy = (vreal)R(0), cell = (vreal)R(0);
+    uint rows = base + w * h;                                              // the rows' alias tables (ENV_ALIAS)
+    uint marg = rows + (w * (h - 1u) + ENVA_ENTRIES - 1u) / ENVA_ENTRIES;  // the marginal's
+    vreal sx = u1 * (real)w, sy = u2 * (real)(h - 1u);
+    vreal jx = fmin(floor(sx), (vreal)(real)(w - 1u)), jy = fmin(floor(sy), (vreal)(real)(h - 2u));
+    vreal fxs = fmin(sx - jx, (vreal)(R(1) - REAL_EPS)), fys = fmin(sy - jy, (vreal)(R(1) - REAL_EPS));
+    // Every lane (an idle one's numbers are in range too) in unrolled loops that only fetch: the row's
+    // slot (keep probability, alias), the cell's slot in that row, the cell's texels; the choices and
+    // the fractions they leave for all lanes at once. The results are masked below.
+    vreal keep = (vreal)R(0), alias = (vreal)R(0);
+#pragma unroll
     for (int k = 0; k < CLPT_LANES; k++) {
-        if (VLANE_M(m, k) == 0)
-            continue;
-        real a = VLANE_R(u1, k), b = VLANE_R(u2, k);
-        // The first row whose cdf passes b, then the first cell of that row
-        // whose cdf passes a, each from its guide table's entry (the first
-        // cell past that entry's value: fewer than 2 steps on average).
-        uint y0 = (uint)env_table(sc, gmarg, min((uint)(b * (real)(h - 1u)), h - 2u));
-        while (y0 > 0u && env_table(sc, mbase, y0 - 1u) > b)
-            y0--;
-        while (y0 < h - 2u && env_table(sc, mbase, y0) <= b)
-            y0++;
-        real m0 = y0 > 0u ? env_table(sc, mbase, y0 - 1u) : R(0);
-        real fy = fmin(fmax((b - m0) / (env_table(sc, mbase, y0) - m0), R(0)), R(1));
-        uint row = base + w * y0;
-        uint x0 = (uint)env_table(sc, grows, w * y0 + min((uint)(a * (real)w), w - 1u));
-        uint xp = x0 - 1u;  // the cell before x0 (when x0 > 0)
-        while (x0 > 0u && scene_rec(sc, row + xp).w > a) {
-            x0--;
-            xp--;
-        }
-        while (x0 < w - 1u && scene_rec(sc, row + x0).w <= a)
-            x0++;
-        xp = x0 - 1u;
-        real c = x0 > 0u ? scene_rec(sc, row + xp).w : R(0);
-        real fx = fmin(fmax((a - c) / (scene_rec(sc, row + x0).w - c), R(0)), R(1));
-        real4 t = env_texels(sc, base, w, h, x0, y0, fx, fy, &VLANE_R(cell, k));
-        VLANE_R(gx, k) = (real)x0 + fx;
-        VLANE_R(gy, k) = (real)y0 + fy;
+        uint j = (uint)VLANE_R(jy, k);
+        real4 q = scene_rec(sc, marg + j / ENVA_ENTRIES);
+        VLANE_R(keep, k) = (j & 1u) ? q.z : q.x;
+        VLANE_R(alias, k) = (j & 1u) ? q.w : q.y;
+    }
+    vmask own = fys < keep;
+    vreal y0 = VSEL(alias, jy, own);
+    vreal fy = VSEL(fys - keep, fys, own) / VSEL(R(1) - keep, keep, own);
+#pragma unroll
+    for (int k = 0; k < CLPT_LANES; k++) {
+        uint j = w * (uint)VLANE_R(y0, k) + (uint)VLANE_R(jx, k);
+        real4 q = scene_rec(sc, rows + j / ENVA_ENTRIES);
+        VLANE_R(keep, k) = (j & 1u) ? q.z : q.x;
+        VLANE_R(alias, k) = (j & 1u) ? q.w : q.y;
+    }
+    own = fxs < keep;
+    vreal x0 = VSEL(alias, jx, own);
+    vreal fx = VSEL(fxs - keep, fxs, own) / VSEL(R(1) - keep, keep, own);
+    V3 Le = v3_zero();
+    vreal cell = (vreal)R(0);
+#pragma unroll
+    for (int k = 0; k < CLPT_LANES; k++) {
+        real4 t = env_texels(sc, base, w, (uint)VLANE_R(x0, k), (uint)VLANE_R(y0, k), VLANE_R(fx, k), VLANE_R(fy, k),
+                             &VLANE_R(cell, k));
         VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
     }
+    vreal gx = x0 + fx, gy = y0 + fy;
+    Le = v3_sel(v3_zero(), Le, m);
+    cell = VSEL((vreal)R(0), cell, m);
     vreal phi = (gx + R(0.5)) * (R(2 * M_PI) / (real)w);
     vreal theta = gy * (R(M_PI) / (real)(h - 1u));
-    vreal st = sin(theta), ct = cos(theta), sp = sin(phi), cp = cos(phi);
+    vreal ct, cp;
+    vreal st = env_sincos(theta, &ct), sp = env_sincos(phi, &cp);
     V3 l = v3(sp * st, ct, -cp * st);
     *d = v3(l.x * c0.x + l.y * c1.x + l.z * c2.x, l.x * c0.y + l.y * c1.y + l.z * c2.y,
             l.x * c0.z + l.y * c1.z + l.z * c2.z);

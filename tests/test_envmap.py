@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 
 import clpt
-from clpt.pack import env_cell_weights, pack_scene
+from clpt.pack import alias_rows, env_cell_weights, pack_scene
 from clpt.photons import PhotonSettings
 from clpt.scene import DirectionalLight, EnvironmentLight, Material, PointLight, Quad, SceneError, Sphere
 
@@ -178,6 +178,58 @@ def test_envmap_sampling_chi2_and_pdf(probes, lanes):
     w_light = pdf[ok] ** 2 / (pdf[ok] ** 2 + pb[ok] ** 2)
     w_bsdf = pb[ok] ** 2 / (pb[ok] ** 2 + pe[ok] ** 2)
     assert np.abs(w_light + w_bsdf - 1).max() < 5e-3
+
+
+def test_alias_rows_give_the_weights():
+    """Each row's alias table (pack.alias_rows, the envmap's sampling
+    tables) picks slot j with probability weight j over the row's sum:
+    skewed rows, rows with zeros, one positive entry, an all-zero row
+    (uniform) and a row of equal weights."""
+    rng = np.random.default_rng(3)
+    w = rng.random((6, 53)) ** 6
+    w[1, ::2] = 0
+    w[2] = 0
+    w[2, 17] = 4.0
+    w[3] = 0
+    w[4] = 1
+    w[5, :50] = 1e-9
+    prob, alias = alias_rows(w)
+    assert prob.shape == w.shape and ((prob >= 0) & (prob <= 1)).all() and ((alias >= 0) & (alias < 53)).all()
+    for r in range(len(w)):
+        got = prob[r].copy()
+        np.add.at(got, alias[r], 1 - prob[r])
+        want = w[r] / w[r].sum() if w[r].sum() > 0 else np.full(53, 1 / 53)
+        assert np.abs(got / 53 - want).max() < 1e-12, r
+        assert (got[w[r] == 0] == 0).all() or w[r].sum() == 0, r  # a zero weight is never given
+
+
+def test_envmap_samples_are_uniform_within_their_cells(probes):
+    """The fraction of a sample within its cell (what the alias choices
+    leave of u1 and u2, rescaled) is uniform: 4 x 4 sub-cells of every cell
+    get a sixteenth of its probability each (chi-square), the sun's cells
+    (the most sampled, their slots kept or given away) included."""
+    img = sun_map()
+    h, w = img.shape[:2]
+    packed = pack_scene(_env_scene(img))
+    n = 300_000
+    u = np.random.default_rng(17).random((3, n))
+    x = np.zeros((n, 3))
+    probe = probes(8)
+    wx, wy, wz, *_, valid = probe.run("probe_light_sample", [x[:, 0], x[:, 1], x[:, 2], u[0], u[1], u[2]], 7,
+                                      prefix=probe.scene_args(packed))
+    assert valid.all()
+    loc = np.stack([wx, wy, wz], axis=1).astype(np.float64) @ np.asarray(ROT)
+    gu = np.arctan2(loc[:, 0], -loc[:, 2]) / (2 * np.pi) - 0.5 / w
+    gx = (gu - np.floor(gu)) * w
+    gy = np.arccos(np.clip(loc[:, 1], -1, 1)) / np.pi * (h - 1)
+    cx, cy = np.minimum(gx.astype(int), w - 1), np.minimum(gy.astype(int), h - 2)
+    sx = np.minimum(((gx - cx) * 4).astype(int), 3)
+    sy = np.minimum(((gy - cy) * 4).astype(int), 3)
+    bins = (cx + w * cy) * 16 + sx + 4 * sy
+    weights = env_cell_weights(img).reshape(-1)
+    expected = np.repeat(n * weights / weights.sum() / 16, 16)
+    p, stat, dof = chi2_test(np.bincount(bins, minlength=expected.size), expected)
+    assert dof > 100 and p > ALPHA, (p, stat, dof)
 
 
 def test_escape_pdf_integrates_to_one(probes):

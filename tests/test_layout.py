@@ -138,7 +138,7 @@ def test_reordered_fields_render_the_same_image(device_spec, monkeypatch, scene)
     anisotropic lobes' tangents included)."""
     ref = clpt.Renderer(scene, device=device_spec, aux=True).render(2, width=16, height=16)
     for name in ("MATERIAL", "SPHERE", "PLANAR", "PLANE", "LIGHT", "CAUSTIC", "BVH_NODE", "BVH_LEAF", "NORMALS",
-                 "LIGHT_TRI", "TEXTURE_SLOTS", "TEXTURE", "UV", "TANGENT", "ENV_TEXEL", "ENV_PACKED", "SCENE_INFO", "CAMERA",
+                 "LIGHT_TRI", "TEXTURE_SLOTS", "TEXTURE", "UV", "TANGENT", "ENV_TEXEL", "ENV_ALIAS", "SCENE_INFO", "CAMERA",
                  "PHOTON_LOOKUP", "TRACE_LAUNCH", "PHOTON_LAUNCH"):
         monkeypatch.setattr(layout, name, _reversed(getattr(layout, name)))
     assert "#define MAT_ANISO 0" in layout.c_source()  # the last field first
