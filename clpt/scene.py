@@ -41,6 +41,8 @@ TEXTURE_SLOTS = ("reflectance", "specular", "alpha", "transmittance")
 # An area light's radiance varying over its surface by (u, v): the light's own slot (its LIGHT record
 # points to the texture; the material's texture slots above are the BSDF's).
 EMISSION_SLOT = "emission"
+# The start of the error a scene without any light fails with (scene.check).
+NO_LIGHT = "the scene has no light"
 # A planar primitive's default (u, v): the corner's, and its change along
 # edge_u and along edge_v (a triangle's: its barycentrics of v1 and v2, as
 # Mitsuba gives a mesh without texture coordinates).
@@ -1228,7 +1230,7 @@ def check_scene(scene: Scene):
     if not math.isfinite(power):
         _fail(src, "shapes", "the lights' total power overflows; lower their emission or size")
     if power <= 0.0:
-        _fail(src, "shapes", "the scene has no light: give at least one shape (quad, triangle, sphere, "
+        _fail(src, "shapes", f"{NO_LIGHT}: give at least one shape (quad, triangle, sphere, "
                              "box or mesh) a positive emission, or add a point, spot, directional or environment light")
 
 
