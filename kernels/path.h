@@ -38,7 +38,10 @@
 //     along an owned path is not added. With gather, x gathers in every
 //     sample (online); without, a per-pixel caustic buffer the host adds
 //     does (offline). stop_at_x is the offline pre-pass: follow the camera
-//     path to x, gather there, and stop.
+//     path to x, gather there, and stop. Past x, the vertices with a
+//     non-delta part gather the delta lights' photons alone: path tracing
+//     cannot make the paths that end on those lights (caustics seen after a
+//     diffuse bounce).
 
 // Where a path stands relative to the photon map's paths (owns).
 #define OWN_BEFORE_X 0  // no vertex with a non-delta part yet
@@ -221,6 +224,20 @@ inline void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState 
     }
     if (pl->stop_at_x)  // (a path whose first non-delta vertex is not x has nothing to gather either)
         *go = *go && !first_nd;
+#if CLPT_HAS_DELTA_LIGHTS
+    // An owned map past x: the paths ... y D S+ L that end on a delta light
+    // (point, spot, directional) are neither the map's (it owns those
+    // through x) nor path tracing's (no ray hits such a light): at every
+    // later vertex y with a mergeable non-delta part, the map's delta-light
+    // photons (pf = inf) count whole, as a merge gives them whole.
+    vmask past_x = *go && v->nondelta && material_mergeable(&v->m) && !v->at_x;
+    if (pl->owns && VANY(past_x)) {
+        vreal m2;
+        V3 Ld = photon_gather(pm, &v->m, v->pr, v->x, v->n, ps->d, sample_merge(sp, ps->depth), past_x, 2,
+                              max_depth - ps->depth - R(1), v3_zero(), &m2);
+        ps->L = v3_sel(ps->L, v3_add(ps->L, v3_mul(ps->beta, Ld)), past_x);
+    }
+#endif
     v->merge_here = *go && v->nondelta && material_mergeable(&v->m) && ps->nd_count < (real)pl->merge_vertices;
     if (pl->merge && VANY(v->merge_here)) {
         vreal u = sample_merge(sp, ps->depth);
