@@ -89,7 +89,8 @@ class Material:
     ALPHA_RANGE; alpha holds its mean). "emission" varies an area light's
     radiance (Mitsuba 3's textured `area` emitter: the texture's value at the
     point's (u, v)); emission then holds the texture's largest value per
-    channel, and the light is picked by the texture's mean times its area.
+    channel, and the light is picked by the texture's mean over its surface
+    by area (clpt.texture surface_mean_*) times its area.
     alpha_v: a rough conductor's or rough dielectric's roughness along the
     shading frame's bitangent, alpha then being its roughness along the
     tangent (Mitsuba's alpha_u), the surface's dp/du as Mitsuba's shapes
@@ -219,7 +220,8 @@ class Material:
     @property
     def mean_emission(self) -> tuple:
         """The emission's mean over the surface's texture space: a textured
-        emitter's texture mean (what light selection by power uses), else emission."""
+        emitter's texture mean over texture space, else emission (light
+        selection by power uses the mean over the surface by area: clpt.pack)."""
         t = self.texture(EMISSION_SLOT)
         return t.mean() if t is not None else tuple(self.emission)
 
