@@ -1,13 +1,15 @@
 """The photon map's own modes (it owns the paths E S* x D S+ L through the
 first non-delta vertex x: online, progressive online, offline with its
-caustic buffer) under delta lights (point, spot, directional), whose
-caustics path tracing cannot make at all.
+caustic buffer), and merging at the first non-delta vertex only, under
+delta lights (point, spot, directional), whose caustics path tracing cannot
+make at all.
 
-Past x, the paths ... y D S+ L that end on a delta light (a caustic seen
-after a diffuse bounce) are no one's unless the map gathers the delta
-lights' photons at y too (kernels/path.h path_photons): without that the
-owned modes came out 0.2% (directional) to 1.2% (spot) darker than merging
-on the scene below, 4 to 6 standard errors of the image mean.
+Past x (past the merging vertices), the paths ... y D S+ L that end on a
+delta light (a caustic seen after a diffuse bounce) are no one's unless
+the map gathers the delta lights' photons at y too (kernels/path.h
+path_photons): without that these modes came out 0.16% (directional) to
+1.2% (spot) darker than merging at every vertex on the scene below, 2.4 to
+4.8 standard errors of the image mean.
 
 The reference is photon merging (the default mode: every non-delta vertex
 merges, delta lights' photons whole), progressive so that its radius
@@ -35,7 +37,9 @@ LIGHTS = {"point": lambda: PointLight(position=(0.3, 2.0, 0.2), intensity=(3, 3,
           "directional": lambda: DirectionalLight(direction=(-0.2, -1, -0.3), irradiance=(1, 1, 1))}
 # Online: a fresh map every 4 samples per pixel; offline: one map, its caustic buffer gathered in every sample.
 MODES = {"online progressive": PhotonSettings(mode="online", progressive=True, spp_per_map=4, count=20000),
-         "offline": PhotonSettings(mode="offline", offline_spp=256, count=200000)}
+         "offline": PhotonSettings(mode="offline", offline_spp=256, count=200000),
+         # Merging at the first non-delta vertex only (the other vertices gather delta lights' photons alone).
+         "merge first vertex": PhotonSettings(merge_vertices=1, spp_per_map=4, count=20000)}
 
 
 def _scene(light):
