@@ -26,7 +26,7 @@ import numpy as np
 
 from .scene import (ALPHA_RANGE, DISTRIBUTIONS, FILTER_MAX_RADIUS, Camera, Material, Mesh, PixelFilter, PointLight, Quad,
                     RenderSettings, Scene, SceneError, SceneWarning, Sphere, SpotLight, _suggest, read_file_bytes)
-from .scene import EMISSION_SLOT, DirectionalLight, EnvironmentLight
+from .scene import EMISSION_SLOT, NO_LIGHT, DirectionalLight, EnvironmentLight
 from .errors import ImageError
 from .image import load_image
 from .meshio import read_mesh_uv, transform_mesh, vertex_normals
@@ -54,6 +54,8 @@ NEGATIVE_LOBED_FILTERS = ("mitchell", "catmullrom", "lanczos")
 # fan keeps the disk's area, and so a light's power).
 DISK_SEGMENTS = 96
 
+# Mitsuba's sun and sky emitters (3: sunsky; 0.6: sky, sun and sunsky), which clpt does not implement.
+SKY_EMITTERS = ("sunsky", "sky", "sun")
 OBJECT_TAGS = ("scene", "shape", "bsdf", "emitter", "sensor", "film", "sampler", "integrator", "texture",
                "rfilter", "medium", "phase", "volume")
 PROPERTY_TAGS = ("float", "integer", "boolean", "string", "rgb", "spectrum", "point", "vector", "transform", "ref")
@@ -576,6 +578,7 @@ class _Loader:
         self.ids: dict = {}
         self.materials: dict = {}  # id(bsdf node) -> Material, each BSDF mapped once
         self.warned: dict = {}
+        self.left_out_emitters: list = []  # nodes of the top-level emitters left out (unsupported kinds)
         self.search_dirs = [path.parent]
         self.shown = shown
 
@@ -1405,6 +1408,14 @@ class _Loader:
         try:
             scene.check()
         except SceneError as e:
+            if self.left_out_emitters and NO_LIGHT in str(e):
+                # The scene's only lights were of kinds clpt lacks (a sun and sky, most often): say
+                # which, in one line, rather than that the scene is dark.
+                n = self.left_out_emitters[0]
+                t = n.attrs.get("type", "?")
+                what = " (Mitsuba's sun and sky models are not implemented)" if t in SKY_EMITTERS else ""
+                n.fail(f"emitter '{t}' is not supported{what}, and the scene has no other light "
+                       f"(clpt renders area, point, spot, directional, envmap and constant emitters)")
             raise SceneError(f"{e} (after import from Mitsuba XML)") from None
         return scene
 
@@ -1414,6 +1425,7 @@ class _Loader:
         p = self.props(node)
         t = p.type
         if t not in ("point", "spot", "directional", "envmap", "constant"):
+            self.left_out_emitters.append(node)
             self.warn(node, f"emitter '{t}' is not supported (only area emitters on shapes, point, spot, directional, "
                             "envmap and constant); left out", key=("emitter", t))
             return

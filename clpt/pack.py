@@ -31,7 +31,7 @@ from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KI
 from .meshio import cross_rows
 from .scene import (DEFAULT_UV, EMISSION_SLOT, TEXTURE_SLOTS, Camera, EnvironmentLight, Material, Scene,
                     SceneError, Sphere, SpotLight, length_scale)
-from .texture import FILTERS, KINDS, WRAP_MODES
+from .texture import FILTERS, KINDS, WRAP_MODES, surface_mean_planar, surface_mean_sphere
 
 # Records are referred to as layout.NAME where they are filled (a test reorders their fields).
 MAT_STRIDE = layout.MATERIAL.stride
@@ -475,6 +475,7 @@ class _Builder:
         self.planes = []    # (point, unit normal, material id, prim id)
         self.lights = []    # (sides, area, material, LIGHT fields {name: row}, material id, LIGHT_TRI records or None)
         self.delta_power = {}  # light index -> power of a point or spot light (area lights: pi area Le sides)
+        self.surface_mean = {}  # light index -> a textured area light's radiance, its mean over the surface by area
         self.infinite = []  # (directional or environment light, material): packed after every other light
         self.n_prims = 0    # every primitive, planes included, has an id
         self.n_bounded = 0
@@ -510,6 +511,9 @@ class _Builder:
             self.tangents.append(rec)
         self.bounds.append((c[None] - p.radius, c[None] + p.radius))
         if m.is_emissive:
+            tex = m.texture(EMISSION_SLOT)
+            if tex is not None:
+                self.surface_mean[len(self.lights)] = surface_mean_sphere(tex)
             self.lights.append((_sides(m), p.area(), m, {"p_kind": (*c, LIGHT_KIND_SPHERE),
                                                          "u": (p.radius, 0.0, 0.0, 0.0),
                                                          "tex": (0.0, prim, 0.0, 0.0)}, mid, None))
@@ -529,6 +533,9 @@ class _Builder:
         self.bounds.append((pts.min(0)[None], pts.max(0)[None]))
         area = float(ln[0]) * (0.5 if triangle else 1.0)
         if light and m.is_emissive:
+            tex = m.texture(EMISSION_SLOT)
+            if tex is not None:
+                self.surface_mean[len(self.lights)] = surface_mean_planar(tex, uv, [area], triangle)
             self.lights.append((_sides(m), area, m, {"p_kind": (*c, kind), "u": (*u, 0.0), "v": (*v, 0.0),
                                                      "n": (*n[0], 0.0), "tex": (0.0, prim[0], 0.0, 0.0)}, mid, None))
 
@@ -616,6 +623,13 @@ class _Builder:
             tris["p_alias"][:, :3], tris["p_alias"][:, 3] = v0, alias
             tris["u_prob"][:, :3], tris["u_prob"][:, 3] = u, prob
             tris["v"][:, :3] = w
+            tex = m.texture(EMISSION_SLOT)
+            if tex is not None:
+                uvs = DEFAULT_UV
+                if p.uvs is not None:
+                    t0 = p.uvs[t[:, 0]]
+                    uvs = np.stack([t0, p.uvs[t[:, 1]] - t0, p.uvs[t[:, 2]] - t0], axis=1)
+                self.surface_mean[len(self.lights)] = surface_mean_planar(tex, uvs, areas, True)
             # u.xy of the light record: first triangle record (set on layout), count.
             self.lights.append((_sides(m), float(areas.sum()), m,
                                 {"p_kind": (0.0, 0.0, 0.0, LIGHT_KIND_MESH), "u": (0.0, float(len(t)), 0.0, 0.0),
@@ -707,8 +721,10 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     # times its mean radiance over directions, the power that crosses the
     # bounding sphere inwards.
     lights = b.lights
-    # A textured emitter's: its texture's mean (over texture space) for Le.
-    powers = np.array([b.delta_power[k] if k in b.delta_power else sides * math.pi * area * float(np.mean(m.mean_emission))
+    # A textured emitter's: its radiance's mean over its surface by area
+    # (clpt.texture surface_mean_sphere, surface_mean_planar) for Le.
+    powers = np.array([b.delta_power[k] if k in b.delta_power else
+                       sides * math.pi * area * float(np.mean(b.surface_mean.get(k, m.mean_emission)))
                        for k, (sides, area, m, *_) in enumerate(lights)])
     probs = powers / powers.sum()
     # Walker's alias table over them: light j's record keeps slot j's

@@ -41,6 +41,8 @@ TEXTURE_SLOTS = ("reflectance", "specular", "alpha", "transmittance")
 # An area light's radiance varying over its surface by (u, v): the light's own slot (its LIGHT record
 # points to the texture; the material's texture slots above are the BSDF's).
 EMISSION_SLOT = "emission"
+# The start of the error a scene without any light fails with (scene.check).
+NO_LIGHT = "the scene has no light"
 # A planar primitive's default (u, v): the corner's, and its change along
 # edge_u and along edge_v (a triangle's: its barycentrics of v1 and v2, as
 # Mitsuba gives a mesh without texture coordinates).
@@ -87,7 +89,8 @@ class Material:
     ALPHA_RANGE; alpha holds its mean). "emission" varies an area light's
     radiance (Mitsuba 3's textured `area` emitter: the texture's value at the
     point's (u, v)); emission then holds the texture's largest value per
-    channel, and the light is picked by the texture's mean times its area.
+    channel, and the light is picked by the texture's mean over its surface
+    by area (clpt.texture surface_mean_*) times its area.
     alpha_v: a rough conductor's or rough dielectric's roughness along the
     shading frame's bitangent, alpha then being its roughness along the
     tangent (Mitsuba's alpha_u), the surface's dp/du as Mitsuba's shapes
@@ -217,7 +220,8 @@ class Material:
     @property
     def mean_emission(self) -> tuple:
         """The emission's mean over the surface's texture space: a textured
-        emitter's texture mean (what light selection by power uses), else emission."""
+        emitter's texture mean over texture space, else emission (light
+        selection by power uses the mean over the surface by area: clpt.pack)."""
         t = self.texture(EMISSION_SLOT)
         return t.mean() if t is not None else tuple(self.emission)
 
@@ -1228,7 +1232,7 @@ def check_scene(scene: Scene):
     if not math.isfinite(power):
         _fail(src, "shapes", "the lights' total power overflows; lower their emission or size")
     if power <= 0.0:
-        _fail(src, "shapes", "the scene has no light: give at least one shape (quad, triangle, sphere, "
+        _fail(src, "shapes", f"{NO_LIGHT}: give at least one shape (quad, triangle, sphere, "
                              "box or mesh) a positive emission, or add a point, spot, directional or environment light")
 
 

@@ -20,6 +20,7 @@ texture.h reads 3 reals a texel from the scene's records).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -139,6 +140,77 @@ class Texture:
         i0, i1 = wrap_index(x0, w, self.wrap), wrap_index(x0 + 1, w, self.wrap)
         j0, j1 = wrap_index(y0, h, self.wrap), wrap_index(y0 + 1, h, self.wrap)
         return (1 - fy) * ((1 - fx) * d[j0, i0] + fx * d[j0, i1]) + fy * ((1 - fx) * d[j1, i0] + fx * d[j1, i1])
+
+
+# The most texture lookups one emitter's surface mean makes (surface_mean_sphere, surface_mean_planar).
+MEAN_LOOKUPS = 1 << 20
+_MEAN_CHUNK = 1 << 16
+
+
+def _texels_per_unit(tex: Texture) -> float:
+    """The most texels (a checkerboard's squares) one unit of surface (u, v) spans along u or v."""
+    res = max(tex.data.shape[:2]) if tex.kind == "bitmap" else 2
+    a = np.abs(np.asarray(tex.to_uv, dtype=np.float64)[:, :2])
+    return float(res * a.sum(axis=0).max())
+
+
+def _eval_mean(tex: Texture, uv: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """sum(weights * tex(uv)) / sum(weights) over points uv (N, 2), in chunks."""
+    acc = np.zeros(3)
+    for i in range(0, len(uv), _MEAN_CHUNK):
+        acc += weights[i:i + _MEAN_CHUNK] @ tex.eval(uv[i:i + _MEAN_CHUNK])
+    return acc / weights.sum()
+
+
+def surface_mean_sphere(tex: Texture) -> tuple:
+    """The mean of tex over a sphere by area, (u, v) = (phi / 2 pi, theta /
+    pi) in its own frame (Sphere), where the area element is sin(pi v) du dv:
+    the midpoint rule on a (u, v) grid of at least 8 points per texel row
+    and 4 per texel column (at most MEAN_LOOKUPS in all), each row weighted
+    by sin(pi v). Texture.mean weighs the rows alike, which overweights the
+    poles' texels."""
+    s = _texels_per_unit(tex)
+    nv = int(np.clip(math.ceil(8 * s), 64, 4096))
+    nu = int(np.clip(math.ceil(4 * s), 16, max(16, MEAN_LOOKUPS // nv)))
+    u = (np.arange(nu) + 0.5) / nu
+    v = (np.arange(nv) + 0.5) / nv
+    uv = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2)
+    w = np.repeat(np.sin(np.pi * v), nu)
+    return tuple(float(x) for x in _eval_mean(tex, uv, w))
+
+
+def surface_mean_planar(tex: Texture, uv, areas, triangle: bool) -> tuple:
+    """The mean of tex by area over planar primitives (quads or triangles)
+    with areas (M,) and (u, v) maps uv (M, 3, 2) or (3, 2): the corner's,
+    the change along edge u and along edge v. Within one primitive (u, v) is
+    affine in its edge coordinates, so uniform by area is uniform over its
+    (u, v) footprint: the midpoint rule on k x k equal cells (a triangle's:
+    the centroids of its k^2 equal sub-triangles), k giving about 4 points
+    per texel across the largest footprint (at most MEAN_LOOKUPS in all);
+    the primitives' means weighted by their areas."""
+    areas = np.asarray(areas, dtype=np.float64).reshape(-1)
+    m = len(areas)
+    uv = np.broadcast_to(np.asarray(uv, dtype=np.float64), (m, 3, 2))
+    extent = float((np.abs(uv[:, 1]) + np.abs(uv[:, 2])).max()) if m else 0.0
+    k = int(np.clip(math.ceil(4 * extent * _texels_per_unit(tex)), 1,
+                    max(1, int(math.isqrt(max(1, MEAN_LOOKUPS // max(m, 1)))))))
+    i, j = np.meshgrid(np.arange(k), np.arange(k), indexing="ij")
+    i, j = i.reshape(-1), j.reshape(-1)
+    if triangle:  # the sub-triangles pointing up (i + j < k) and down (i + j < k - 1)
+        up, down = i + j < k, i + j < k - 1
+        bu = np.concatenate([(i[up] + 1 / 3) / k, (i[down] + 2 / 3) / k])
+        bv = np.concatenate([(j[up] + 1 / 3) / k, (j[down] + 2 / 3) / k])
+    else:
+        bu, bv = (i + 0.5) / k, (j + 0.5) / k
+    n = len(bu)
+    acc = np.zeros(3)
+    step = max(1, _MEAN_CHUNK // n)
+    for a in range(0, m, step):
+        q = uv[a:a + step]
+        pts = q[:, None, 0] + bu[None, :, None] * q[:, None, 1] + bv[None, :, None] * q[:, None, 2]
+        vals = tex.eval(pts.reshape(-1, 2)).reshape(len(q), n, 3).mean(axis=1)
+        acc += areas[a:a + step] @ vals
+    return tuple(float(x) for x in acc / max(areas.sum(), 1e-300))
 
 
 def wrap_index(i, n: int, mode: str) -> np.ndarray:

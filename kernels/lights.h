@@ -32,7 +32,8 @@
 // light_texture for light samples, for next event estimation and photon
 // emission alike (a photon leaves by area as before and carries Le(y), so
 // its flux Le(y) cos / pdf stays unbiased), texture.h emitter_textures_hit
-// for rays that hit it. It is picked by its texture's mean times its area.
+// for rays that hit it. It is picked by its radiance's mean over its surface
+// by area times its area (clpt/pack.py).
 // A new light kind is a case of light_point (and of light_pdf_hit, and of
 // the light records' packing in clpt/pack.py).
 

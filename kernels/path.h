@@ -39,6 +39,10 @@
 //     sample (online); without, a per-pixel caustic buffer the host adds
 //     does (offline). stop_at_x is the offline pre-pass: follow the camera
 //     path to x, gather there, and stop.
+//   Past x (owns), or past the first merge_vertices non-delta vertices
+//   (merge), the vertices with a non-delta part gather the delta lights'
+//   photons alone: path tracing cannot make the paths that end on those
+//   lights (caustics seen after a diffuse bounce).
 
 // Where a path stands relative to the photon map's paths (owns).
 #define OWN_BEFORE_X 0  // no vertex with a non-delta part yet
@@ -221,6 +225,7 @@ inline void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState 
     }
     if (pl->stop_at_x)  // (a path whose first non-delta vertex is not x has nothing to gather either)
         *go = *go && !first_nd;
+
     v->merge_here = *go && v->nondelta && material_mergeable(&v->m) && ps->nd_count < (real)pl->merge_vertices;
     if (pl->merge && VANY(v->merge_here)) {
         vreal u = sample_merge(sp, ps->depth);
@@ -254,6 +259,25 @@ inline void path_photons(const PhotonMap *pm, const PhotonLookup *pl, PathState 
 #endif
         }
     }
+#if CLPT_HAS_DELTA_LIGHTS
+    // The paths ... y D S+ L that end on a delta light (point, spot,
+    // directional) are path tracing's at no vertex (no ray hits such a
+    // light): where neither the gather at x nor a merge covers y (an owned
+    // map past x; merging past the first merge_vertices non-delta vertices),
+    // y's photons from delta lights (pf = inf) count whole, as a merge
+    // gives them whole.
+    vmask delta_only = *go && v->nondelta && material_mergeable(&v->m);
+    if (pl->owns)
+        delta_only = delta_only && !v->at_x;
+    else
+        delta_only = delta_only && ps->nd_count >= (real)pl->merge_vertices;
+    if ((pl->owns || pl->merge) && VANY(delta_only)) {
+        vreal m2;
+        V3 Ld = photon_gather(pm, &v->m, v->pr, v->x, v->n, ps->d, sample_merge(sp, ps->depth), delta_only, 2,
+                              max_depth - ps->depth - R(1), v3_zero(), &m2);
+        ps->L = v3_sel(ps->L, v3_add(ps->L, v3_mul(ps->beta, Ld)), delta_only);
+    }
+#endif
     ps->nd_count = VSEL(ps->nd_count, ps->nd_count + R(1), v->nondelta);
 }
 #endif

@@ -107,10 +107,11 @@ inline vmask photon_maybe(const PhotonMap *pm, V3 x, vmask active)
 // lobe ks, shininess: sum of w f flux / ((1 - 2/(3k)) pi r^2), with Jensen's
 // cone filter w = 1 - dist / (k r). Photons arriving from behind the surface
 // are left out, and so are photons of more than max_bounces specular
-// bounces (the path would be longer than the camera path may grow). With mis,
-// each photon is weighted against path tracing by the power heuristic: the
+// bounces (the path would be longer than the camera path may grow). With mis
+// 1, each photon is weighted against path tracing by the power heuristic: the
 // merge's pdf pf cos mis_k against the BSDF pdf (p_d cos / pi + p_s Phong pdf)
-// of the direction the photon came from. One query, in scalar code: each lane
+// of the direction the photon came from. With mis 2, only delta lights'
+// photons (pf = inf) count, whole (path.h: an owned map past x). One query, in scalar code: each lane
 // walks its own cells, so no lane waits for a denser neighbour.
 //
 // With pm->moments (builds with feature buffers: the pilot's trial,
@@ -198,6 +199,10 @@ INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3
                     if (pc.y != cell.y || pc.z != cell.z || pc.x < cell.x || pc.x > cell.x + 1)
                         continue;  // another cell's photon in these buckets
                     float4 dir = pm->dir[i];
+#if CLPT_HAS_DELTA_LIGHTS
+                    if (mis == 2 && !isinf(dir.w))
+                        continue;  // (delta lights' photons only)
+#endif
                     real3 w_in = REAL3(dir.xyz);
                     real cos_n = -dot(w_in, n);
                     if (cos_n <= R(0))
@@ -216,7 +221,7 @@ INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3
                     if (pm->moments)
                         *m2 += photon_moment(lw, kd, ks, shininess, lobe_s, REAL3(pm->pow[i].xyz) * w, weight, q);
 #endif
-                    if (mis) {
+                    if (mis == 1) {
                         real wm = R(1) / (R(1) + q * q);
                         w *= isnan(wm) ? R(0) : wm;
                     }

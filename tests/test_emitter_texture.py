@@ -11,6 +11,9 @@ bitmap or checkerboard texture, looked up at the emitting point's (u, v).
   (photon emission: the radiance at the photon's starting point).
 - The Mitsuba XML loader maps a textured `radiance` to the emission slot;
   scenes without textured emitters build without them.
+- A textured light's pick power is its radiance's mean over its surface by
+  area (a sphere map's rows weighted by sin(theta), a mesh's uneven (u, v)
+  map), as brute-force sampling of the surface finds it.
 - tests/data/cbox_textured_lights.xml against a stored Mitsuba 3 reference
   (tests/mitsuba_textured_lights.py made it).
 """
@@ -194,3 +197,85 @@ def test_textured_lights_box_renders_as_in_mitsuba(device_spec):
     res = clpt.Renderer(scene, device=device_spec, photons=False).render(spp=1024, seed=1)
     assert np.isfinite(res.image).all() and res.stats.nonfinite == 0
     stats.assert_matches_reference(res, REFERENCE)
+
+
+# --- a textured light's pick power: its radiance's mean over its surface by area ---------------------------------
+
+def _pole_texture():
+    """A sphere map bright in two rows near the pole (v = theta / pi small) over a dim rest: those rows are
+    1/16 of the texels but about 1% of the sphere's area."""
+    img = np.full((32, 64, 3), 0.2, np.float32)
+    img[1:3] = (40.0, 30.0, 20.0)
+    return Texture("bitmap", data=img)
+
+
+def _warped_mesh(n=6):
+    """The unit square as an n x n grid of triangle pairs with (u, v) = (x^2, y^3): texels cover unequal areas."""
+    x, y = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
+    v = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    k = lambda i, j: i * (n + 1) + j  # noqa: E731
+    tris = [t for i in range(n) for j in range(n)
+            for t in ([k(i, j), k(i + 1, j), k(i + 1, j + 1)], [k(i, j), k(i + 1, j + 1), k(i, j + 1)])]
+    return v, np.array(tris), np.stack([v[:, 0] ** 2, v[:, 1] ** 3], axis=1)
+
+
+def _mc_mean(vals):
+    """Mean and its standard error per channel of brute-force samples."""
+    return vals.mean(axis=0), vals.std(axis=0) / math.sqrt(len(vals))
+
+
+def _light_power(scene, k):
+    """Light k's pick probability over the others' power: the power the packed scene gives it."""
+    info = pack_scene(scene).section("lights")["info"]
+    return info[k, 1]
+
+
+def test_a_textured_spheres_power_is_its_radiance_averaged_by_area():
+    """Brute force: 2^21 directions uniform on the sphere (fixed seed), the texture looked up at their
+    (phi / 2 pi, theta / pi). The light's power (through its pick probability next to a plain quad
+    light) is pi times its area times that mean within 5 standard errors, where the texel mean
+    (each texel row alike) is hundreds of them off."""
+    tex = _pole_texture()
+    rng = np.random.default_rng(3)
+    d = rng.normal(size=(1 << 21, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    phi = np.mod(np.arctan2(d[:, 1], d[:, 0]), 2 * np.pi)
+    mean, err = _mc_mean(tex.eval(np.stack([phi / (2 * np.pi), np.arccos(d[:, 2]) / np.pi], axis=1)))
+    assert (np.abs(np.asarray(tex.mean()) - mean) > 200 * err).all()
+    ball = Sphere(center=(0, 0, 0), radius=0.5, material=_lamp(tex))
+    lamp = Quad(corner=(2, 0, 0), edge_u=(1, 0, 0), edge_v=(0, 1, 0), material=Material(emission=(1.0, 1.0, 1.0)))
+    cam = Camera(origin=(0, 0, 5), target=(0, 0, 0), width=8, height=8)
+    p = _light_power(Scene(camera=cam, shapes=[ball, lamp]), 0)
+    expect_ball = math.pi * math.pi * float(mean.mean())  # pi * area (pi for r = 1/2) * mean radiance
+    expect = expect_ball / (expect_ball + math.pi * 1.0)
+    tol = 5 * float(err.mean()) * math.pi * math.pi * math.pi / (expect_ball + math.pi) ** 2  # d expect / d mean
+    assert abs(p - expect) < tol, (p, expect, tol)
+
+
+def test_a_textured_meshs_power_is_its_radiance_averaged_by_area():
+    """As above on a mesh whose (u, v) = (x^2, y^3) crowds texels towards u, v = 0: brute force picks
+    2^20 points uniform by area (a triangle by area, uniform barycentrics), their (u, v)
+    interpolated; the packed power within 5 standard errors, the texel mean far off."""
+    texels = np.random.default_rng(12).uniform(0.1, 1.0, (8, 8, 3)).astype(np.float32)
+    texels[:2, :2] = 30.0  # bright where the map crowds texels into little area
+    tex = Texture("bitmap", data=texels, wrap="clamp")
+    v, t, uv = _warped_mesh()
+    mesh = Mesh(vertices=v, triangles=t, uvs=uv, material=_lamp(tex))
+    rng = np.random.default_rng(4)
+    n = 1 << 20
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    areas = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    k = rng.choice(len(t), size=n, p=areas / areas.sum())
+    s, r = np.sqrt(rng.random(n)), rng.random(n)
+    b1, b2 = s * (1 - r), s * r
+    u0 = uv[t[k, 0]]
+    pts = u0 + b1[:, None] * (uv[t[k, 1]] - u0) + b2[:, None] * (uv[t[k, 2]] - u0)
+    mean, err = _mc_mean(tex.eval(pts))
+    assert (np.abs(np.asarray(tex.mean()) - mean) > 100 * err).all()
+    lamp = Quad(corner=(2, 0, 0), edge_u=(1, 0, 0), edge_v=(0, 1, 0), material=Material(emission=(1.0, 1.0, 1.0)))
+    cam = Camera(origin=(0, 0, 5), target=(0, 0, 0), width=8, height=8)
+    p = _light_power(Scene(camera=cam, shapes=[mesh, lamp]), 0)
+    expect_mesh = math.pi * float(mean.mean())  # area 1
+    expect = expect_mesh / (expect_mesh + math.pi)
+    tol = 5 * float(err.mean()) * math.pi * math.pi / (expect_mesh + math.pi) ** 2
+    assert abs(p - expect) < tol, (p, expect, tol)

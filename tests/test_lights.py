@@ -199,6 +199,27 @@ def test_unsupported_emitters_still_warn(tmp_path):
     assert any("emitter 'sunsky' is not supported" in str(x.message) for x in w)
 
 
+@pytest.mark.parametrize("version, kind", [("3.0.0", "sunsky"), ("0.6.0", "sky"), ("0.6.0", "sun"), ("0.6.0", "sunsky")])
+def test_a_scene_lit_only_by_a_sun_or_sky_is_refused_naming_it(tmp_path, version, kind):
+    """Sun and sky models are not implemented: a scene whose only light is one fails in one line that
+    names the file, the line, the element and the plugin (not merely "no light")."""
+    p = tmp_path / "s.xml"
+    p.write_text(f'<scene version="{version}">\n<shape type="rectangle"><bsdf type="diffuse"/></shape>\n'
+                 f'<emitter type="{kind}"/>\n</scene>\n')
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(SceneError) as e:
+            clpt.load_scene(p)
+    msg = str(e.value)
+    assert msg.startswith(f'{p}:3: <emitter type="{kind}">: emitter \'{kind}\' is not supported'), msg
+    assert "sun and sky" in msg and "no other light" in msg and "\n" not in msg
+    # With another light the scene loads, the sky left out with a warning (test_unsupported_emitters_still_warn).
+    p.write_text(f'<scene version="{version}">\n<emitter type="point"/>\n<emitter type="{kind}"/>\n</scene>\n')
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert clpt.load_scene(p).check()
+
+
 @pytest.mark.parametrize("light, message", [
     (PointLight(position=(0, 0, math.inf)), "position"),
     (PointLight(intensity=(-1, 0, 0)), "intensity"),
