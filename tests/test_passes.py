@@ -6,6 +6,7 @@ job) and the tuning trial as a job of its own."""
 
 import math
 import re
+from pathlib import Path
 from functools import partial
 
 import numpy as np
@@ -197,6 +198,26 @@ def test_the_pilot_is_a_photons_item_of_the_render_job(device_spec):
     settings, info = pilot_choice(job.photons, pm["power"], r.packed.max_flux, pm["stored"], 0.0)
     assert info["caustic_share"] == pilot["caustic_share"] and info["stored"] == pilot["stored"]
     assert settings.count == job.photons.count and not settings.pilot
+
+
+def test_a_path_tracing_choice_renders_with_the_build_without_photons(device_spec):
+    """Where the pilot chooses path tracing (caustic photons carry under
+    min_caustic_share of the power), the render runs on a build without the
+    photon map's code: the image photons=False gives, bit for bit, and the
+    result's kernel says so."""
+    scene = str(Path(__file__).parent / "data" / "many_lights_glass.xml")
+    r = clpt.Renderer(scene, device=device_spec)
+    assert r.features.photons
+    res = r.render(2, width=16, height=12, seed=5)
+    pilot = res.stats.photon_pilot
+    assert pilot["choice"] == "path tracing" and 0 < pilot["caustic_share"] < PhotonSettings().min_caustic_share
+    assert not res.features.photons and res.photons is None
+    plain = clpt.Renderer(scene, device=device_spec, photons=False).render(2, width=16, height=12, seed=5)
+    assert np.array_equal(res.image, plain.image) and np.array_equal(res.lum_var, plain.lum_var)
+    # A share above the threshold merges, on the photon build.
+    low = r.render(2, width=16, height=12, seed=5, photons=PhotonSettings(min_caustic_share=1e-4))
+    assert low.stats.photon_pilot["choice"] == "photon merging" and low.features.photons
+    assert not np.array_equal(low.image, plain.image)
 
 
 def test_the_tuning_trial_renders_a_job_on_one_worker(device_spec):
