@@ -708,6 +708,24 @@ CLPT_INLINE void sphere_lights_sample_at(const Scene *sc, V3 x, LightU u, vreal 
 }
 #endif
 
+// A LightSample with nothing drawn yet: every lane invalid, every field 0.
+CLPT_INLINE void light_sample_clear(LightSample *ls)
+{
+    ls->p = ls->n = ls->Le = ls->wi = v3_zero();
+    ls->dist = ls->pdf = ls->pdf_area = ls->err = (vreal)R(0);
+    ls->two_sided = ls->valid = ls->pdf != ls->pdf;
+#if CLPT_HAS_DELTA_LIGHTS
+    ls->delta = ls->valid;
+    ls->cos_cut = ls->cut = ls->inv_tr = ls->cos_beam = (vreal)R(0);
+#endif
+#if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
+    ls->parallel = ls->valid;
+#endif
+#if CLPT_HAS_ENV_LIGHT
+    ls->env_disk = ls->valid;
+#endif
+}
+
 // A light picked by power and a point on it, for the lanes in active, into *out. With at_x (a
 // constant where this is inlined), as seen from the shading point x, for
 // next event estimation: wi, dist, the solid-angle pdf and validity are
@@ -717,19 +735,7 @@ CLPT_INLINE void sphere_lights_sample_at(const Scene *sc, V3 x, LightU u, vreal 
 CLPT_INLINE void light_sample(const Scene *sc, V3 x, LightU u, int at_x, vmask active, LightSample *out)
 {
     LightSample ls;
-    ls.p = ls.n = ls.Le = ls.wi = v3_zero();
-    ls.dist = ls.pdf = ls.pdf_area = ls.err = (vreal)R(0);
-    ls.two_sided = ls.valid = ls.pdf != ls.pdf;
-#if CLPT_HAS_DELTA_LIGHTS
-    ls.delta = ls.valid;
-    ls.cos_cut = ls.cut = ls.inv_tr = ls.cos_beam = (vreal)R(0);
-#endif
-#if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
-    ls.parallel = ls.valid;
-#endif
-#if CLPT_HAS_ENV_LIGHT
-    ls.env_disk = ls.valid;
-#endif
+    light_sample_clear(&ls);
     vreal li = VSEL((vreal)R(INFINITY), light_pick_index(sc, u.pick), active);  // only the active lanes pick
     uint i, r;
     vmask pick;

@@ -150,6 +150,24 @@ inline real cone_kappa(real k)
 }
 #endif
 
+// The photons of the row of two cells starting at cell: [*s0, *e0) and
+// [*s1, *e1) (buckets b, b+1 hold the row; the last may wrap to bucket 0,
+// and then the second range holds its part). Returns how many of the two
+// buckets lie before the wrap.
+INLINE_VEC3 uint grid_row_range(const PhotonMap *pm, int3 cell, uint *s0, uint *e0, uint *s1, uint *e1)
+{
+    uint b = grid_bucket(cell, pm->mask);
+    uint n_first = min(2u, pm->mask + 1u - b);
+    *s0 = pm->bucket_start[b];
+    *e0 = pm->bucket_start[b + n_first];
+    *s1 = *e1 = 0u;
+    if (n_first < 2u) {
+        *s1 = pm->bucket_start[0];
+        *e1 = pm->bucket_start[2u - n_first];
+    }
+    return n_first;
+}
+
 INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, real3 kd, real3 ks, real shininess,
                                     real u, real p_d, real p_s, int mis, real max_bounces, real3 lw, real *m2)
 {
@@ -165,15 +183,8 @@ INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3
     for (int dz = 0; dz <= 1; dz++) {
         for (int dy = 0; dy <= 1; dy++) {
             int3 cell = base + (int3)(0, dy, dz);  // first cell of the row
-            uint b = grid_bucket(cell, pm->mask);
-            // Buckets b, b+1 hold the row; the last may wrap to bucket 0.
-            uint n_first = min(2u, pm->mask + 1u - b);
-            uint s0 = pm->bucket_start[b], e0 = pm->bucket_start[b + n_first];
-            uint s1 = 0u, e1 = 0u;
-            if (n_first < 2u) {
-                s1 = pm->bucket_start[0];
-                e1 = pm->bucket_start[2u - n_first];
-            }
+            uint s0, e0, s1, e1;
+            uint n_first = grid_row_range(pm, cell, &s0, &e0, &s1, &e1);
             uint count = (e0 - s0) + (e1 - s1);
             if (count == 0u)
                 continue;
