@@ -29,6 +29,6 @@ r = clpt.Renderer(scene, device=DEVICE)
 t1 = time.perf_counter()
 res = r.render(16, seed=1)
 t2 = time.perf_counter()
-print(f"{W}x{H} on {DEVICE}: scene+Renderer {t1 - t:.1f} s, first render (build+pack+16 spp) {t2 - t1:.1f} s, "
+print(f"{W}x{H} on {DEVICE}: scene and Renderer (packing, build) {t1 - t:.1f} s, render (16 spp) {t2 - t1:.1f} s, "
       f"peak host RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20:.2f} GiB, mean {float(res.image.mean()):.4g}, "
       f"finite {bool(np.isfinite(res.image).all())}")
