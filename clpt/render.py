@@ -265,8 +265,7 @@ class Renderer:
         chooses between photon merging and path tracing from it
         (photons.pilot_choice); else the job as it is."""
         pset = job.photons
-        if not (pset is not None and pset.pilot and pset.mode == "merge" and pset.count > 0
-                and job.adaptive is None):
+        if not (pset is not None and pset.pilot and pset.mode == "merge" and pset.count > 0):
             return job, None, 0.0
         t0 = time.perf_counter()
         res = run_item(executor, job, WorkItem("photons", iteration=0))

@@ -214,6 +214,13 @@ def test_a_path_tracing_choice_renders_with_the_build_without_photons(device_spe
     assert not res.features.photons and res.photons is None
     plain = clpt.Renderer(scene, device=device_spec, photons=False).render(2, width=16, height=12, seed=5)
     assert np.array_equal(res.image, plain.image) and np.array_equal(res.lum_var, plain.lum_var)
+    # Adaptive renders ask the pilot too.
+    ad = clpt.AdaptiveSettings(min_spp=2, pass_spp=2, threshold=0.05)
+    res = r.render(6, width=16, height=12, seed=5, adaptive=ad)
+    plain = clpt.Renderer(scene, device=device_spec, photons=False).render(6, width=16, height=12, seed=5,
+                                                                            adaptive=ad)
+    assert res.stats.photon_pilot["choice"] == "path tracing" and not res.features.photons
+    assert np.array_equal(res.image, plain.image) and np.array_equal(res.sample_count, plain.sample_count)
     # A share above the threshold merges, on the photon build.
     low = r.render(2, width=16, height=12, seed=5, photons=PhotonSettings(min_caustic_share=1e-4))
     assert low.stats.photon_pilot["choice"] == "photon merging" and low.features.photons

@@ -539,7 +539,9 @@ def run_bench_photons(a) -> int:
           f" us/sample: the gather costs {gather['gather_us_per_sample']:.3f} us/sample")
     if a.equal_time:
         et = result["equal_time"]
-        print(f"equal-time relMSE against the path-traced reference ({et['caustic_pixels']} caustic pixels):")
+        ref = (f"the reference {a.reference}" if a.reference and os.path.exists(a.reference)
+               else f"a path-traced reference of {a.ref_spp} spp")  # (a given one may be made another way)
+        print(f"equal-time relMSE against {ref} ({et['caustic_pixels']} caustic pixels):")
         base = {}
         for run in et["runs"]:
             if run["method"] == "path tracing":
