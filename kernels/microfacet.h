@@ -152,9 +152,12 @@ inline void mf_sample_slopes(vreal ci, vreal u1, vreal u2, vmask beckmann, vreal
     // pbrt-v3's iteration: a lane stops where its CDF is within 1e-5 of ux
     // (its slope the erfinv just taken), the loop once every lane has, or
     // after 9 steps. Each lane's result is its own, whatever its neighbours do.
+    // Lanes seen from below or at grazing (ci <= 0, or NaN: directions their
+    // callers discard) start done too: their CDF is NaN, and they would
+    // otherwise hold every lane of the vector through all 9 steps.
     vmask normal = ci > R(0.9999);
     vreal bx = (vreal)R(0);
-    vmask done = !beckmann || normal;
+    vmask done = !beckmann || normal || !(ci > R(0));
     for (int it = 0; it < 9; it++) {
         b = VSEL(R(0.5) * (a + c), b, b >= a && b <= c);
         vreal ie = mf_erfinv(b);
