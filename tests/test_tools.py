@@ -176,3 +176,20 @@ def test_denoise_bench_regions_find_the_balls_the_caustic_and_the_lamps_reflecti
         assert not (m["lamp reflections"] & ~(m["glass ball"] | m["mirror ball"])).any()
     for k, e in region_errors(ref, ref, m).items():
         assert e["relmse"] == 0 and e["energy"] == pytest.approx(1.0), k
+
+
+def test_equal_cpu_time_runs_fill_their_budget(tmp_path, device_spec):
+    """bench-photons --cpu-time: each method's render uses its CPU budget
+    (within the 10% the bench allows before it renders again rescaled, plus
+    a margin for a machine shared with other work), whatever its cost per
+    sample does over a render; path tracing and merging on the caustics box."""
+    from clpt.tools.bench import caustic_equal_time
+
+    out = caustic_equal_time("cornell_box_caustics", device=device_spec, width=16, height=16, seconds=(0.5,),
+                             reference=str(tmp_path / "ref.exr"), ref_spp=64, max_depth=8,
+                             methods=("path", "default"), cpu=True)
+    runs = {r["method"]: r for r in out["runs"]}
+    assert len(runs) == 2 and runs["merging (default: MIS, progressive, pilot)"]["choice"] == "photon merging"
+    for r in runs.values():
+        assert 0.3 <= r["cpu_seconds"] <= 0.8, r
+        assert r["spp"] > 1 and np.isfinite(r["relmse_image"]) and r["relmse_image"] > 0
