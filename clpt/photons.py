@@ -171,8 +171,9 @@ def pilot_choice(settings: PhotonSettings, power, max_flux: float, stored: int,
     is light that reaches a diffuse surface through mirrors or glass. Below
     min_caustic_share the caustic paths are too faint to be worth a gather at
     every vertex and the render path traces alone. The threshold, 1%, lies
-    between the shares measured on either side at equal time: the shipped
-    photon scenes (1.8-7.2%) gain 2-6x over the whole image with merging; a
+    between shares measured on either side at equal time: the small bulb's
+    box (1.8%, the smallest share among the shipped photon scenes) and the
+    caustics box (5.1%) gain 2-6x over the whole image with merging; a
     scene of twelve small lights and a glass ball (0.37%,
     tests/data/many_lights_glass.xml) lost up to 11%, merging costing 1.4x
     per sample there for a caustic path tracing already finds. Deterministic: the same
