@@ -175,7 +175,7 @@ def pilot_choice(settings: PhotonSettings, power, max_flux: float, stored: int,
     box (1.8%, the smallest share among the shipped photon scenes) and the
     caustics box (5.1%) gain 2-6x over the whole image with merging; a
     scene of twelve small lights and a glass ball (0.37%,
-    tests/data/many_lights_glass.xml) lost up to 11%, merging costing 1.4x
+    tests/data/many_lights_glass.xml) lost 2-16%, merging costing 1.4x
     per sample there for a caustic path tracing already finds. Deterministic: the same
     seed and scene give the same map and the same choice (the Renderer runs
     the map's build as a job's "photons" item).
