@@ -147,18 +147,26 @@ inline vreal plastic_spec_prob(const Material *m, vreal t_o)
     return VSEL(ps / (ps + pd), (vreal)R(0), !(ps + pd > R(0)));
 }
 
+// f of the plastic's diffuse base through its coating, for cosines co and
+// ci; *t_o: the coating's transmittance at co.
+inline V3 plastic_diffuse(const Material *m, vreal co, vreal ci, vreal *t_o)
+{
+    *t_o = plastic_transmittance(m, co);
+    vreal k = *t_o * plastic_transmittance(m, ci) * R(M_1_PI) / (m->c_eta * m->c_eta);
+    vmask nl = m->c_nonlinear != R(0);
+    vreal fl = R(1) - m->c_fdr;
+    V3 f = v3(m->kp.x / VSEL(fl, R(1) - m->kp.x * m->c_fdr, nl), m->kp.y / VSEL(fl, R(1) - m->kp.y * m->c_fdr, nl),
+              m->kp.z / VSEL(fl, R(1) - m->kp.z * m->c_fdr, nl));
+    return v3_scale(f, k);
+}
+
 // f of the plastic's non-delta parts (rough specular and diffuse).
 inline V3 plastic_eval(const Material *m, V3 d, V3 n, V3 wi)
 {
     vreal co = -v3_dot(d, n), ci = v3_dot(wi, n);
     vmask ok = co > R(0) && ci > R(0);
-    vreal t_o = plastic_transmittance(m, co), t_i = plastic_transmittance(m, ci);
-    vreal k = t_o * t_i * R(M_1_PI) / (m->c_eta * m->c_eta);
-    vmask nl = m->c_nonlinear != R(0);
-    vreal fl = R(1) - m->c_fdr;
-    V3 f = v3(m->kp.x / VSEL(fl, R(1) - m->kp.x * m->c_fdr, nl), m->kp.y / VSEL(fl, R(1) - m->kp.y * m->c_fdr, nl),
-              m->kp.z / VSEL(fl, R(1) - m->kp.z * m->c_fdr, nl));
-    f = v3_scale(f, k);
+    vreal t_o;
+    V3 f = plastic_diffuse(m, co, ci, &t_o);
     vmask rough = m->c_alpha > R(0);
     if (VANY(rough)) {
         vmask bk = m->c_beckmann != R(0);
@@ -199,13 +207,8 @@ inline V3 plastic_eval_pdf(const Material *m, V3 d, V3 n, V3 wi, vreal *pdf_out)
 {
     vreal co = -v3_dot(d, n), ci = v3_dot(wi, n);
     vmask ok = co > R(0) && ci > R(0);
-    vreal t_o = plastic_transmittance(m, co), t_i = plastic_transmittance(m, ci);
-    vreal k = t_o * t_i * R(M_1_PI) / (m->c_eta * m->c_eta);
-    vmask nl = m->c_nonlinear != R(0);
-    vreal fl = R(1) - m->c_fdr;
-    V3 f = v3(m->kp.x / VSEL(fl, R(1) - m->kp.x * m->c_fdr, nl), m->kp.y / VSEL(fl, R(1) - m->kp.y * m->c_fdr, nl),
-              m->kp.z / VSEL(fl, R(1) - m->kp.z * m->c_fdr, nl));
-    f = v3_scale(f, k);
+    vreal t_o;
+    V3 f = plastic_diffuse(m, co, ci, &t_o);
     vreal q = plastic_spec_prob(m, t_o);
     vreal pdf = (R(1) - q) * ci * R(M_1_PI);
     vmask rough = m->c_alpha > R(0);
