@@ -683,17 +683,7 @@ CLPT_INLINE void sphere_lights_sample_at(const Scene *sc, V3 x, LightU u, vreal 
     V3 axis = v3_scale(dc, vrsqrt(dc2));
     V3 lc = sample_uniform_cone(u.u1, u.u2, omc);
     V3 wc = frame_to_world(axis, lc.x, lc.y, lc.z);
-    // intersect_sphere, each lane's sphere.
-    V3 oc = v3_sub(x, pc);
-    vreal b = v3_dot(oc, wc);
-    V3 f = v3_fma(wc, -b, oc);
-    vreal disc = r2 - v3_dot(f, f);
-    vreal c = v3_dot(oc, oc) - r2;
-    vreal q = -b - copysign(sqrt(fmax(disc, R(0))), b);
-    vreal t0 = c / q, t1 = q;
-    vreal tn = fmin(t0, t1), tf = fmax(t0, t1);
-    vreal t = VSEL(tf, tn, tn > R(0));
-    vreal tc = VSEL((vreal)R(INFINITY), t, disc >= R(0) && t > R(0));
+    vreal tc = intersect_sphere_lanes(pc, rad, x, wc);
     tc = VSEL(tc, v3_dot(dc, wc), isinf(tc));
     wi = v3_sel(wi, wc, outside);
     dist = VSEL(dist, tc, outside);

@@ -150,22 +150,29 @@ inline vreal intersect_plane(const Scene *sc, uint r, V3 o, V3 d)
     return VSEL((vreal)R(INFINITY), t, t > R(0));
 }
 
-// Nearest root > 0 of |o + t d - c| = r for unit d. The discriminant uses the
-// closest-approach vector (Haines et al., Ray Tracing Gems ch. 7), which stays
-// accurate for small spheres far away; q avoids cancellation in the roots.
-inline vreal intersect_sphere(real4 cr, V3 o, V3 d)
+// Nearest root > 0 of |o + t d - c| = r for unit d, each lane's own sphere
+// (centre c, radius rad). The discriminant uses the closest-approach vector
+// (Haines et al., Ray Tracing Gems ch. 7), which stays accurate for small
+// spheres far away; q avoids cancellation in the roots.
+inline vreal intersect_sphere_lanes(V3 c, vreal rad, V3 o, V3 d)
 {
-    V3 oc = v3_sub4(o, cr);
+    V3 oc = v3_sub(o, c);
     vreal b = v3_dot(oc, d);
     V3 f = v3_fma(d, -b, oc);
-    vreal r2 = cr.w * cr.w;
+    vreal r2 = rad * rad;
     vreal disc = r2 - v3_dot(f, f);
-    vreal c = v3_dot(oc, oc) - r2;
+    vreal cc = v3_dot(oc, oc) - r2;
     vreal q = -b - copysign(sqrt(fmax(disc, R(0))), b);
-    vreal t0 = c / q, t1 = q;
+    vreal t0 = cc / q, t1 = q;
     vreal tn = fmin(t0, t1), tf = fmax(t0, t1);
     vreal t = VSEL(tf, tn, tn > R(0));
     return VSEL((vreal)R(INFINITY), t, disc >= R(0) && t > R(0));
+}
+
+// The same for one sphere (centre cr.xyz, radius cr.w) for all lanes.
+inline vreal intersect_sphere(real4 cr, V3 o, V3 d)
+{
+    return intersect_sphere_lanes(v3_splat(cr), (vreal)cr.w, o, d);
 }
 
 // --- closest hit ---------------------------------------------------------------

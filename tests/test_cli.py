@@ -45,6 +45,28 @@ def test_scene_mistake_is_one_line_exit_2(tmp_path, capsys):
     assert main(["check", str(bad)]) == 2
 
 
+@pytest.mark.parametrize("argv, flag", [
+    (["bench-photons", "--counts", "1e5,lots"], "--counts"),
+    (["bench-photons", "--counts", "-5"], "--counts"),
+    (["bench-photons", "--equal-time", "4,soon"], "--equal-time"),
+    (["bench-photons", "--equal-time", "0"], "--equal-time"),
+    (["bench-bvh", "--triangles", "1e3,x"], "--triangles")])
+def test_bench_lists_refused_in_one_line(argv, flag, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert f"argument {flag}" in err and "Traceback" not in err
+
+
+def test_bench_lists_parse():
+    from clpt.cli import build_parser
+
+    a = build_parser().parse_args(["bench-photons", "--counts", "", "--equal-time", "4, 16"])
+    assert a.counts == [] and a.equal_time == [4.0, 16.0]
+    assert build_parser().parse_args(["bench-bvh", "--triangles", "1e3,99224"]).triangles == [1000, 99224]
+
+
 def test_unknown_device_exit_1(capsys):
     assert main(["render", "--device", "no-such-device-xyz", "--spp", "1"]) == 1
     err = capsys.readouterr().err

@@ -10,7 +10,8 @@ from . import common
 def add_parser(sub):
     p = sub.add_parser("bench-bvh", help="BVH build time, memory and rays/s for generated meshes; plain loops "
                                           "vs BVH; scene setup time")
-    p.add_argument("--triangles", default="1e3,1e5,1e6", help="mesh sizes (comma list; empty: none)")
+    p.add_argument("--triangles", type=common.counts, default=[1000, 100000, 1000000],
+                   help="mesh sizes (comma list; empty: none)")
     p.add_argument("--methods", default="sah,lbvh", help="BVH builders to compare (comma list)")
     p.add_argument("--walks", default="hybrid", help="BVH traversals to compare (comma list): hybrid (packets "
                                                      "for coherent camera rays, the default) and lane (every ray "

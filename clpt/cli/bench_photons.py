@@ -10,9 +10,10 @@ def add_parser(sub):
     p = sub.add_parser("bench-photons", help="photon pass and grid build times, gather cost, and the error "
                                              "of caustics at equal render time")
     p.add_argument("scene", nargs="?", default="cornell_box_caustics")
-    p.add_argument("--counts", default="1e5,1e6,1e7", help="photon counts to build (comma list)")
+    p.add_argument("--counts", type=common.counts, default=[100000, 1000000, 10000000],
+                   help="photon counts to build (comma list; empty: none)")
     common.size(p, 128, 128)
-    p.add_argument("--equal-time", default=None, metavar="SECONDS",
+    p.add_argument("--equal-time", type=common.seconds, default=None, metavar="SECONDS",
                    help="also compare errors at these render times (comma list)")
     common.reference(p, help="reference EXR: read if it exists, else rendered and saved")
     common.ref_spp(p)

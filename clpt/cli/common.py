@@ -32,6 +32,33 @@ ref_dir = _option("--ref-dir", default=".clpt-references", help="where reference
 no_nee = _option("--no-nee", action="store_true")
 
 
+def counts(text: str) -> list[int]:
+    """argparse type: a comma list of counts ("1e5,1e6"; empty: none), each >= 0."""
+    import argparse
+
+    try:
+        out = [int(float(c)) for c in text.split(",") if c.strip()]
+    except (ValueError, OverflowError):
+        raise argparse.ArgumentTypeError(f"expected a comma list of counts such as 1e5,1e6 (got {text!r})") from None
+    if any(c < 0 for c in out):
+        raise argparse.ArgumentTypeError(f"counts must be >= 0 (got {text!r})")
+    return out
+
+
+def seconds(text: str) -> list[float]:
+    """argparse type: a comma list of times in seconds ("4,16"), each > 0."""
+    import argparse
+    import math
+
+    try:
+        out = [float(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a comma list of seconds such as 4,16 (got {text!r})") from None
+    if not out or not all(math.isfinite(s) and s > 0 for s in out):
+        raise argparse.ArgumentTypeError(f"times must be finite and > 0 (got {text!r})")
+    return out
+
+
 def size(p, w=None, h=None):
     """--width and --height, with their defaults (None: the scene's)."""
     width(p, default=w)

@@ -526,13 +526,12 @@ def caustic_equal_time(scene, *, device=None, width=128, height=128, seconds=(2.
 
 
 def run_bench_photons(a) -> int:
-    counts = [int(float(c)) for c in a.counts.split(",")]
-    builds = measure_photon_builds(a.scene, counts, device=a.device)
+    builds = measure_photon_builds(a.scene, a.counts, device=a.device)
     gather = measure_gather_cost(a.scene, device=a.device, width=a.width, height=a.height)
     result = {"builds": builds, "gather": gather}
     if a.equal_time:
         result["equal_time"] = caustic_equal_time(a.scene, device=a.device, width=a.width, height=a.height,
-                                                  seconds=[float(s) for s in a.equal_time.split(",")],
+                                                  seconds=a.equal_time,
                                                   reference=a.reference, ref_spp=a.ref_spp, max_depth=a.max_depth,
                                                   cpu=a.cpu_time,
                                                   methods=a.methods.split(",") if a.methods else None)
@@ -738,7 +737,7 @@ def measure_setup(n_triangles=100_000, *, device=None) -> dict:
 
 def run_bench_bvh(a) -> int:
     result = {}
-    counts = [int(float(c)) for c in a.triangles.split(",")] if a.triangles else []
+    counts = a.triangles
     if counts:
         result["bvh"] = measure_bvh(counts, methods=tuple(a.methods.split(",")), walks=tuple(a.walks.split(",")),
                                     device=a.device, width=a.width,
