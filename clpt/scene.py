@@ -1408,7 +1408,7 @@ _TRANSFORM_KEYS = {"translate", "rotate", "scale", "matrix"}
 # Lights without a surface, as [[shapes]] entries: their keys are the Python classes' fields.
 _LIGHT_KEYS = {
     "point": {"position", "intensity"},
-    "spot": {"position", "direction", "intensity", "cutoff_angle", "beam_width"},
+    "spot": {"position", "direction", "intensity", "cutoff_angle", "beam_width", "texture", "texture_axes"},
     "directional": {"direction", "irradiance"},
     "envmap": {"file", "scale", "transform"},
     "constant": {"radiance"},
@@ -1435,6 +1435,15 @@ def _read_light(r: _Reader, d, kind, path, base_dir):
         beam = kw.get("beam_width", 0.75 * cut)
         if not 0 <= beam <= cut:
             r.fail(f"{path}.beam_width", f"must be in [0, cutoff_angle = {cut:g}] degrees (got {beam:g})")
+        if "texture" in d:
+            if not isinstance(d["texture"], dict):
+                r.fail(f"{path}.texture", f"must be a texture table (got {_short(d['texture'])})")
+            kw["texture"] = _read_texture(r, d["texture"], f"{path}.texture", base_dir)
+        if "texture_axes" in d:
+            a = d["texture_axes"]
+            if not isinstance(a, list) or len(a) != 2:
+                r.fail(f"{path}.texture_axes", f"must be two vectors (got {_short(a)})")
+            kw["texture_axes"] = tuple(r.vec3(v, f"{path}.texture_axes[{k}]") for k, v in enumerate(a))
         return SpotLight(**kw)
     if kind == "point":
         return PointLight(**kw)

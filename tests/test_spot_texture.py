@@ -227,3 +227,50 @@ def test_scene_api_checks_textured_spots(kw, message):
     base = dict(position=(0, 0, 1), direction=(0, 0, -1), texture=np.ones((2, 2, 3)))
     with pytest.raises(SceneError, match=message):
         _floor_scene(SpotLight(**{**base, **kw})).check()
+
+
+def test_toml_spot_texture_is_the_python_apis(device_spec):
+    from clpt.scene import Scene, parse_scene
+    text = """
+[camera]
+origin = [0, 0, 2]
+target = [0, 0, 0]
+up = [0, 1, 0]
+fov = 60
+width = 16
+height = 16
+
+[[shapes]]
+type = "quad"
+corner = [-3, -3, 0]
+edge_u = [6, 0, 0]
+edge_v = [0, 6, 0]
+material = "white"
+
+[[shapes]]
+type = "spot"
+position = [0, 0, 1]
+direction = [0, 0, -1]
+intensity = 3
+cutoff_angle = 40
+texture_axes = [[0, 1, 0], [1, 0, 0]]
+[shapes.texture]
+texture = "checkerboard"
+color0 = [1, 0.5, 0.2]
+color1 = [0.1, 0.2, 0.9]
+to_uv = [[3, 0, 0], [0, 3, 0]]
+"""
+    scene = parse_scene(text)
+    got = scene.shapes[-1]
+    assert isinstance(got, SpotLight) and got.texture.kind == "checkerboard"
+    assert got.texture_axes == ((0, 1, 0), (1, 0, 0))
+    light = SpotLight(position=(0, 0, 1), direction=(0, 0, -1), intensity=(3, 3, 3), cutoff_angle=40,
+                      texture_axes=((0, 1, 0), (1, 0, 0)),
+                      texture=Texture("checkerboard", color0=(1, 0.5, 0.2), color1=(0.1, 0.2, 0.9),
+                                      to_uv=((3, 0, 0), (0, 3, 0))))
+    api = Scene(camera=scene.camera, shapes=list(scene.shapes[:-1]) + [light])
+    a = clpt.Renderer(scene, device=device_spec, photons=False).render(4, seed=1, max_depth=2)
+    b = clpt.Renderer(api, device=device_spec, photons=False).render(4, seed=1, max_depth=2)
+    assert np.array_equal(a.image, b.image) and a.image.max() > 0
+    with pytest.raises(SceneError, match=r"texture_axes: must be two vectors"):
+        parse_scene(text.replace("texture_axes = [[0, 1, 0], [1, 0, 0]]", "texture_axes = [[0, 1, 0]]"))
