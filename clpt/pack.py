@@ -869,7 +869,9 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
                        light_kinds=frozenset(kinds[int(f["p_kind"][3])] for _, _, _, f, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,
-                       max_radiance=max([max(m.emission) for _, _, m, f, *_ in lights if f["p_kind"][3] != KIND_ENV] +
+                       max_radiance=max([max(m.emission) * (max(b.spot_textures[k].max()) if k in b.spot_textures
+                                                            else 1.0)
+                                         for k, (_, _, m, f, *_) in enumerate(lights) if f["p_kind"][3] != KIND_ENV] +
                                         [p.max_radiance() for p, _ in b.infinite if isinstance(p, EnvironmentLight)],
                                         default=1.0),
                        smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale,
