@@ -29,8 +29,9 @@
 // The emission cosine of the photon's direction at the light, after what
 // the light kinds without a surface change: a point or spot light has no
 // cosine, and the spot's falloff in the direction taken scales its
-// intensity (a textured spot's also by its texture there); a directional light's or an environment's photon leaves its
-// disk along its direction (lights.h), across it.
+// intensity (a textured spot's also its texture there, spot_texture_at); a
+// directional light's or an environment's photon leaves its disk along its
+// direction (lights.h), across it.
 inline vreal photon_light_kinds(const Scene *sc, LightSample *lp, AimSample *aim)
 {
     vreal cos_y = v3_dot(aim->w, lp->n);
@@ -45,7 +46,8 @@ inline vreal photon_light_kinds(const Scene *sc, LightSample *lp, AimSample *aim
         vreal wx = aim->w.x, wy = aim->w.y, wz = aim->w.z;
         if (VLANE_R(st, l) == R(0) || !(VLANE_R(ex, l) + VLANE_R(ey, l) + VLANE_R(ez, l) > R(0)))
             continue;  // not a textured spot's photon, or outside its cone (falloff 0)
-        real4 c = spot_texture_at(sc, (uint)VLANE_R(st, l), (real4)(VLANE_R(wx, l), VLANE_R(wy, l), VLANE_R(wz, l), R(0)));
+        real4 w = (real4)(VLANE_R(wx, l), VLANE_R(wy, l), VLANE_R(wz, l), R(0));
+        real4 c = spot_texture_at(sc, (uint)VLANE_R(st, l), w);
         VLANE_R(lp->Le.x, l) = VLANE_R(ex, l) * c.x;
         VLANE_R(lp->Le.y, l) = VLANE_R(ey, l) * c.y;
         VLANE_R(lp->Le.z, l) = VLANE_R(ez, l) * c.z;
