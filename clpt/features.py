@@ -71,6 +71,7 @@ class Features:
     textures: bool = True      # some materials have textures (kernels/texture.h)
     anisotropy: bool = True    # some microfacet lobes have alpha_u != alpha_v (shading-frame tangents)
     textured_emitters: bool = True  # some area lights' radiance is a texture (with textures)
+    textured_spots: bool = True  # some spot light has a texture (with textures and spot lights)
     pixel_filter: str = "box"  # the camera's pixel filter (PIXEL_FILTERS); the box compiles no filter code
     counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights, casters, BVH nodes (not generic)
 
@@ -107,6 +108,7 @@ class Features:
             "CLPT_HAS_TEXTURES": int(self.textures),
             "CLPT_HAS_ANISOTROPY": int(self.anisotropy),
             "CLPT_HAS_TEXTURED_EMITTERS": int(self.textures and self.textured_emitters),
+            "CLPT_HAS_TEXTURED_SPOTS": int(self.textures and self.spot_lights and self.textured_spots),
         }
         if self.mode != "generic":
             for name, n in zip(("MATERIALS", "SPHERES", "QUADS", "TRIANGLES", "PLANES", "LIGHTS", "CAUSTICS",
@@ -147,7 +149,7 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
                         photons=use_photons, aux=aux, bvh_walk=bvh_walk, pixel_filter=packed.pixel_filter,
                         textures=bool(packed.textures), anisotropy=packed.anisotropic,
-                        textured_emitters=packed.has_textured_emitters)
+                        textured_emitters=packed.has_textured_emitters, textured_spots=packed.textured_spots)
     return Features(
         lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
         pixel_filter=packed.pixel_filter,
@@ -173,6 +175,7 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         textures=bool(packed.textures),
         anisotropy=packed.anisotropic,
         textured_emitters=packed.has_textured_emitters,
+        textured_spots=packed.textured_spots,
         bvh_walk=bvh_walk,
         counts=tuple(packed.counts),
     )

@@ -1456,11 +1456,12 @@ class _Loader:
             pos = p.point("position", (0.0, 0.0, 0.0)) if p.has("position") else p.transform("to_world")[:3, 3]
             shapes.append(PointLight(position=tuple(float(x) for x in pos), intensity=intensity))
         else:
-            if p.has("texture") or any(nm == "texture" for nm, _ in p.objects):
-                node.fail("a spot light's texture is not supported")
+            tex = p.texture("texture")
+            if tex is None and (p.has("texture") or any(nm == "texture" for nm, _ in p.objects)):
+                node.fail("a spot light's texture must be a bitmap or checkerboard")
             m = p.transform("to_world")
             d = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
-            if not np.linalg.norm(d) > 0:
+            if not np.linalg.norm(d) > 0 or (tex is not None and not abs(np.linalg.det(m[:3, :3])) > 0):
                 node.fail("to_world is singular")
             cutoff = p.float("cutoff_angle", 20.0)
             beam = p.float("beam_width", 0.75 * cutoff)
@@ -1470,7 +1471,9 @@ class _Loader:
                 node.fail(f"beam_width must be in [0, cutoff_angle = {cutoff:g}] degrees (got {beam:g})")
             shapes.append(SpotLight(position=tuple(float(x) for x in m[:3, 3]), intensity=intensity,
                                     direction=tuple(float(x) for x in d / np.linalg.norm(d)),
-                                    cutoff_angle=float(cutoff), beam_width=float(beam)))
+                                    cutoff_angle=float(cutoff), beam_width=float(beam), texture=tex,
+                                    texture_axes=None if tex is None else tuple(
+                                        tuple(float(x) for x in m[:3, k] / np.linalg.norm(d)) for k in (0, 1))))
         p.finish()
 
     def environment(self, node: _Node, p: _Props) -> EnvironmentLight:

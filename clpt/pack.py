@@ -72,6 +72,7 @@ class PackedScene:
     texel_rows: int = 0          # the textures' texels, after the other records (not indexed by reals)
     env_texels: int = 0          # the environment map's records, last (indexed by integers, not by reals)
     anisotropic: bool = False    # some microfacet lobe has alpha_v != alpha (a TANGENT section after the texels)
+    textured_spots: bool = False  # some spot light has a texture (its LIGHT_TEX row names it)
 
     @property
     def lum_scale(self) -> float:
@@ -221,17 +222,16 @@ def _material_records(materials) -> np.ndarray:
     return out
 
 
-def _texture_records(mat_recs, materials, base: int):
+def _texture_records(mat_recs, materials, base: int, extra=()):
     """From record index base: a TEXTURE_SLOTS record per textured material
     (its record's coat_tab.z points to it), then a TEXTURE record per
     distinct texture: (textures, slot records, texture records). The UV
     section follows them (its first row goes in each slot record's .w, set
-    by the caller), then the texels."""
+    by the caller), then the texels. extra: more textures (spot lights')."""
     textures = []
-    for m in materials:
-        for _, t in m.textures:
-            if not any(t is x for x in textures):
-                textures.append(t)
+    for t in [t for m in materials for _, t in m.textures] + list(extra):
+        if not any(t is x for x in textures):
+            textures.append(t)
     textured = [(rec, m) for rec, m in zip(mat_recs, materials) if m.bsdf_textures]
     slots = layout.TEXTURE_SLOTS.zeros(len(textured))
     first_tex = base + layout.TEXTURE_SLOTS.stride * len(textured)
@@ -476,6 +476,7 @@ class _Builder:
         self.lights = []    # (sides, area, material, LIGHT fields {name: row}, material id, LIGHT_TRI records or None)
         self.delta_power = {}  # light index -> power of a point or spot light (area lights: pi area Le sides)
         self.surface_mean = {}  # light index -> a textured area light's radiance, its mean over the surface by area
+        self.spot_textures = {}  # light index -> a textured spot light's clpt.texture.Texture
         self.infinite = []  # (directional or environment light, material): packed after every other light
         self.n_prims = 0    # every primitive, planes included, has an id
         self.n_bounded = 0
@@ -550,6 +551,11 @@ class _Builder:
             cut, beam = math.radians(p.cutoff_angle), math.radians(p.beam)
             fields = {"p_kind": (*pos, KIND_SPOT), "u": (*d, math.cos(cut)),
                       "v": (cut, 1.0 / (cut - beam) if cut > beam else 0.0, math.cos(beam), 0.0)}
+            if p.texture is not None:  # (u, v) = 1/2 + (n.xyz . w, tex.yzw . w) / (axis . w); tex.x: later
+                a, c = p.texture_rows()
+                fields["n"] = (*a, 0.0)
+                fields["tex"] = (0.0, *c)
+                self.spot_textures[len(self.lights)] = p.texture
         else:
             fields = {"p_kind": (*pos, KIND_POINT), "u": (0.0, 0.0, 0.0, -2.0), "v": (0.0, 0.0, -2.0, 0.0)}
         self.delta_power[len(self.lights)] = p.power()
@@ -823,8 +829,9 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
 
     # Textures: their records, the primitives' (u, v) and the texels (scenes with textures only).
     tex_base = coat_base + len(coat_recs)
-    textures, slot_recs, tex_recs = _texture_records(mat_recs, list(surfaces), tex_base)
-    uv_recs = np.concatenate(b.uvs) if textures else layout.UV.zeros(0)
+    textures, slot_recs, tex_recs = _texture_records(mat_recs, list(surfaces), tex_base,
+                                                     extra=b.spot_textures.values())
+    uv_recs = np.concatenate(b.uvs) if textures and b.uvs else layout.UV.zeros(0)
     uv_base = tex_base + len(Rows.rows(slot_recs)) + len(Rows.rows(tex_recs))
     slot_recs["slots"][:, 3] = uv_base
     # The primitives' dp/du (scenes with an anisotropic material), pointed to by those materials' records.
@@ -836,8 +843,8 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     texel_base = tan_base + len(Rows.rows(tan_recs))
     texels = _texel_rows(textures, tex_recs, texel_base)
     tex_recs["data"][:, 3] = uv_base
-    for rec, (_, _, m, *_) in zip(light_recs, lights):  # textured emitters: their TEXTURE records
-        t = m.texture(EMISSION_SLOT)
+    for k, (rec, (_, _, m, *_)) in enumerate(zip(light_recs, lights)):  # textured emitters: their TEXTURE records
+        t = b.spot_textures[k] if k in b.spot_textures else m.texture(EMISSION_SLOT)
         if t is not None:
             rec["tex"][0] = tex_base + len(Rows.rows(slot_recs)) + layout.TEXTURE.stride * next(
                 i for i, x in enumerate(textures) if x is t)
@@ -862,12 +869,15 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
     return PackedScene(records=records, counts=counts, materials=tuple(surfaces),
                        light_kinds=frozenset(kinds[int(f["p_kind"][3])] for _, _, _, f, _, _ in lights),
                        extent=scene.extent(), size=float(np.linalg.norm(hi - lo)) or 1.0, max_flux=flux,
-                       max_radiance=max([max(m.emission) for _, _, m, f, *_ in lights if f["p_kind"][3] != KIND_ENV] +
+                       max_radiance=max([max(m.emission) * (max(b.spot_textures[k].max()) if k in b.spot_textures
+                                                            else 1.0)
+                                         for k, (_, _, m, f, *_) in enumerate(lights) if f["p_kind"][3] != KIND_ENV] +
                                         [p.max_radiance() for p, _ in b.infinite if isinstance(p, EnvironmentLight)],
                                         default=1.0),
                        smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale,
                        pixel_filter=scene.camera.pixel_filter.kind, textures=tuple(textures),
-                       texel_rows=len(texels), env_texels=len(env_texels), anisotropic=anisotropic)
+                       texel_rows=len(texels), env_texels=len(env_texels), anisotropic=anisotropic,
+                       textured_spots=bool(b.spot_textures))
 
 
 @dataclass(frozen=True)

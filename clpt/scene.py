@@ -670,15 +670,77 @@ class SpotLight(PointLight):
     axis, falling linearly in angle to zero at ``cutoff_angle`` degrees (by
     default 20, and a beam width of 3/4 of the cutoff), as Mitsuba's
     ``falloff_curve``: 1 for theta <= beam, (cutoff - theta) / (cutoff - beam)
-    between, 0 from the cutoff on."""
+    between, 0 from the cutoff on.
+
+    ``texture`` (Mitsuba's ``texture``: a clpt.texture.Texture, or an
+    H x W x 3 array of linear RGB for a bilinear, repeating bitmap) is
+    projected through the cone: the intensity towards direction w is
+    multiplied by the texture at (u, v) = (1/2 + x / (2 z tan(cutoff)),
+    1/2 + y / (2 z tan(cutoff))), (x, y, z) the coordinates of w in the
+    light's frame. ``texture_axes`` = (x axis, y axis) is that frame's x and
+    y axes in world space (Mitsuba's to_world's first two columns, over the
+    length of its third; perpendicular to ``direction``); None: Mitsuba's
+    look_at frame with up = +y (+z when the direction is along y): x = up
+    x direction, normalized, y = direction x x."""
 
     direction: Vec3 = (0.0, 0.0, 1.0)
     cutoff_angle: float = 20.0
     beam_width: float | None = None
+    texture: Texture | None = None
+    texture_axes: tuple | None = None
+
+    def __post_init__(self):
+        if self.texture is not None and not isinstance(self.texture, Texture):
+            object.__setattr__(self, "texture", Texture("bitmap", data=self.texture, name="spot light texture"))
+        if self.texture_axes is not None:
+            object.__setattr__(self, "texture_axes", tuple(tuple(float(c) for c in np.broadcast_to(
+                np.asarray(a, dtype=np.float64), 3)) for a in self.texture_axes))
 
     @property
     def beam(self) -> float:
         return 0.75 * float(self.cutoff_angle) if self.beam_width is None else float(self.beam_width)
+
+    def frame(self) -> np.ndarray:
+        """The light's frame as the columns of a 3x3 matrix: texture_axes and the unit direction."""
+        d = np.asarray(self.direction, dtype=np.float64)
+        d = d / np.linalg.norm(d)
+        if self.texture_axes is not None:
+            x, y = (np.asarray(a, dtype=np.float64) for a in self.texture_axes)
+        else:
+            up = np.array([0.0, 1.0, 0.0]) if abs(d[1]) < 1 - 1e-6 else np.array([0.0, 0.0, 1.0])
+            x = np.cross(up, d)
+            x /= np.linalg.norm(x)
+            y = np.cross(d, x)
+        return np.stack([x, y, d], axis=1)
+
+    def texture_rows(self) -> np.ndarray:
+        """(2, 3): rows a, b with (u, v) = 1/2 + (a . w, b . w) / (axis . w) for a unit direction w in the
+        cone (the first two rows of the frame's inverse over the length of the third, over 2 tan(cutoff))."""
+        inv = np.linalg.inv(self.frame())
+        return inv[:2] / (np.linalg.norm(inv[2]) * 2 * math.tan(math.radians(self.cutoff_angle)))
+
+    def texture_cone_mean(self) -> tuple:
+        """The texture's mean over the cone weighted by the falloff, per channel:
+        (integral of falloff T(uv) over directions) / solid_angle(). The
+        midpoint rule on a grid over (u, v) (the cone is the disk of radius 1/2
+        around (1/2, 1/2)), about 4 points per texel (64 to 1024 a side), each
+        point weighted by its direction's solid angle, (2 tan g)^2 / (1 + r^2)^(3/2)
+        du dv for r = tan theta, and by the falloff."""
+        from .texture import _texels_per_unit, _eval_mean
+        n = int(np.clip(math.ceil(4 * _texels_per_unit(self.texture)), 64, 1024))
+        t = (np.arange(n) + 0.5) / n
+        uv = np.stack(np.meshgrid(t, t), axis=-1).reshape(-1, 2)
+        g = math.radians(self.cutoff_angle)
+        r = np.hypot(uv[:, 0] - 0.5, uv[:, 1] - 0.5) * 2 * math.tan(g)  # tan theta
+        w = self.falloff(1 / np.sqrt(1 + r * r)) / (1 + r * r) ** 1.5
+        if not w.sum() > 0:
+            return tuple(float(x) for x in self.texture.eval(np.array([0.5, 0.5])))
+        return tuple(float(x) for x in _eval_mean(self.texture, uv, w))
+
+    def power(self) -> float:
+        if self.texture is None:
+            return super().power()
+        return self.solid_angle() * float(np.mean(np.asarray(self.intensity) * np.asarray(self.texture_cone_mean())))
 
     def check(self, src, path):
         super().check(src, path)
@@ -689,6 +751,15 @@ class SpotLight(PointLight):
         if self.beam_width is not None:
             _finite(src, f"{path}.beam_width", self.beam_width, lo=0.0, lo_open=False, hi=self.cutoff_angle,
                     hi_open=False)
+        if self.texture_axes is not None:
+            if len(self.texture_axes) != 2:
+                _fail(src, f"{path}.texture_axes", "must be two vectors (the frame's x and y axes)")
+            for k, a in enumerate(self.texture_axes):
+                _finite_vec(src, f"{path}.texture_axes[{k}]", a)
+            if not abs(np.linalg.det(self.frame())) > 1e-12:
+                _fail(src, f"{path}.texture_axes", "with the direction, must span space")
+        if self.texture is not None and self.cutoff_angle >= 90:
+            _fail(src, f"{path}.cutoff_angle", "a textured spot's cutoff must be below 90 degrees")
 
     def falloff(self, cos_theta):
         """Mitsuba 3's spot falloff at the cosine of the angle from the axis."""
@@ -1337,7 +1408,7 @@ _TRANSFORM_KEYS = {"translate", "rotate", "scale", "matrix"}
 # Lights without a surface, as [[shapes]] entries: their keys are the Python classes' fields.
 _LIGHT_KEYS = {
     "point": {"position", "intensity"},
-    "spot": {"position", "direction", "intensity", "cutoff_angle", "beam_width"},
+    "spot": {"position", "direction", "intensity", "cutoff_angle", "beam_width", "texture", "texture_axes"},
     "directional": {"direction", "irradiance"},
     "envmap": {"file", "scale", "transform"},
     "constant": {"radiance"},
@@ -1364,6 +1435,15 @@ def _read_light(r: _Reader, d, kind, path, base_dir):
         beam = kw.get("beam_width", 0.75 * cut)
         if not 0 <= beam <= cut:
             r.fail(f"{path}.beam_width", f"must be in [0, cutoff_angle = {cut:g}] degrees (got {beam:g})")
+        if "texture" in d:
+            if not isinstance(d["texture"], dict):
+                r.fail(f"{path}.texture", f"must be a texture table (got {_short(d['texture'])})")
+            kw["texture"] = _read_texture(r, d["texture"], f"{path}.texture", base_dir)
+        if "texture_axes" in d:
+            a = d["texture_axes"]
+            if not isinstance(a, list) or len(a) != 2:
+                r.fail(f"{path}.texture_axes", f"must be two vectors (got {_short(a)})")
+            kw["texture_axes"] = tuple(r.vec3(v, f"{path}.texture_axes[{k}]") for k, v in enumerate(a))
         return SpotLight(**kw)
     if kind == "point":
         return PointLight(**kw)

@@ -30,8 +30,8 @@
 #if !defined(CLPT_HAS_BVH) || !defined(CLPT_HAS_SMOOTH) || !defined(CLPT_BVH_PACKETS)
 #error "clpt: CLPT_HAS_BVH, CLPT_HAS_SMOOTH and CLPT_BVH_PACKETS must be defined"
 #endif
-#if !defined(CLPT_HAS_TEXTURES) || !defined(CLPT_HAS_TEXTURED_EMITTERS)
-#error "clpt: CLPT_HAS_TEXTURES and CLPT_HAS_TEXTURED_EMITTERS must be defined"
+#if !defined(CLPT_HAS_TEXTURES) || !defined(CLPT_HAS_TEXTURED_EMITTERS) || !defined(CLPT_HAS_TEXTURED_SPOTS)
+#error "clpt: CLPT_HAS_TEXTURES, CLPT_HAS_TEXTURED_EMITTERS and CLPT_HAS_TEXTURED_SPOTS must be defined"
 #endif
 #if !defined(CLPT_PHOTONS) || !defined(CLPT_AUX) || !defined(CLPT_PIXEL_FILTER)
 #error "clpt: CLPT_PHOTONS, CLPT_AUX and CLPT_PIXEL_FILTER must be defined"

@@ -18,6 +18,12 @@
 // x, and delta is set: no BSDF sample finds them, so their sample's MIS
 // weight is 1. For photon emission n is the spot's axis (0 for a point) and
 // the falloff of the direction chosen is delta_falloff's.
+// A textured spot (CLPT_HAS_TEXTURED_SPOTS; Mitsuba 3's spot `texture`)
+// multiplies its intensity towards w by its texture at (u, v) = 1/2 +
+// (a . w, b . w) / (axis . w), its light record's rows a = n.xyz and
+// b = tex.yzw (the light's frame over 2 tan(cutoff), clpt/pack.py), tex.x
+// naming the TEXTURE (spot_texture): at x for next event estimation, in the
+// photon's direction for photon emission (photons.cl; LightSample.spot_tex).
 // Lights at infinity come after the others (clpt/pack.py), the environment
 // last. A directional light (CLPT_HAS_DIRECTIONAL_LIGHTS) is a delta light
 // like a point light: Le = its irradiance, pdf = the pick probability, wi
@@ -53,6 +59,9 @@ typedef struct {
     vmask delta;      // a point or spot light (a delta light)
     vreal cos_cut, cut, inv_tr, cos_beam;  // the spot's falloff (a point light's: -2, 0, 0, -2, 1 everywhere)
 #endif
+#if CLPT_HAS_TEXTURED_SPOTS
+    vreal spot_tex;   // (photon emission) a textured spot's light record (0: none), for spot_texture
+#endif
 #if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
     vmask parallel;   // (photon emission) a directional light's or environment's: the photon travels along n from p
 #endif
@@ -70,6 +79,40 @@ inline vreal delta_falloff(V3 axis, vreal cos_cut, vreal cut, vreal inv_tr, vrea
     vreal c = v3_dot(w, axis);
     vreal mid = (cut - acos(fmin(fmax(c, (vreal)R(-1)), (vreal)R(1)))) * inv_tr;
     return VSEL((vreal)R(0), VSEL(mid, (vreal)R(1), c >= cos_beam), c > cos_cut);
+}
+#endif
+
+#if CLPT_HAS_TEXTURED_SPOTS
+// The texture of the spot light whose records are at r towards unit
+// direction w (from the light, inside its cone: axis . w > 0), or 1 if the
+// light has none.
+inline real4 spot_texture_at(const Scene *sc, uint r, real4 w)
+{
+    real4 t = scene_rec(sc, r + LIGHT_TEX);
+    if (t.x == R(0))
+        return (real4)(R(1), R(1), R(1), R(0));
+    real4 axis = scene_rec(sc, r + LIGHT_U), a = scene_rec(sc, r + LIGHT_N);
+    real c = axis.x * w.x + axis.y * w.y + axis.z * w.z;
+    real u = R(0.5) + (a.x * w.x + a.y * w.y + a.z * w.z) / c;
+    real v = R(0.5) + (t.y * w.x + t.z * w.y + t.w * w.z) / c;
+    return texture_eval(sc, (uint)t.x, u, v);
+}
+
+// Le of the lanes in pick times the texture of the spot light at r (if it
+// has one) towards their directions w.
+inline V3 spot_texture(const Scene *sc, uint r, vmask pick, V3 w, V3 Le)
+{
+    if (scene_rec(sc, r + LIGHT_TEX).x == R(0))
+        return Le;
+    for (int l = 0; l < CLPT_LANES; l++) {
+        if (!VLANE_M(pick, l))
+            continue;
+        real4 c = spot_texture_at(sc, r, (real4)(VLANE_R(w.x, l), VLANE_R(w.y, l), VLANE_R(w.z, l), R(0)));
+        VLANE_R(Le.x, l) *= c.x;
+        VLANE_R(Le.y, l) *= c.y;
+        VLANE_R(Le.z, l) *= c.z;
+    }
+    return Le;
 }
 #endif
 
@@ -254,6 +297,9 @@ CLPT_INLINE void delta_light_sample(const Scene *sc, uint r, real4 info, real4 m
     ls->pdf_area = VSEL(ls->pdf_area, (vreal)info.y, pick);
     if (!at_x) {
         ls->Le = v3_sel(ls->Le, v3_splat(m), pick);
+#if CLPT_HAS_TEXTURED_SPOTS
+        ls->spot_tex = VSEL(ls->spot_tex, (vreal)(real)r, pick);  // photons.cl: the texture in the photon's direction
+#endif
         return;
     }
     V3 w = v3_sub(y, x);
@@ -263,6 +309,9 @@ CLPT_INLINE void delta_light_sample(const Scene *sc, uint r, real4 info, real4 m
     vreal fall = delta_falloff(axis, (vreal)a.w, (vreal)b.x, (vreal)b.y, (vreal)b.z, v3_neg(wi));
     vreal pdf = d2 * info.y;
     ls->Le = v3_sel(ls->Le, v3_scale(v3_splat(m), fall), pick);
+#if CLPT_HAS_TEXTURED_SPOTS
+    ls->Le = spot_texture(sc, r, pick && fall > R(0), v3_neg(wi), ls->Le);
+#endif
     ls->wi = v3_sel(ls->wi, wi, pick);
     ls->dist = VSEL(ls->dist, dist, pick);
     ls->pdf = VSEL(ls->pdf, pdf, pick);
@@ -707,6 +756,9 @@ CLPT_INLINE void light_sample_clear(LightSample *ls)
 #if CLPT_HAS_DELTA_LIGHTS
     ls->delta = ls->valid;
     ls->cos_cut = ls->cut = ls->inv_tr = ls->cos_beam = (vreal)R(0);
+#endif
+#if CLPT_HAS_TEXTURED_SPOTS
+    ls->spot_tex = (vreal)R(0);
 #endif
 #if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
     ls->parallel = ls->valid;

@@ -29,15 +29,29 @@
 // The emission cosine of the photon's direction at the light, after what
 // the light kinds without a surface change: a point or spot light has no
 // cosine, and the spot's falloff in the direction taken scales its
-// intensity; a directional light's or an environment's photon leaves its
-// disk along its direction (lights.h), across it.
-inline vreal photon_light_kinds(LightSample *lp, AimSample *aim)
+// intensity (a textured spot's also its texture there, spot_texture_at); a
+// directional light's or an environment's photon leaves its disk along its
+// direction (lights.h), across it.
+inline vreal photon_light_kinds(const Scene *sc, LightSample *lp, AimSample *aim)
 {
     vreal cos_y = v3_dot(aim->w, lp->n);
 #if CLPT_HAS_DELTA_LIGHTS
     cos_y = VSEL(cos_y, (vreal)R(1), lp->delta);
     lp->Le = v3_sel(lp->Le, v3_scale(lp->Le, delta_falloff(lp->n, lp->cos_cut, lp->cut, lp->inv_tr, lp->cos_beam,
                                                            aim->w)), lp->delta);
+#endif
+#if CLPT_HAS_TEXTURED_SPOTS
+    for (int l = 0; l < CLPT_LANES; l++) {
+        vreal st = lp->spot_tex, ex = lp->Le.x, ey = lp->Le.y, ez = lp->Le.z;
+        vreal wx = aim->w.x, wy = aim->w.y, wz = aim->w.z;
+        if (VLANE_R(st, l) == R(0) || !(VLANE_R(ex, l) + VLANE_R(ey, l) + VLANE_R(ez, l) > R(0)))
+            continue;  // not a textured spot's photon, or outside its cone (falloff 0)
+        real4 w = (real4)(VLANE_R(wx, l), VLANE_R(wy, l), VLANE_R(wz, l), R(0));
+        real4 c = spot_texture_at(sc, (uint)VLANE_R(st, l), w);
+        VLANE_R(lp->Le.x, l) = VLANE_R(ex, l) * c.x;
+        VLANE_R(lp->Le.y, l) = VLANE_R(ey, l) * c.y;
+        VLANE_R(lp->Le.z, l) = VLANE_R(ez, l) * c.z;
+    }
 #endif
 #if CLPT_HAS_DIRECTIONAL_LIGHTS || CLPT_HAS_ENV_LIGHT
     cos_y = VSEL(cos_y, (vreal)R(1), lp->parallel);
@@ -68,7 +82,7 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
     env_photon_start(sc, ue.u1, ue.u2, &lp);  // the aim's numbers: an environment's photon aims by its disk
 #endif
     AimSample aim = aim_at_casters(sc, lp.p, lp.n, lp.two_sided, L.aim, ue.caster, ue.u1, ue.u2);
-    vreal cos_y = photon_light_kinds(&lp, &aim);
+    vreal cos_y = photon_light_kinds(sc, &lp, &aim);
     vmask emits = cos_y > R(0) || (lp.two_sided && cos_y < R(0));
     live = live && aim.valid && emits && lp.pdf_area > R(0);
     // pf = p_area p_dir / |cos|, the light-side pdf factor of the photon's

@@ -26,7 +26,7 @@ def test_features_follow_the_scene():
     assert "specialized" in f.describe() and "quads" in f.describe()
     generic = scene_features(pack_scene(clpt.load_scene("cornell_box")), mode="generic")
     assert generic == Features(mode="generic", photons=False, textures=False, anisotropy=False,
-                               textured_emitters=False)
+                               textured_emitters=False, textured_spots=False)
     assert "CLPT_NUM_QUADS" not in " ".join(generic.options())
 
 

@@ -173,7 +173,7 @@ def test_loader_point_and_spot_parameters(tmp_path):
     ('<emitter type="point"><point name="position" x="1" y="2" z="3"/><transform name="to_world"/></emitter>',
      "either position or to_world"),
     ('<emitter type="spot"><texture type="bitmap" name="texture"><string name="filename" value="x.png"/>'
-     '</texture></emitter>', "texture is not supported"),
+     '</texture></emitter>', "file not found"),
     ('<emitter type="spot"><float name="cutoff_angle" value="20"/><float name="beam_width" value="25"/></emitter>',
      "beam_width must be in"),
     ('<emitter type="spot"><float name="cutoff_angle" value="120"/></emitter>', "cutoff_angle must be in"),

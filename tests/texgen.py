@@ -5,6 +5,9 @@
 pattern.png: 64 x 64 8-bit sRGB, colour bands and rings with sharp edges (so
 that filtering, orientation and wrapping all show in a render), the bitmap
 of tests/data/cbox_textured.xml.
+spot.png: 16 x 16 8-bit sRGB, the projected texture of tests/data/spot_texture.xml:
+red rising along u, green along v, a black 4 x 4 corner (row 0, column 0) and a
+white one (the last row and column), so that a flip of either axis shows.
 """
 
 from pathlib import Path
@@ -28,6 +31,19 @@ def pattern(n: int = 64) -> np.ndarray:
     return np.round(img * 255).astype(np.uint8)
 
 
+def spot(n: int = 16) -> np.ndarray:
+    """n x n x 3 uint8 (spot.png; row 0 is the top)."""
+    j, i = np.mgrid[0:n, 0:n].astype(np.float64)
+    img = np.zeros((n, n, 3))
+    img[..., 0] = 0.2 + 0.8 * i / (n - 1)
+    img[..., 1] = 0.2 + 0.8 * j / (n - 1)
+    img[..., 2] = 0.3
+    k = n // 4
+    img[:k, :k] = 0.0
+    img[-k:, -k:] = 1.0
+    return np.round(img * 255).astype(np.uint8)
+
+
 def write_png(path: Path, img: np.ndarray):
     import OpenImageIO as oiio
 
@@ -41,4 +57,5 @@ def write_png(path: Path, img: np.ndarray):
 if __name__ == "__main__":
     OUT.mkdir(parents=True, exist_ok=True)
     write_png(OUT / "pattern.png", pattern())
-    print(OUT / "pattern.png")
+    write_png(OUT / "spot.png", spot())
+    print(OUT / "pattern.png", OUT / "spot.png")
