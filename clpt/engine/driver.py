@@ -223,17 +223,32 @@ class Driver:
         if len(pixels) == 0:
             sch.adaptive_over = True
             return
+        if aset.scheme == "error":
+            # The pixels with the most samples first (in image order among equals): a
+            # work-item's lanes then get alike counts (less idling, fewer samples added to
+            # fill them) and the longest work-items start first, so a launch does not end
+            # on one of them alone. (In image order, adaptive samples cost 20-35% more CPU
+            # time than uniform ones on the caustics box; sorted, 15-20%.)
+            pixels = pixels[np.argsort(-n.ravel()[pixels], kind="stable")]
         jobs = np.zeros((len(pixels), 4), dtype=np.uint32)
         jobs[:, 0] = n.ravel()[pixels]
         jobs[:, 1] = np.minimum(depth.ravel()[pixels], 2**31)
         jobs[:, 2] = count[pixels]  # each pixel continues its own sample sequence
-        # Contiguous parts, one per worker, sized by rate (neighbouring pixels
-        # share a work-item: their paths run alike in its lanes). Cut at whole
-        # work-items, so the lanes' samples do not depend on how many parts.
+        # Contiguous parts, one per worker, their samples in proportion to its
+        # rate (neighbouring pixels with alike counts share a work-item: their
+        # paths run alike in its lanes). Cut at whole work-items, so the lanes'
+        # samples do not depend on how many parts.
         live = self.ex.slots
         rates = np.array([1.0 / self.per_spp[s] if self.per_spp.get(s) else 1.0 for s in live])
         groups = -(-len(pixels) // self.lanes)
-        cuts = np.round(np.cumsum(rates) / rates.sum() * groups).astype(int)[:-1] * self.lanes
+        if aset.scheme == "error":
+            # Each work-item's samples (its busiest lane's); cut where the
+            # running sum's midpoints pass each worker's share.
+            per_item = lane_group_max(jobs[:, 0].astype(np.int64), self.lanes)[::self.lanes]
+            work = np.cumsum(per_item)
+            cuts = np.searchsorted(work - per_item / 2, np.cumsum(rates)[:-1] / rates.sum() * work[-1]) * self.lanes
+        else:
+            cuts = np.round(np.cumsum(rates) / rates.sum() * groups).astype(int)[:-1] * self.lanes
         cuts = np.minimum(cuts, len(pixels))
         parts = [p for p in np.split(np.arange(len(pixels)), cuts)]
         # A work-item lasts as long as its busiest lane: each lane gets as many
