@@ -68,6 +68,10 @@ CASES = {
     "offline": ("cornell_box_caustics", {}, {"photons": PhotonSettings(count=20_000, mode="offline",
                                                                        offline_spp=4)}),
     "adaptive": ("cornell_box", {}, {"adaptive": clpt.AdaptiveSettings(min_spp=8, pass_spp=8)}),
+    # Adaptive rounds over progressive photon maps: the maps the rounds used travel in the checkpoint.
+    "adaptive_progressive": ("cornell_box_caustics", {}, {
+        "adaptive": clpt.AdaptiveSettings(min_spp=4, pass_spp=8, threshold=1e-3),
+        "photons": PhotonSettings(count=20_000, progressive=True, spp_per_map=2, pilot=False)}),
     "filtered": ("cornell_box", {"aux": True}, {"filter": clpt.FilterSettings()}),
     # Textures travel in the checkpoint (their texels as arrays).
     "textures": (str(Path(__file__).parent / "data" / "cbox_textured.xml"), {}, {}),

@@ -372,6 +372,8 @@ def _checked_schedule(st, job: RenderJob, fail) -> dict:
     for k in ("next", "rounds"):
         if type(st.get(k)) is not int or st[k] < 0:
             fail(f"{k} must be an integer >= 0 (got {st.get(k)!r})")
+    if "maps" in st and (type(st["maps"]) is not int or st["maps"] < 0):  # absent in older checkpoints
+        fail(f"maps must be an integer >= 0 (got {st['maps']!r})")
     if st["next"] > job.uniform_spp:
         fail(f"next {st['next']} is past the job's {job.uniform_spp} samples")
     for k in ("prepass_done", "adaptive_over"):

@@ -223,17 +223,32 @@ class Driver:
         if len(pixels) == 0:
             sch.adaptive_over = True
             return
+        if aset.scheme == "error":
+            # The pixels with the most samples first (in image order among equals): a
+            # work-item's lanes then get alike counts (less idling, fewer samples added to
+            # fill them) and the longest work-items start first, so a launch does not end
+            # on one of them alone. (In image order, adaptive samples cost 20-35% more CPU
+            # time than uniform ones on the caustics box; sorted, 15-20%.)
+            pixels = pixels[np.argsort(-n.ravel()[pixels], kind="stable")]
         jobs = np.zeros((len(pixels), 4), dtype=np.uint32)
         jobs[:, 0] = n.ravel()[pixels]
         jobs[:, 1] = np.minimum(depth.ravel()[pixels], 2**31)
         jobs[:, 2] = count[pixels]  # each pixel continues its own sample sequence
-        # Contiguous parts, one per worker, sized by rate (neighbouring pixels
-        # share a work-item: their paths run alike in its lanes). Cut at whole
-        # work-items, so the lanes' samples do not depend on how many parts.
+        # Contiguous parts, one per worker, their samples in proportion to its
+        # rate (neighbouring pixels with alike counts share a work-item: their
+        # paths run alike in its lanes). Cut at whole work-items, so the lanes'
+        # samples do not depend on how many parts.
         live = self.ex.slots
         rates = np.array([1.0 / self.per_spp[s] if self.per_spp.get(s) else 1.0 for s in live])
         groups = -(-len(pixels) // self.lanes)
-        cuts = np.round(np.cumsum(rates) / rates.sum() * groups).astype(int)[:-1] * self.lanes
+        if aset.scheme == "error":
+            # Each work-item's samples (its busiest lane's); cut where the
+            # running sum's midpoints pass each worker's share.
+            per_item = lane_group_max(jobs[:, 0].astype(np.int64), self.lanes)[::self.lanes]
+            work = np.cumsum(per_item)
+            cuts = np.searchsorted(work - per_item / 2, np.cumsum(rates)[:-1] / rates.sum() * work[-1]) * self.lanes
+        else:
+            cuts = np.round(np.cumsum(rates) / rates.sum() * groups).astype(int)[:-1] * self.lanes
         cuts = np.minimum(cuts, len(pixels))
         parts = [p for p in np.split(np.arange(len(pixels)), cuts)]
         # A work-item lasts as long as its busiest lane: each lane gets as many
@@ -242,10 +257,33 @@ class Driver:
         if sum(int(m.sum()) for m in more) <= left:
             for idx, m in zip(parts, more):
                 jobs[idx, 0] = m
-        # Progressive photons: each round gathers from the next iteration's map.
-        it = -(-job.uniform_spp // job.spp_per_map) + sch.rounds if job.spp_per_map else 0
-        sch.add_round([WorkItem("pixels", pixels=pixels[idx], jobs=jobs[idx], iteration=it, round=sch.rounds)
-                       for idx in parts if len(idx)])
+        # Progressive photons: a round gathers from as many fresh maps as its
+        # samples fill at the uniform phase's rate (spp_per_map samples of
+        # every pixel per map), each pixel's samples spread evenly over them.
+        # With one map per round, a map served up to eight times the camera
+        # samples of a uniform one: its photons' noise, shared by all those
+        # samples, went unseen by the per-pixel error, and the radius shrank
+        # eight times slower.
+        items = []
+        if job.spp_per_map:
+            first = -(-job.uniform_spp // job.spp_per_map) + sch.maps
+            k = int(max(1, min(round(int(jobs[:, 0].sum()) / (n_pix * job.spp_per_map)), int(jobs[:, 0].max()))))
+            n = jobs[:, 0].astype(np.int64)
+            for j in range(k):
+                lo, hi = n * j // k, n * (j + 1) // k
+                sl = jobs.copy()
+                sl[:, 0] = hi - lo
+                sl[:, 2] = jobs[:, 2] + lo
+                for idx in parts:
+                    idx = idx[sl[idx, 0] > 0]
+                    if len(idx):
+                        items.append(WorkItem("pixels", pixels=pixels[idx], jobs=sl[idx], iteration=first + j,
+                                              round=sch.rounds))
+            sch.maps += k
+        else:
+            items = [WorkItem("pixels", pixels=pixels[idx], jobs=jobs[idx], iteration=0, round=sch.rounds)
+                     for idx in parts if len(idx)]
+        sch.add_round(items)
         self.round_open = True
 
     # --- checkpoints and updates ---------------------------------------------------------

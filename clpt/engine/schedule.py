@@ -24,6 +24,7 @@ class Schedule:
         self.redo: list[WorkItem] = []
         self.round_items: list[WorkItem] = []
         self.rounds = 0            # adaptive rounds finished
+        self.maps = 0              # progressive photon maps the adaptive rounds gathered from
         self.adaptive_over = job.adaptive is None
         self.out = 0               # items handed out and not yet done or failed
         self.stopped = False
@@ -101,7 +102,7 @@ class Schedule:
         """The position (only meaningful with nothing out, as at a checkpoint)."""
         if self.out:
             raise RuntimeError("a schedule's position is only defined with no work out")
-        return {"next": self.next, "prepass_done": self.prepass_done, "rounds": self.rounds,
+        return {"next": self.next, "prepass_done": self.prepass_done, "rounds": self.rounds, "maps": self.maps,
                 "adaptive_over": self.adaptive_over, "redo": [_item_state(i) for i in self.redo + self.round_items]}
 
     @classmethod
@@ -110,6 +111,7 @@ class Schedule:
         s.next = int(st["next"])
         s.prepass_done = bool(st["prepass_done"]) or not job.prepass_spp
         s.rounds = int(st["rounds"])
+        s.maps = int(st.get("maps", s.rounds))  # checkpoints of one map per round
         s.adaptive_over = bool(st["adaptive_over"])
         s.redo = [_item_from_state(d) for d in st["redo"]]
         return s

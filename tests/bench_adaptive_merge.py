@@ -1,0 +1,116 @@
+"""Uniform against adaptive sampling at equal CPU time, errors against a
+reference: on a machine other jobs share, wall-clock time limits are noisy,
+so each method's samples per pixel are chosen to fill the same CPU seconds
+of this process (every thread's, the OpenCL runtime's workers included).
+
+    python tests/bench_adaptive_merge.py cornell_box_caustics --device intel \\
+        --cpu-seconds 6 --seeds 1,2,3 --ref /tmp/ref.exr --ref-spp 65536
+
+For each seed and method: a probe render of 64 spp measures the CPU cost
+per sample per pixel; the render then gets the spp that fill --cpu-seconds
+(up to twice more, rescaled by its own cost, while it misses by more than
+5%); the errors are also given scaled to exactly --cpu-seconds (times the
+CPU seconds used over --cpu-seconds, as for an error falling as 1/time). The
+scene's photon settings apply (the pilot chooses merging or path tracing).
+Prints per run the CPU seconds, spp, relMSE (RGB, eps 1e-2, as clpt compare)
+and the luminance relMSE with the reference's own noise taken out, then the
+means and the ratios uniform / adaptive (above 1: adaptive is better).
+The reference is read from --ref, or path traced with --ref-spp and saved
+there. Run it from another tree with PYTHONPATH=that/tree to measure that
+tree's clpt.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+import warnings
+
+import numpy as np
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("scene")
+    ap.add_argument("--device", default="intel")
+    ap.add_argument("--width", type=int, default=128)
+    ap.add_argument("--height", type=int, default=128)
+    ap.add_argument("--max-depth", type=int, default=None)
+    ap.add_argument("--cpu-seconds", type=float, default=6.0)
+    ap.add_argument("--seeds", default="1,2,3")
+    ap.add_argument("--ref", required=True, help="reference EXR (rendered and saved if missing)")
+    ap.add_argument("--ref-spp", type=int, default=16384)
+    ap.add_argument("--threshold", type=float, default=None,
+                    help="the adaptive noise threshold (default: AdaptiveSettings'; one the time cannot reach "
+                         "makes adaptive sampling use all of it)")
+    ap.add_argument("--json", action="store_true")
+    a = ap.parse_args(argv)
+    warnings.simplefilter("ignore")
+
+    from clpt.adaptive import AdaptiveSettings
+    from clpt.loading import load_scene
+    from clpt.render import Renderer
+    from clpt.tools import metrics
+    from clpt.tools.reference import reference_image
+
+    scene = load_scene(a.scene)
+    W, H = a.width, a.height
+    ref = reference_image(scene, W, H, a.ref_spp, a.ref, a.device, max_depth=a.max_depth)
+    r = Renderer(scene, device=a.device)
+    kw = dict(width=W, height=H, max_depth=a.max_depth)
+    methods = {"uniform": {}, "adaptive": {"adaptive": AdaptiveSettings() if a.threshold is None else
+                                                 AdaptiveSettings(threshold=a.threshold)}}
+    for m in methods.values():  # first launches (kernel builds) kept out of the timings
+        r.render(64, seed=999, **kw, **m)
+    runs = []
+    T = a.cpu_seconds
+    for seed in (int(s) for s in a.seeds.split(",")):
+        for name, m in methods.items():
+            c = time.process_time()
+            r.render(64, seed=seed + 1000, **kw, **m)
+            per = (time.process_time() - c) / 64
+            spp = max(1, int(T / per))
+            for _ in range(3):
+                c = time.process_time()
+                res = r.render(spp, seed=seed, **kw, **m)
+                used = time.process_time() - c
+                if abs(used - T) <= 0.05 * T:
+                    break
+                spp = max(1, int(spp * T / max(used, 1e-9)))
+            img = res.image.astype(np.float64)
+            row = {"method": name, "seed": seed, "cpu_seconds": used, "spp": float(res.sample_count.mean()),
+                   "relmse": metrics.relmse(img, ref),
+                   "relmse_luma_denoised": metrics.relmse_luma(img, ref, ref.noise_map),
+                   # As if the render had taken exactly T CPU seconds (error ~ 1 / time):
+                   # what is left of the calibration's miss.
+                   "relmse_at_T": metrics.relmse(img, ref) * used / T,
+                   "relmse_luma_denoised_at_T": metrics.relmse_luma(img, ref, ref.noise_map) * used / T,
+                   "choice": (res.stats.photon_pilot or {}).get("choice"),
+                   "rounds": res.stats.adaptive_rounds}
+            runs.append(row)
+            if not a.json:
+                print(f"  seed {seed} {name:9s} {used:6.2f} CPU s {row['spp']:8.1f} spp  relMSE {row['relmse']:.3e}"
+                      f"  luma relMSE - ref noise {row['relmse_luma_denoised']:.3e}  [{row['choice']}]", flush=True)
+    summary = {}
+    for name in methods:
+        rows = [x for x in runs if x["method"] == name]
+        summary[name] = {k: float(np.mean([x[k] for x in rows])) for k in
+                         ("cpu_seconds", "spp", "relmse", "relmse_luma_denoised", "relmse_at_T",
+                          "relmse_luma_denoised_at_T")}
+    gain = {k: summary["uniform"][k] / summary["adaptive"][k] for k in
+            ("relmse", "relmse_luma_denoised", "relmse_at_T", "relmse_luma_denoised_at_T")}
+    if a.json:
+        print(json.dumps({"runs": runs, "summary": summary, "gain": gain}, indent=1))
+        return 0
+    for name, s in summary.items():
+        print(f"{name:9s} mean: {s['cpu_seconds']:6.2f} CPU s {s['spp']:8.1f} spp  relMSE {s['relmse']:.3e}"
+              f"  luma relMSE - ref noise {s['relmse_luma_denoised']:.3e}")
+    print(f"lanes {r.features.lanes}; uniform / adaptive: relMSE {gain['relmse']:.3f}x, luma relMSE - ref noise "
+          f"{gain['relmse_luma_denoised']:.3f}x; scaled to {T:g} CPU s (error x CPU s / {T:g}): relMSE "
+          f"{gain['relmse_at_T']:.3f}x, luma relMSE - ref noise {gain['relmse_luma_denoised_at_T']:.3f}x")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
