@@ -128,7 +128,7 @@ inline void mf_sample_slopes(vreal ci, vreal u1, vreal u2, vmask beckmann, vreal
     vreal si = vsafe_sqrt(R(1) - ci * ci);
     // --- GGX: a uniform disk point projected onto the visible half ------------------
     vreal r = sqrt(u1), cphi;
-    vreal sphi = sincos(R(2 * M_PI) * u2, &cphi);
+    vreal sphi = poly_sincos(R(2 * M_PI) * u2, &cphi);
     vreal px = r * cphi, py = r * sphi;
     vreal s = R(0.5) * (R(1) + ci);
     py = mad(vsafe_sqrt(R(1) - px * px), R(1) - s, py * s);

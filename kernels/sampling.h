@@ -20,6 +20,30 @@ inline V3 frame_to_world(V3 n, vreal x, vreal y, vreal z)
     return v3(x * t.x + y * b.x + z * n.x, x * t.y + y * b.y + z * n.y, x * t.z + y * b.z + z * n.z);
 }
 
+// sin x and (*c) cos x for x in [0, 2 pi] (the environment's and the microfacet
+// samplers' angles; sampling that shipped scenes use keeps sincos): in float
+// builds a quadrant and polynomials on [-pi/4, pi/4] (truncation below
+// 2e-9; no general argument reduction, which the runtimes' sincos pays
+// for every lane); in double builds sincos itself.
+inline vreal poly_sincos(vreal x, vreal *c)
+{
+#if CLPT_DOUBLE
+    return sincos(x, c);
+#else
+    vreal q = rint(x * R(M_2_PI));
+    vreal r = (x - q * R(1.5707963705062866)) - q * R(-4.371139000186243e-8);  // x - q pi/2, two parts
+    vreal r2 = r * r;
+    vreal sr = r + r * r2 * (R(-1.0 / 6) + r2 * (R(1.0 / 120) + r2 * (R(-1.0 / 5040) + r2 * R(1.0 / 362880))));
+    vreal cr = R(1) + r2 * (R(-0.5) + r2 * (R(1.0 / 24) + r2 * (R(-1.0 / 720) + r2 * (R(1.0 / 40320) +
+                                                                                      r2 * R(-1.0 / 3628800)))));
+    vreal k = q - R(4) * floor(q * R(0.25));  // the quadrant, 0..3
+    vmask odd = k == R(1) || k == R(3);
+    vreal sn = VSEL(sr, cr, odd), cs = VSEL(cr, sr, odd);
+    *c = VSEL(cs, -cs, k == R(1) || k == R(2));
+    return VSEL(sn, -sn, k >= R(2));
+#endif
+}
+
 // Direction around the z axis with cos(theta) = c and sin(theta) = s, at azimuth 2 pi u.
 inline V3 spherical_local(vreal c, vreal s, vreal u)
 {
