@@ -22,10 +22,12 @@
 // a2 = alpha_u alpha_v; 0 where c <= 0 (Mitsuba: D cos > 1e-20).
 inline vreal mf_D_core(vreal c, vreal t, vreal a2, vmask beckmann)
 {
-    vreal c2 = c * c;
-    vreal ggx = R(1) / (R(M_PI) * a2 * (t + c2) * (t + c2));
-    vreal beck = exp(-t / c2) / (R(M_PI) * a2 * c2 * c2);
-    vreal r = VSEL(ggx, beck, beckmann);
+    // Each distribution only where a lane has it (vectors of one material are the rule).
+    vreal c2 = c * c, r = (vreal)R(0);
+    if (!VALL(beckmann))
+        r = R(1) / (R(M_PI) * a2 * (t + c2) * (t + c2));
+    if (VANY(beckmann))
+        r = VSEL(r, exp(-t / c2) / (R(M_PI) * a2 * c2 * c2), beckmann);
     return VSEL((vreal)R(0), r, r * c > R(1e-20));
 }
 
@@ -42,12 +44,14 @@ inline vreal mf_D(vreal c, vreal s2, vreal alpha, vmask beckmann)
 // microfacet from behind (vh cv <= 0), 1 at normal incidence.
 inline vreal mf_G1_core(vreal cv, vreal xy, vreal vh, vmask beckmann)
 {
-    vreal tan2 = xy / (cv * cv);
-    vreal ggx = R(2) / (R(1) + sqrt(R(1) + tan2));
-    vreal a = rsqrt(tan2);
-    vreal beck = (R(3.535) * a + R(2.181) * a * a) / (R(1) + R(2.276) * a + R(2.577) * a * a);
-    beck = VSEL(beck, (vreal)R(1), a >= R(1.6));
-    vreal r = VSEL(ggx, beck, beckmann);
+    vreal tan2 = xy / (cv * cv), r = (vreal)R(0);
+    if (!VALL(beckmann))
+        r = R(2) / (R(1) + sqrt(R(1) + tan2));
+    if (VANY(beckmann)) {
+        vreal a = rsqrt(tan2);
+        vreal beck = (R(3.535) * a + R(2.181) * a * a) / (R(1) + R(2.276) * a + R(2.577) * a * a);
+        r = VSEL(r, VSEL(beck, (vreal)R(1), a >= R(1.6)), beckmann);
+    }
     r = VSEL(r, (vreal)R(1), xy == R(0));
     return VSEL(r, (vreal)R(0), vh * cv <= R(0));
 }
@@ -74,10 +78,10 @@ inline vreal fresnel_conductor(vreal cos_i, vreal eta, vreal k)
     vreal a2pb2 = vsafe_sqrt(t1 * t1 + R(4) * k * k * eta * eta);
     vreal a = vsafe_sqrt(R(0.5) * (a2pb2 + t1));
     vreal term1 = a2pb2 + c2, term2 = R(2) * cos_i * a;
-    vreal rs = (term1 - term2) / (term1 + term2);
     vreal term3 = a2pb2 * c2 + s4, term4 = term2 * s2;
-    vreal rp = rs * (term3 - term4) / (term3 + term4);
-    return R(0.5) * (rs + rp);
+    // (rs + rp) / 2 with rs = (term1 - term2) / (term1 + term2), rp = rs (term3 - term4) /
+    // (term3 + term4): rs term3 / (term3 + term4), one division.
+    return (term1 - term2) * term3 / ((term1 + term2) * (term3 + term4));
 }
 
 inline V3 fresnel_conductor3(vreal cos_i, V3 eta, V3 k)
@@ -94,28 +98,28 @@ inline vreal mf_erfinv(vreal x)
     vreal w = -log((R(1) - x) * (R(1) + x));
     vreal w1 = w - R(2.5);
     vreal p1 = (vreal)R(2.81022636e-08);
-    p1 = mad(p1, w1, (vreal)R(3.43273939e-07));
-    p1 = mad(p1, w1, (vreal)R(-3.5233877e-06));
-    p1 = mad(p1, w1, (vreal)R(-4.39150654e-06));
-    p1 = mad(p1, w1, (vreal)R(0.00021858087));
-    p1 = mad(p1, w1, (vreal)R(-0.00125372503));
-    p1 = mad(p1, w1, (vreal)R(-0.00417768164));
-    p1 = mad(p1, w1, (vreal)R(0.246640727));
-    p1 = mad(p1, w1, (vreal)R(1.50140941));
+    p1 = fma(p1, w1, (vreal)R(3.43273939e-07));
+    p1 = fma(p1, w1, (vreal)R(-3.5233877e-06));
+    p1 = fma(p1, w1, (vreal)R(-4.39150654e-06));
+    p1 = fma(p1, w1, (vreal)R(0.00021858087));
+    p1 = fma(p1, w1, (vreal)R(-0.00125372503));
+    p1 = fma(p1, w1, (vreal)R(-0.00417768164));
+    p1 = fma(p1, w1, (vreal)R(0.246640727));
+    p1 = fma(p1, w1, (vreal)R(1.50140941));
     // The tail's polynomial (|x| > ~0.9966) only where a lane needs it.
     vmask tail = w >= R(5);
     if (!VANY(tail))
         return p1 * x;
     vreal w2 = sqrt(w) - R(3);
     vreal p2 = (vreal)R(-0.000200214257);
-    p2 = mad(p2, w2, (vreal)R(0.000100950558));
-    p2 = mad(p2, w2, (vreal)R(0.00134934322));
-    p2 = mad(p2, w2, (vreal)R(-0.00367342844));
-    p2 = mad(p2, w2, (vreal)R(0.00573950773));
-    p2 = mad(p2, w2, (vreal)R(-0.0076224613));
-    p2 = mad(p2, w2, (vreal)R(0.00943887047));
-    p2 = mad(p2, w2, (vreal)R(1.00167406));
-    p2 = mad(p2, w2, (vreal)R(2.83297682));
+    p2 = fma(p2, w2, (vreal)R(0.000100950558));
+    p2 = fma(p2, w2, (vreal)R(0.00134934322));
+    p2 = fma(p2, w2, (vreal)R(-0.00367342844));
+    p2 = fma(p2, w2, (vreal)R(0.00573950773));
+    p2 = fma(p2, w2, (vreal)R(-0.0076224613));
+    p2 = fma(p2, w2, (vreal)R(0.00943887047));
+    p2 = fma(p2, w2, (vreal)R(1.00167406));
+    p2 = fma(p2, w2, (vreal)R(2.83297682));
     return VSEL(p2, p1, w < R(5)) * x;
 }
 
@@ -131,9 +135,9 @@ inline void mf_sample_slopes(vreal ci, vreal u1, vreal u2, vmask beckmann, vreal
     vreal sphi = poly_sincos(R(2 * M_PI) * u2, &cphi);
     vreal px = r * cphi, py = r * sphi;
     vreal s = R(0.5) * (R(1) + ci);
-    py = mad(vsafe_sqrt(R(1) - px * px), R(1) - s, py * s);
+    py = fma(vsafe_sqrt(R(1) - px * px), R(1) - s, py * s);
     vreal pz = vsafe_sqrt(R(1) - px * px - py * py);
-    vreal inv = R(1) / mad(si, py, ci * pz);
+    vreal inv = R(1) / fma(si, py, ci * pz);
     vreal gx = (ci * py - si * pz) * inv, gy = px * inv;
     *sx = gx;
     *sy = gy;
