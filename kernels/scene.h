@@ -472,8 +472,9 @@ inline Material material_blank(__global const real4 *rec)
 }
 
 // Per-lane material by selecting over the (few) materials: cheaper on a CPU
-// than eight scattered loads per field.
-inline Material material_fetch(const Scene *sc, vreal id)
+// than eight scattered loads per field. Into *out, and always inlined: as a
+// call returning the struct (kilobytes of lanes) PoCL copied it through memory.
+CLPT_INLINE void material_fetch(const Scene *sc, vreal id, Material *out)
 {
     Material m = material_blank(sc->rec);
     for (uint i = 0; i < NUM_MATERIALS; i++) {
@@ -526,7 +527,7 @@ inline Material material_fetch(const Scene *sc, vreal id)
         m.nondelta = VSEL(m.nondelta, (vreal)g.z, is);
         m.one_sided = VSEL(m.one_sided, (vreal)g.w, is);
     }
-    return m;
+    *out = m;
 }
 
 #if CLPT_HAS_ANISOTROPY
