@@ -118,7 +118,7 @@ inline Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmask act
     Vertex v;
     v.h = h;
     v.hit = active && h.t < R(INFINITY);
-    material_fetch(sc, h.mat, &v.m);
+    v.m = material_fetch(sc, h.mat);
 #if CLPT_HAS_TEXTURES
     material_textures(sc, &v.m, &h, v.hit);
 #endif

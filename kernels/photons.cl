@@ -94,8 +94,7 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
     for (uint b = 0; b < PHOTON_MAX_BOUNCES && VANY(live); b++) {
         Hit h = scene_intersect(sc, o, d);
         live = live && h.t < R(INFINITY);
-        Material m;
-        material_fetch(sc, h.mat, &m);
+        Material m = material_fetch(sc, h.mat);
 #if CLPT_HAS_TEXTURES
         material_textures(sc, &m, &h, live);
 #endif

@@ -472,9 +472,8 @@ inline Material material_blank(__global const real4 *rec)
 }
 
 // Per-lane material by selecting over the (few) materials: cheaper on a CPU
-// than eight scattered loads per field. Into *out, and always inlined: as a
-// call returning the struct (kilobytes of lanes) PoCL copied it through memory.
-CLPT_INLINE void material_fetch(const Scene *sc, vreal id, Material *out)
+// than eight scattered loads per field.
+inline Material material_fetch(const Scene *sc, vreal id)
 {
     Material m = material_blank(sc->rec);
     for (uint i = 0; i < NUM_MATERIALS; i++) {
@@ -527,7 +526,7 @@ CLPT_INLINE void material_fetch(const Scene *sc, vreal id, Material *out)
         m.nondelta = VSEL(m.nondelta, (vreal)g.z, is);
         m.one_sided = VSEL(m.one_sided, (vreal)g.w, is);
     }
-    *out = m;
+    return m;
 }
 
 #if CLPT_HAS_ANISOTROPY
