@@ -554,7 +554,7 @@ inline void sample_rough_dielectric(const Material *m, LobeProbs pr, V3 d, V3 n,
         // D(h) cos h: tan^2 theta = a^2 u1 / (1 - u1) (GGX) or -a^2 log(1 - u1) (Beckmann).
         vreal a = rough_dielectric_sample_alpha(m, co);
         vreal t2 = a * a * VSEL(u.u1 / (R(1) - u.u1), -log(R(1) - u.u1), bk);
-        vreal c = rsqrt(R(1) + t2), s = vsafe_sqrt(R(1) - c * c), cp;
+        vreal c = vrsqrt(R(1) + t2), s = vsafe_sqrt(R(1) - c * c), cp;
         vreal sp = poly_sincos(R(2 * M_PI) * u.u2, &cp);
         h = v3_sel(h, frame_to_world(n, s * cp, s * sp, c), !vis);
     }

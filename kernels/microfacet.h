@@ -48,7 +48,7 @@ inline vreal mf_G1_core(vreal cv, vreal xy, vreal vh, vmask beckmann)
     if (!VALL(beckmann))
         r = R(2) / (R(1) + sqrt(R(1) + tan2));
     if (VANY(beckmann)) {
-        vreal a = rsqrt(tan2);
+        vreal a = vrsqrt(tan2);
         vreal beck = (R(3.535) * a + R(2.181) * a * a) / (R(1) + R(2.276) * a + R(2.577) * a * a);
         r = VSEL(r, VSEL(beck, (vreal)R(1), a >= R(1.6)), beckmann);
     }
