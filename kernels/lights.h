@@ -321,9 +321,9 @@ inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
         return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
     }
     V3 l = v3(v3_dot4(d, c0), v3_dot4(d, c1), v3_dot4(d, c2));
-    vreal u = atan2(l.x, -l.z) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
+    vreal u = poly_atan2(l.x, -l.z) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
     vreal gx = (u - floor(u)) * (real)w;
-    vreal gy = acos(fmin(fmax(l.y, (vreal)R(-1)), (vreal)R(1))) * (R(M_1_PI) * (real)(h - 1u));
+    vreal gy = poly_acos(fmin(fmax(l.y, (vreal)R(-1)), (vreal)R(1))) * (R(M_1_PI) * (real)(h - 1u));
     // The cells for all lanes at once (fmin and fmax keep a NaN's lane in range), then every lane's
     // fetches, unrolled, their results masked below.
     vreal xf = fmax(fmin(floor(gx), (vreal)(real)(w - 1u)), (vreal)R(0));

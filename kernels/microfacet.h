@@ -147,7 +147,7 @@ inline void mf_sample_slopes(vreal ci, vreal u1, vreal u2, vmask beckmann, vreal
     vreal tan_i = si / ci, cot_i = ci / si;
     vreal a = (vreal)R(-1), c = erf(cot_i);
     vreal ux = fmax(u1, R(1e-6));
-    vreal th = acos(ci);
+    vreal th = poly_acos(ci);
     vreal fit = R(1) + th * (R(-0.876) + th * (R(0.4265) - R(0.0594) * th));
     // (1 - ux)^fit as exp(fit log(1 - ux)): PoCL's vector pow is several times slower.
     vreal b = c - (R(1) + c) * exp(fit * log(R(1) - ux));
