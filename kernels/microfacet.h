@@ -98,28 +98,28 @@ inline vreal mf_erfinv(vreal x)
     vreal w = -log((R(1) - x) * (R(1) + x));
     vreal w1 = w - R(2.5);
     vreal p1 = (vreal)R(2.81022636e-08);
-    p1 = fma(p1, w1, (vreal)R(3.43273939e-07));
-    p1 = fma(p1, w1, (vreal)R(-3.5233877e-06));
-    p1 = fma(p1, w1, (vreal)R(-4.39150654e-06));
-    p1 = fma(p1, w1, (vreal)R(0.00021858087));
-    p1 = fma(p1, w1, (vreal)R(-0.00125372503));
-    p1 = fma(p1, w1, (vreal)R(-0.00417768164));
-    p1 = fma(p1, w1, (vreal)R(0.246640727));
-    p1 = fma(p1, w1, (vreal)R(1.50140941));
+    p1 = mad(p1, w1, (vreal)R(3.43273939e-07));
+    p1 = mad(p1, w1, (vreal)R(-3.5233877e-06));
+    p1 = mad(p1, w1, (vreal)R(-4.39150654e-06));
+    p1 = mad(p1, w1, (vreal)R(0.00021858087));
+    p1 = mad(p1, w1, (vreal)R(-0.00125372503));
+    p1 = mad(p1, w1, (vreal)R(-0.00417768164));
+    p1 = mad(p1, w1, (vreal)R(0.246640727));
+    p1 = mad(p1, w1, (vreal)R(1.50140941));
     // The tail's polynomial (|x| > ~0.9966) only where a lane needs it.
     vmask tail = w >= R(5);
     if (!VANY(tail))
         return p1 * x;
     vreal w2 = sqrt(w) - R(3);
     vreal p2 = (vreal)R(-0.000200214257);
-    p2 = fma(p2, w2, (vreal)R(0.000100950558));
-    p2 = fma(p2, w2, (vreal)R(0.00134934322));
-    p2 = fma(p2, w2, (vreal)R(-0.00367342844));
-    p2 = fma(p2, w2, (vreal)R(0.00573950773));
-    p2 = fma(p2, w2, (vreal)R(-0.0076224613));
-    p2 = fma(p2, w2, (vreal)R(0.00943887047));
-    p2 = fma(p2, w2, (vreal)R(1.00167406));
-    p2 = fma(p2, w2, (vreal)R(2.83297682));
+    p2 = mad(p2, w2, (vreal)R(0.000100950558));
+    p2 = mad(p2, w2, (vreal)R(0.00134934322));
+    p2 = mad(p2, w2, (vreal)R(-0.00367342844));
+    p2 = mad(p2, w2, (vreal)R(0.00573950773));
+    p2 = mad(p2, w2, (vreal)R(-0.0076224613));
+    p2 = mad(p2, w2, (vreal)R(0.00943887047));
+    p2 = mad(p2, w2, (vreal)R(1.00167406));
+    p2 = mad(p2, w2, (vreal)R(2.83297682));
     return VSEL(p2, p1, w < R(5)) * x;
 }
 
@@ -162,9 +162,9 @@ inline void mf_sample_slopes(vreal ci, vreal u1, vreal u2, vmask beckmann, vreal
     vreal sphi = poly_sincos(R(2 * M_PI) * u2, &cphi);
     vreal px = r * cphi, py = r * sphi;
     vreal s = R(0.5) * (R(1) + ci);
-    py = fma(vsafe_sqrt(R(1) - px * px), R(1) - s, py * s);
+    py = mad(vsafe_sqrt(R(1) - px * px), R(1) - s, py * s);
     vreal pz = vsafe_sqrt(R(1) - px * px - py * py);
-    vreal inv = R(1) / fma(si, py, ci * pz);
+    vreal inv = R(1) / mad(si, py, ci * pz);
     vreal gx = (ci * py - si * pz) * inv, gy = px * inv;
     *sx = gx;
     *sy = gy;
