@@ -266,7 +266,6 @@ inline V3 rough_dielectric_eval_pdf(const Material *m, V3 d, V3 n, V3 wi, vreal 
     h = v3_sel(h, v3_neg(h), v3_dot(h, n) < R(0));
     vreal hn = v3_dot(h, n), oh = -v3_dot(d, h), ih = v3_dot(wi, h), ct;
     vmask bk = m->g_beckmann != R(0);
-    vreal s2h = mf_sin2(h, n);
     V3 s = MF_S(m, n);
     vreal av = MF_AV(m, m->g_alpha);
     vreal D = mf_D_w(h, n, s, m->g_alpha, av, bk);
@@ -277,8 +276,10 @@ inline V3 rough_dielectric_eval_pdf(const Material *m, V3 d, V3 n, V3 wi, vreal 
     vreal fr = F * D * G / (R(4) * co * ci);
     vreal ft = (R(1) - F) * D * G * fabs(oh * ih) / (co * fabs(ci) * den * den);
     vmask ok = co > R(0) && ci != R(0) && oh > R(0) && ih * ci > R(0) && D > R(0);
-    vreal ph = VSEL(mf_D(hn, s2h, rough_dielectric_sample_alpha(m, co), bk) * hn, D * g1o * oh / co,
-                    m->g_visible != R(0));
+    vmask vis = m->g_visible != R(0);
+    vreal ph = D * g1o * oh / co;
+    if (!VALL(vis))  // D cos h with the widened roughness only where a lane samples it
+        ph = VSEL(mf_D(hn, mf_sin2(h, n), rough_dielectric_sample_alpha(m, co), bk) * hn, ph, vis);
     vreal jac = VSEL(e * e * fabs(ih) / (den * den), R(1) / (R(4) * ih), refl);
     *pdf = VSEL((vreal)R(0), ph * VSEL(R(1) - F, F, refl) * jac, ok);
     return v3_sel(v3_zero(), v3_sel(v3_scale(m->gt, ft), v3_scale(m->gr, fr), refl), ok);
@@ -556,8 +557,8 @@ inline void sample_rough_dielectric(const Material *m, LobeProbs pr, V3 d, V3 n,
         // D(h) cos h: tan^2 theta = a^2 u1 / (1 - u1) (GGX) or -a^2 log(1 - u1) (Beckmann).
         vreal a = rough_dielectric_sample_alpha(m, co);
         vreal t2 = a * a * VSEL(u.u1 / (R(1) - u.u1), -log(R(1) - u.u1), bk);
-        vreal c = rsqrt(R(1) + t2), s = vsafe_sqrt(R(1) - c * c), cp;
-        vreal sp = sincos(R(2 * M_PI) * u.u2, &cp);
+        vreal c = vrsqrt(R(1) + t2), s = vsafe_sqrt(R(1) - c * c), cp;
+        vreal sp = poly_sincos(R(2 * M_PI) * u.u2, &cp);
         h = v3_sel(h, frame_to_world(n, s * cp, s * sp, c), !vis);
     }
     vreal oh = -v3_dot(d, h), ct;

@@ -346,29 +346,6 @@ inline real4 env_texels(const Scene *sc, uint base, uint w, uint x0, uint y0, re
     return a * (R(1) - fy) + b * fy;
 }
 
-// sin x and (*c) cos x for x in [0, 2 pi] (env_sample's angles): in float
-// builds a quadrant and polynomials on [-pi/4, pi/4] (truncation below
-// 2e-9; no general argument reduction, which the runtimes' sincos pays
-// for every lane); in double builds sincos itself.
-inline vreal env_sincos(vreal x, vreal *c)
-{
-#if CLPT_DOUBLE
-    return sincos(x, c);
-#else
-    vreal q = rint(x * R(M_2_PI));
-    vreal r = (x - q * R(1.5707963705062866)) - q * R(-4.371139000186243e-8);  // x - q pi/2, two parts
-    vreal r2 = r * r;
-    vreal sr = r + r * r2 * (R(-1.0 / 6) + r2 * (R(1.0 / 120) + r2 * (R(-1.0 / 5040) + r2 * R(1.0 / 362880))));
-    vreal cr = R(1) + r2 * (R(-0.5) + r2 * (R(1.0 / 24) + r2 * (R(-1.0 / 720) + r2 * (R(1.0 / 40320) +
-                                                                                      r2 * R(-1.0 / 3628800)))));
-    vreal k = q - R(4) * floor(q * R(0.25));  // the quadrant, 0..3
-    vmask odd = k == R(1) || k == R(3);
-    vreal sn = VSEL(sr, cr, odd), cs = VSEL(cr, sr, odd);
-    *c = VSEL(cs, -cs, k == R(1) || k == R(2));
-    return VSEL(sn, -sn, k >= R(2));
-#endif
-}
-
 // The frame of the environment whose record is at r: columns c0, c1, c2 of to_world's rotation.
 inline void env_frame(const Scene *sc, uint r, real4 *c0, real4 *c1, real4 *c2)
 {
@@ -393,9 +370,9 @@ inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
         return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
     }
     V3 l = v3(v3_dot4(d, c0), v3_dot4(d, c1), v3_dot4(d, c2));
-    vreal u = atan2(l.x, -l.z) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
+    vreal u = poly_atan2(l.x, -l.z) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
     vreal gx = (u - floor(u)) * (real)w;
-    vreal gy = acos(fmin(fmax(l.y, (vreal)R(-1)), (vreal)R(1))) * (R(M_1_PI) * (real)(h - 1u));
+    vreal gy = poly_acos(fmin(fmax(l.y, (vreal)R(-1)), (vreal)R(1))) * (R(M_1_PI) * (real)(h - 1u));
     // The cells for all lanes at once (fmin and fmax keep a NaN's lane in range), then every lane's
     // fetches, unrolled, their results masked below.
     vreal xf = fmax(fmin(floor(gx), (vreal)(real)(w - 1u)), (vreal)R(0));
@@ -475,7 +452,7 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
     vreal phi = (gx + R(0.5)) * (R(2 * M_PI) / (real)w);
     vreal theta = gy * (R(M_PI) / (real)(h - 1u));
     vreal ct, cp;
-    vreal st = env_sincos(theta, &ct), sp = env_sincos(phi, &cp);
+    vreal st = poly_sincos(theta, &ct), sp = poly_sincos(phi, &cp);
     V3 l = v3(sp * st, ct, -cp * st);
     *d = v3(l.x * c0.x + l.y * c1.x + l.z * c2.x, l.x * c0.y + l.y * c1.y + l.z * c2.y,
             l.x * c0.z + l.y * c1.z + l.z * c2.z);

@@ -565,6 +565,6 @@ inline void material_tangent(const Scene *sc, Material *m, const Hit *h, V3 n, v
     }
     V3 p = v3_fma(n, -v3_dot(n, g), g);
     vreal len2 = v3_dot(p, p);
-    m->s = v3_sel(t, v3_scale(p, rsqrt(fmax(len2, (vreal)R(1e-30)))), len2 > R(0));
+    m->s = v3_sel(t, v3_scale(p, vrsqrt(fmax(len2, (vreal)R(1e-30)))), len2 > R(0));
 }
 #endif
