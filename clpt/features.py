@@ -68,6 +68,7 @@ class Features:
     bvh: bool = True           # the scene's primitives are in a BVH
     bvh_walk: str = "hybrid"   # BVH traversal (Experimental): "hybrid" (packets for coherent rays) or "lane"
     smooth: bool = True        # some triangles have vertex normals
+    mitsuba_shading: bool = False  # smooth triangles shade by Mitsuba 3's rules (RenderSettings.shading_normals)
     textures: bool = True      # some materials have textures (kernels/texture.h)
     anisotropy: bool = True    # some microfacet lobes have alpha_u != alpha_v (shading-frame tangents)
     textured_emitters: bool = True  # some area lights' radiance is a texture (with textures)
@@ -105,6 +106,7 @@ class Features:
             "CLPT_HAS_BVH": int(self.bvh),
             "CLPT_BVH_PACKETS": int(self.bvh_walk == "hybrid"),
             "CLPT_HAS_SMOOTH": int(self.smooth),
+            "CLPT_MITSUBA_SHADING": int(self.smooth and self.mitsuba_shading),
             "CLPT_HAS_TEXTURES": int(self.textures),
             "CLPT_HAS_ANISOTROPY": int(self.anisotropy),
             "CLPT_HAS_TEXTURED_EMITTERS": int(self.textures and self.textured_emitters),
@@ -149,7 +151,8 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
                         photons=use_photons, aux=aux, bvh_walk=bvh_walk, pixel_filter=packed.pixel_filter,
                         textures=bool(packed.textures), anisotropy=packed.anisotropic,
-                        textured_emitters=packed.has_textured_emitters, textured_spots=packed.textured_spots)
+                        textured_emitters=packed.has_textured_emitters, textured_spots=packed.textured_spots,
+                        mitsuba_shading=packed.smooth and packed.mitsuba_shading)
     return Features(
         lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
         pixel_filter=packed.pixel_filter,
@@ -172,6 +175,7 @@ def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False,
         env_light="environment" in packed.light_kinds,
         bvh=packed.count("nodes") > 0,
         smooth=packed.smooth,
+        mitsuba_shading=packed.smooth and packed.mitsuba_shading,
         textures=bool(packed.textures),
         anisotropy=packed.anisotropic,
         textured_emitters=packed.has_textured_emitters,

@@ -1402,7 +1402,8 @@ class _Loader:
         render = RenderSettings(spp=settings.get("spp", 4), max_depth=settings["max_depth"],
                                 seed=settings.get("seed", defaults.seed),
                                 rr_depth=settings.get("rr_depth", defaults.rr_depth),
-                                hide_emitters=settings.get("hide_emitters", defaults.hide_emitters))
+                                hide_emitters=settings.get("hide_emitters", defaults.hide_emitters),
+                                shading_normals="mitsuba")
         self.emit_warnings()
         scene = Scene(camera=camera, shapes=shapes, materials=materials, render=render, source=self.shown)
         try:

@@ -73,6 +73,7 @@ class PackedScene:
     env_texels: int = 0          # the environment map's records, last (indexed by integers, not by reals)
     anisotropic: bool = False    # some microfacet lobe has alpha_v != alpha (a TANGENT section after the texels)
     textured_spots: bool = False  # some spot light has a texture (its LIGHT_TEX row names it)
+    mitsuba_shading: bool = False  # RenderSettings.shading_normals == "mitsuba"
 
     @property
     def lum_scale(self) -> float:
@@ -877,7 +878,8 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
                        smooth=smooth, bvh=tree, primitives=b.n_bounded, length_scale=scale,
                        pixel_filter=scene.camera.pixel_filter.kind, textures=tuple(textures),
                        texel_rows=len(texels), env_texels=len(env_texels), anisotropic=anisotropic,
-                       textured_spots=bool(b.spot_textures))
+                       textured_spots=bool(b.spot_textures),
+                       mitsuba_shading=scene.render.shading_normals == "mitsuba")
 
 
 @dataclass(frozen=True)

@@ -325,6 +325,9 @@ class Camera:
     pixel_filter: PixelFilter = PixelFilter()
 
 
+SHADING_NORMALS = ("mirror", "mitsuba")  # RenderSettings.shading_normals
+
+
 @dataclass(frozen=True)
 class RenderSettings:
     """Defaults a scene file may set; render() keywords override them.
@@ -335,6 +338,14 @@ class RenderSettings:
     hide_emitters (Mitsuba 3's integrator option): camera rays see no
     emission (an emitter seen directly is black, as is the environment
     behind the scene); the light emitters cast is unchanged.
+    shading_normals: how smooth triangles' interpolated normals shade.
+    "mirror" (clpt's own): a scattered ray a tilted shading normal sends
+    across the geometric surface is mirrored back, and a shading normal the
+    incoming ray sees from behind is turned to the geometric normal's side.
+    "mitsuba" (Mitsuba 3's, which the XML loader sets): the ray goes on
+    across, and where the incoming ray is behind the shading normal a
+    two-sided material shades with the normal turned to the ray, a one-sided
+    one is black (its delta lobes still reflect and refract).
     """
 
     spp: int = 64
@@ -342,6 +353,12 @@ class RenderSettings:
     seed: int = 0
     rr_depth: int = 2
     hide_emitters: bool = False
+    shading_normals: str = "mirror"
+
+    def __post_init__(self):
+        if self.shading_normals not in SHADING_NORMALS:
+            raise SettingsError(f"shading_normals must be one of {', '.join(SHADING_NORMALS)} "
+                                f"(got {self.shading_normals!r})")
 
 
 @dataclass(frozen=True)

@@ -27,8 +27,9 @@
 #if !defined(CLPT_LUMA_R) || !defined(CLPT_OFFSET_REL_FLOAT)
 #error "clpt: the generated constants (clpt/constants.py) must come first"
 #endif
-#if !defined(CLPT_HAS_BVH) || !defined(CLPT_HAS_SMOOTH) || !defined(CLPT_BVH_PACKETS)
-#error "clpt: CLPT_HAS_BVH, CLPT_HAS_SMOOTH and CLPT_BVH_PACKETS must be defined"
+#if !defined(CLPT_HAS_BVH) || !defined(CLPT_HAS_SMOOTH) || !defined(CLPT_BVH_PACKETS) \
+    || !defined(CLPT_MITSUBA_SHADING)
+#error "clpt: CLPT_HAS_BVH, CLPT_HAS_SMOOTH, CLPT_BVH_PACKETS and CLPT_MITSUBA_SHADING must be defined"
 #endif
 #if !defined(CLPT_HAS_TEXTURES) || !defined(CLPT_HAS_TEXTURED_EMITTERS) || !defined(CLPT_HAS_TEXTURED_SPOTS)
 #error "clpt: CLPT_HAS_TEXTURES, CLPT_HAS_TEXTURED_EMITTERS and CLPT_HAS_TEXTURED_SPOTS must be defined"

@@ -129,6 +129,9 @@ inline Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmask act
     v.front = v3_dot(h.ng, ps->d) < R(0);
     v.ng = v3_sel(v3_neg(h.ng), h.ng, v.front);  // faces the incoming ray
     v.n = hit_shading_normal(sc, &h, v.ng);      // smooth triangles: the interpolated normal
+#if CLPT_MITSUBA_SHADING
+    shading_from_behind(&v.m, &v.n, ps->d, v.hit && h.nrm >= R(0));
+#endif
 #if CLPT_HAS_ANISOTROPY
     material_tangent(sc, &v.m, &h, v.n, v.hit);  // the microfacet lobes' shading frame
 #endif

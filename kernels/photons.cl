@@ -127,6 +127,9 @@ __kernel void trace_photons(__global const real4 *scene, __constant PhotonLaunch
         V3 n = v3_sel(v3_neg(h.ng), h.ng, front);
         V3 ng_side = n;
         n = hit_shading_normal(sc, &h, ng_side);
+#if CLPT_MITSUBA_SHADING
+        live = live && !shading_from_behind(&m, &n, d, live && h.nrm >= R(0));
+#endif
         // Russian roulette over the delta lobes, absorption always allowed;
         // flux, not radiance, crosses a refraction.
         BsdfSample bs;

@@ -375,8 +375,10 @@ inline V3 hit_shading_normal(const Scene *sc, const Hit *h, V3 n_side)
 // A ray scattered at x with a shading normal ns_side must still leave on the
 // side of the geometric surface (ng_side) that its lobe meant: the side of
 // ns_side for reflection, the other for refraction. A tilted shading normal
-// can send it across; there it is mirrored across the geometric plane. Its
-// origin is offset along the geometric normal's side it leaves by. Lanes in m.
+// can send it across; there it is mirrored across the geometric plane
+// (under Mitsuba 3's convention, CLPT_MITSUBA_SHADING, it goes on across).
+// Its origin is offset along the geometric normal's side it leaves by.
+// Lanes in m.
 inline void keep_geometric_side(const Scene *sc, V3 *o, V3 *d, V3 x, V3 ns_side, V3 ng_side, vmask m, vreal err)
 {
 #if CLPT_HAS_SMOOTH
@@ -384,8 +386,10 @@ inline void keep_geometric_side(const Scene *sc, V3 *o, V3 *d, V3 x, V3 ns_side,
     vmask wrong = m && ((cs > R(0) && cg <= R(0)) || (cs <= R(0) && cg > R(0)));
     if (!VANY(wrong))
         return;
+#if !CLPT_MITSUBA_SHADING
     *d = v3_sel(*d, v3_normalize(v3_fma(ng_side, R(-2) * cg, *d)), wrong);
     cg = v3_dot(*d, ng_side);
+#endif
     *o = v3_sel(*o, offset_scattered(sc, x, v3_sel(v3_neg(ng_side), ng_side, cg > R(0)), *d, err), wrong);
 #endif
 }
@@ -449,6 +453,41 @@ inline void material_face(Material *m, vmask front)
     m->g_eta = VSEL(R(1) / m->g_eta, m->g_eta, front);
 #endif
 }
+
+#if CLPT_MITSUBA_SHADING
+// Mitsuba 3's shading frame at a smooth triangle whose shading normal *ns
+// (on the geometric normal's side) the incoming ray d sees from behind (in
+// the lanes in m): a two-sided material shades with the normal turned to
+// d's side; a one-sided one is black there (no lobe at all, as Mitsuba's
+// BSDFs, delta ones included, are with cos_theta_i <= 0). Returns the
+// lanes left black.
+inline vmask shading_from_behind(Material *mt, V3 *ns, V3 d, vmask m)
+{
+    vmask behind = m && v3_dot(*ns, d) > R(0);
+    *ns = v3_sel(*ns, v3_neg(*ns), behind);
+    vmask black = behind && mt->one_sided != R(0);
+    if (VANY(black)) {
+        mt->kd = v3_sel(mt->kd, v3_zero(), black);
+        mt->ks = v3_sel(mt->ks, v3_zero(), black);
+        mt->kr = v3_sel(mt->kr, v3_zero(), black);
+        mt->kt = v3_sel(mt->kt, v3_zero(), black);
+        mt->km = v3_sel(mt->km, v3_zero(), black);
+        mt->p_d = VSEL(mt->p_d, (vreal)R(0), black);
+        mt->p_s = VSEL(mt->p_s, (vreal)R(0), black);
+        mt->p_r = VSEL(mt->p_r, (vreal)R(0), black);
+        mt->p_t = VSEL(mt->p_t, (vreal)R(0), black);
+        mt->p_m = VSEL(mt->p_m, (vreal)R(0), black);
+        mt->nondelta = VSEL(mt->nondelta, (vreal)R(0), black);
+#if CLPT_HAS_PLASTIC
+        mt->p_p = VSEL(mt->p_p, (vreal)R(0), black);
+#endif
+#if CLPT_HAS_ROUGH_DIELECTRIC
+        mt->p_g = VSEL(mt->p_g, (vreal)R(0), black);
+#endif
+    }
+    return black;
+}
+#endif
 
 // A material with no lobe: every field at its neutral value (tables at rec).
 inline Material material_blank(__global const real4 *rec)
