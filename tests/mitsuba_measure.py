@@ -21,6 +21,8 @@ in the tests (and clpt/data/mitsuba_ior.json) were produced:
         tests/data/cbox_textured_lights_mitsuba.json spp=4096               # textured area lights
     MI_VARIANT=llvm_ad_rgb python tests/mitsuba_measure.py --reference tests/data/spot_texture.xml \
         tests/data/spot_texture_mitsuba.json spp=8192                       # a textured spot light
+    MI_VARIANT=llvm_ad_rgb python tests/mitsuba_measure.py --reference tests/data/smooth_bumpy.xml \
+        tests/data/smooth_bumpy_mitsuba.json spp=8192                       # tilted shading normals
 """
 
 import json
