@@ -32,7 +32,7 @@ from .presets import PRESETS
 from .spectrum import conductor_ior
 from .constants import LUMA
 from .errors import ImageError
-from .texture import FILTERS, KINDS, WRAP_MODES, Texture, load_bitmap
+from .texture import FILTERS, KINDS, WRAP_MODES, Texture, _eval_mean, _texels_per_unit, load_bitmap
 
 # Material.textures slots: "reflectance" (kd, or kp of a plastic), "specular" (km, kgr of a rough
 # dielectric, or kr), "alpha" (a rough conductor's roughness: the texture's luminance), "transmittance"
@@ -743,7 +743,6 @@ class SpotLight(PointLight):
         around (1/2, 1/2)), about 4 points per texel (64 to 1024 a side), each
         point weighted by its direction's solid angle, (2 tan g)^2 / (1 + r^2)^(3/2)
         du dv for r = tan theta, and by the falloff."""
-        from .texture import _texels_per_unit, _eval_mean
         n = int(np.clip(math.ceil(4 * _texels_per_unit(self.texture)), 64, 1024))
         t = (np.arange(n) + 0.5) / n
         uv = np.stack(np.meshgrid(t, t), axis=-1).reshape(-1, 2)
