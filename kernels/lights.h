@@ -375,8 +375,9 @@ inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
     vreal gy = poly_acos(fmin(fmax(l.y, (vreal)R(-1)), (vreal)R(1))) * (R(M_1_PI) * (real)(h - 1u));
     // The cells for all lanes at once (fmin and fmax keep a NaN's lane in range), then every lane's
     // fetches, unrolled, their results masked below.
-    vreal xf = fmax(fmin(floor(gx), (vreal)(real)(w - 1u)), (vreal)R(0));
-    vreal yf = fmax(fmin(floor(gy), (vreal)(real)(h - 2u)), (vreal)R(0));
+    // Lanes outside m fetch cell (0, 0), one cached line, not a random texel of a large map.
+    vreal xf = VSEL((vreal)R(0), fmax(fmin(floor(gx), (vreal)(real)(w - 1u)), (vreal)R(0)), m);
+    vreal yf = VSEL((vreal)R(0), fmax(fmin(floor(gy), (vreal)(real)(h - 2u)), (vreal)R(0)), m);
     vreal fx = gx - xf, fy = gy - yf;
     V3 Le = v3_zero();
     vreal cell = (vreal)R(0);
@@ -412,7 +413,9 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
     uint rows = base + w * h;                                              // the rows' alias tables (ENV_ALIAS)
     uint marg = rows + (w * (h - 1u) + ENVA_ENTRIES - 1u) / ENVA_ENTRIES;  // the marginal's
     vreal sx = u1 * (real)w, sy = u2 * (real)(h - 1u);
-    vreal jx = fmin(floor(sx), (vreal)(real)(w - 1u)), jy = fmin(floor(sy), (vreal)(real)(h - 2u));
+    // Lanes outside m draw cell (0, 0): their fetches share cached lines.
+    vreal jx = VSEL((vreal)R(0), fmin(floor(sx), (vreal)(real)(w - 1u)), m);
+    vreal jy = VSEL((vreal)R(0), fmin(floor(sy), (vreal)(real)(h - 2u)), m);
     vreal fxs = fmin(sx - jx, (vreal)(R(1) - REAL_EPS)), fys = fmin(sy - jy, (vreal)(R(1) - REAL_EPS));
     // Every lane (an idle one's numbers are in range too) in unrolled loops that only fetch: the row's
     // slot (keep probability, alias), the cell's slot in that row, the cell's texels; the choices and
