@@ -346,6 +346,23 @@ inline real4 env_texels(const Scene *sc, uint base, uint w, uint x0, uint y0, re
     return a * (R(1) - fy) + b * fy;
 }
 
+// env_texels for every lane (cells (x0, y0), fractions (fx, fy)), unrolled:
+// the radiance in *Le, and the cells' probabilities in *cell, 0 outside m.
+CLPT_INLINE void env_lookup(const Scene *sc, uint base, uint w, vreal x0, vreal y0, vreal fx, vreal fy, vmask m,
+                            V3 *Le, vreal *cell)
+{
+    V3 L = v3_zero();
+    vreal c = (vreal)R(0);
+#pragma unroll
+    for (int k = 0; k < CLPT_LANES; k++) {
+        real4 t = env_texels(sc, base, w, (uint)VLANE_R(x0, k), (uint)VLANE_R(y0, k), VLANE_R(fx, k), VLANE_R(fy, k),
+                             &VLANE_R(c, k));
+        VLANE_R(L.x, k) = t.x; VLANE_R(L.y, k) = t.y; VLANE_R(L.z, k) = t.z;
+    }
+    *cell = VSEL((vreal)R(0), c, m);
+    *Le = v3_sel(v3_zero(), L, m);
+}
+
 // The frame of the environment whose record is at r: columns c0, c1, c2 of to_world's rotation.
 inline void env_frame(const Scene *sc, uint r, real4 *c0, real4 *c1, real4 *c2)
 {
@@ -379,16 +396,9 @@ inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
     vreal xf = VSEL((vreal)R(0), fmax(fmin(floor(gx), (vreal)(real)(w - 1u)), (vreal)R(0)), m);
     vreal yf = VSEL((vreal)R(0), fmax(fmin(floor(gy), (vreal)(real)(h - 2u)), (vreal)R(0)), m);
     vreal fx = gx - xf, fy = gy - yf;
-    V3 Le = v3_zero();
-    vreal cell = (vreal)R(0);
-#pragma unroll
-    for (int k = 0; k < CLPT_LANES; k++) {
-        real4 t = env_texels(sc, base, w, (uint)VLANE_R(xf, k), (uint)VLANE_R(yf, k), VLANE_R(fx, k), VLANE_R(fy, k),
-                             &VLANE_R(cell, k));
-        VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
-    }
-    Le = v3_sel(v3_zero(), Le, m);
-    cell = VSEL((vreal)R(0), cell, m);
+    V3 Le;
+    vreal cell;
+    env_lookup(sc, base, w, xf, yf, fx, fy, m, &Le, &cell);
     vreal sin_t = sqrt(fmax(l.x * l.x + l.z * l.z, (vreal)(REAL_EPS * REAL_EPS)));
     *pdf_sa = cell * ((real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI)) / sin_t;
     return Le;
@@ -441,17 +451,10 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
     own = fxs < keep;
     vreal x0 = VSEL(alias, jx, own);
     vreal fx = VSEL(fxs - keep, fxs, own) / VSEL(R(1) - keep, keep, own);
-    V3 Le = v3_zero();
-    vreal cell = (vreal)R(0);
-#pragma unroll
-    for (int k = 0; k < CLPT_LANES; k++) {
-        real4 t = env_texels(sc, base, w, (uint)VLANE_R(x0, k), (uint)VLANE_R(y0, k), VLANE_R(fx, k), VLANE_R(fy, k),
-                             &VLANE_R(cell, k));
-        VLANE_R(Le.x, k) = t.x; VLANE_R(Le.y, k) = t.y; VLANE_R(Le.z, k) = t.z;
-    }
+    V3 Le;
+    vreal cell;
+    env_lookup(sc, base, w, x0, y0, fx, fy, m, &Le, &cell);
     vreal gx = x0 + fx, gy = y0 + fy;
-    Le = v3_sel(v3_zero(), Le, m);
-    cell = VSEL((vreal)R(0), cell, m);
     vreal phi = (gx + R(0.5)) * (R(2 * M_PI) / (real)w);
     vreal theta = gy * (R(M_PI) / (real)(h - 1u));
     vreal ct, cp;
