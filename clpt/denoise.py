@@ -24,7 +24,10 @@ neighbours by more than `firefly_k` standard errors, unless its own samples
 confirm it to `confirm_k` of its own standard errors), and `iterations`
 a-trous passes of a cone kernel of `width` pixels (steps 1, 2, 4, ...)
 smooth it where normals, depths, albedos, emitter flags and values (their
-3x3 means, beyond the pixel's noise) agree. A numpy twin (`reference_cone_filter`) is there for the tests.
+3x3 means, beyond the pixel's noise) agree; the last pass (`fit_last`) fits
+a plane in screen position to its taps instead of averaging them, so a
+gradient (a wall's falloff, a soft shadow) is not flattened and its value
+test can be looser. A numpy twin (`reference_cone_filter`) is there for the tests.
 """
 
 from __future__ import annotations
