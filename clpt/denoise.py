@@ -24,7 +24,10 @@ neighbours by more than `firefly_k` standard errors, unless its own samples
 confirm it to `confirm_k` of its own standard errors), and `iterations`
 a-trous passes of a cone kernel of `width` pixels (steps 1, 2, 4, ...)
 smooth it where normals, depths, albedos, emitter flags and values (their
-3x3 means, beyond the pixel's noise) agree. A numpy twin (`reference_cone_filter`) is there for the tests.
+3x3 means, beyond the pixel's noise) agree; the last pass (`fit_last`) fits
+a plane in screen position to its taps instead of averaging them, so a
+gradient (a wall's falloff, a soft shadow) is not flattened and its value
+test can be looser. A numpy twin (`reference_cone_filter`) is there for the tests.
 """
 
 from __future__ import annotations
@@ -50,6 +53,11 @@ class FilterSettings:
     sigma_albedo: float = 0.1
     sigma_luminance: float = 2.5  # differences of 3x3-smoothed values, in standard errors of the pixel's noise
     guide_floor: float = 0.3     # least guide weight of a tap (edge pixels, whose guides are mixtures)
+    fit_last: bool = True        # the last pass fits a plane (in screen position) to its taps instead of
+                                 # averaging them: illumination gradients (the walls' falloff, soft shadows) are
+                                 # not flattened, so its taps may differ more
+    fit_sigma_luminance: float = 3.5  # ... its sigma_luminance
+    fit_guide_floor: float = 0.0      # ... and guide_floor
     firefly_k: float = 3.0       # clamp pixels above all 8 neighbours by this many standard errors; 0: off
     confirm_k: float = 2.0       # a bright value the pixel's own samples confirm to this many standard errors
                                  # is kept (lamps seen directly or in mirrors and glass; the clamp's exemption)
@@ -69,7 +77,7 @@ class FilterSettings:
         if isinstance(self.sigma_normal, bool) or not isinstance(self.sigma_normal, (int, np.integer)) \
                 or not 1 <= self.sigma_normal <= 127:
             raise SettingsError(f"filter: sigma_normal must be an integer from 1 to 127 (got {self.sigma_normal!r})")
-        for k in ("sigma_depth", "sigma_albedo", "sigma_luminance"):
+        for k in ("sigma_depth", "sigma_albedo", "sigma_luminance", "fit_sigma_luminance"):
             if not getattr(self, k) > 0:
                 raise SettingsError(f"filter: {k} must be > 0")
         if not self.firefly_k >= 0:
@@ -198,13 +206,20 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
     flag = np.zeros((h, w), bool) if emitter is None else emitter > 0.5
     ys, xs = np.mgrid[0:h, 0:w]
     r_ = min(settings.width, max(w, h))
-    for it in range(settings.passes(w, h)):
+    passes = settings.passes(w, h)
+    f32 = np.float32
+    for it in range(passes):
         step = 1 << it
+        fit = settings.fit_last and it == passes - 1
+        sigma_l, floor = ((settings.fit_sigma_luminance, settings.fit_guide_floor) if fit
+                          else (settings.sigma_luminance, settings.guide_floor))
         lp = smooth3(_lum(c))
-        sl = settings.sigma_luminance * np.sqrt(smooth3(v)) + 1e-6
+        sl = sigma_l * np.sqrt(smooth3(v)) + 1e-6
         acc = np.zeros_like(c)
         wsum = np.ones((h, w), np.float32)
         w2v = v.copy()
+        mom = {k: np.zeros((h, w), np.float32) for k in ("x", "y", "xx", "yy", "xy")}
+        accx, accy = np.zeros_like(c), np.zeros_like(c)
         for dy in range(-r_, r_ + 1):
             for dx in range(-r_, r_ + 1):
                 if dx == 0 and dy == 0:
@@ -223,14 +238,43 @@ def reference_cone_filter(color, var, normal, albedo, depth, settings: FilterSet
                 g = g * np.exp(-((da * da).sum(-1) / settings.sigma_albedo ** 2
                                  + np.abs(depth - depth[qy, qx])
                                  / (settings.sigma_depth * np.maximum(depth, 1e-6) * step) / r))
-                wt = ws * (g + settings.guide_floor) * np.exp(-np.abs(lp - lp[qy, qx]) / sl)
+                wt = ws * (g + floor) * np.exp(-np.abs(lp - lp[qy, qx]) / sl)
                 wt = np.where(ok & (wt > 0), wt, 0.0).astype(np.float32)
-                acc += wt[..., None] * (c[qy, qx] - c)
+                d = c[qy, qx] - c
+                acc += wt[..., None] * d
                 wsum += wt
                 w2v += wt * wt * v[qy, qx]
-        c = c + acc / wsum[..., None]
+                if fit:  # the tap's position in the window, -1 to 1
+                    xt, yt = f32(dx / r_), f32(dy / r_)
+                    wx, wy = wt * xt, wt * yt
+                    mom["x"] += wx
+                    mom["y"] += wy
+                    mom["xx"] += wx * xt
+                    mom["yy"] += wy * yt
+                    mom["xy"] += wx * yt
+                    accx += wx[..., None] * d
+                    accy += wy[..., None] * d
+        if fit:
+            c = c + plane_intercept(wsum, mom, acc, accx, accy)
+        else:
+            c = c + acc / wsum[..., None]
         v = w2v / (wsum * wsum)
     return (c * alb).astype(np.float32)
+
+
+def plane_intercept(wsum, mom, acc, accx, accy):
+    """The weighted least-squares plane a + b x + c y through the taps'
+    differences from the centre (acc, accx, accy: the sums of w d, w x d, w y d;
+    mom: of w x, w y, w x^2, w y^2, w x y; wsum: of w, the centre's 1 included),
+    a little ridge (1e-3 wsum) on the slopes: a, by the first row of the normal
+    matrix's cofactors, as filter.cl computes it (float32)."""
+    lam = np.float32(1e-3) * wsum
+    axx, ayy, sx, sy, sxy = mom["xx"] + lam, mom["yy"] + lam, mom["x"], mom["y"], mom["xy"]
+    m0 = axx * ayy - sxy * sxy
+    m1 = sxy * sy - sx * ayy
+    m2 = sx * sxy - axx * sy
+    inv = np.float32(1) / (wsum * m0 + sx * m1 + sy * m2)
+    return (m0[..., None] * acc + m1[..., None] * accx + m2[..., None] * accy) * inv[..., None]
 
 
 def kept_emission(aux, count, k: float):

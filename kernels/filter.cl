@@ -38,6 +38,14 @@
 // out = c_p + sum w (c_q - c_p) / sum w: a
 // constant region stays exactly constant, and radius 0 is the identity. The
 // variance of the output, sum w^2 v_q / (sum w)^2, feeds the next pass.
+// With `fit` (the host's last pass), the taps' differences d_q = c_q - c_p
+// are fitted by a plane a + b x + c y in the tap's position (x, y = dx, dy over
+// radius, -1 to 1; weighted least squares with the same weights, the centre's
+// 1 included, and a ridge of 1e-3 sum w on the slopes) and out = c_p + a: a
+// gradient (a wall's falloff, a soft shadow) is not flattened, so that pass
+// can average taps farther apart in value. A constant region still stays
+// exactly constant; the variance written is the averaging's (nothing reads
+// the last pass's).
 //
 // Layout: planar images of `pitch` (the width rounded up to 8) columns, each
 // plane `plane` floats long with `margin` floats before and after the pixels
@@ -132,7 +140,8 @@ __kernel void filter_luma(__global float *color, uint width, uint height, uint p
 
 __kernel void filter_cone(__global const float *color_in, __global const float *guides, uint width, uint height,
                           uint pitch, uint plane, uint margin, int radius, int step, int n_pow, float sigma_depth,
-                          float sigma_albedo, float sigma_lum, float guide_floor, __global float *color_out)
+                          float sigma_albedo, float sigma_lum, float guide_floor, int fit,
+                          __global float *color_out)
 {
     uint gid = get_global_id(0);
     uint per_row = pitch / 8u;
@@ -156,6 +165,9 @@ __kernel void filter_cone(__global const float *color_in, __global const float *
     float8 inv_sd = 1.0f / (sigma_depth * fmax(dz, 1e-6f) * (float)step);
     float8 accr = 0.0f, accg = 0.0f, accb = 0.0f;
     float8 wsum = 1.0f, w2v = cv;  // the centre tap
+    // fit: the sums of w x, w y, w x^2, w y^2, w x y and of w x d, w y d per channel
+    float8 sx = 0.0f, sy = 0.0f, sxx = 0.0f, syy = 0.0f, sxy = 0.0f;
+    float8 fxr = 0.0f, fxg = 0.0f, fxb = 0.0f, fyr = 0.0f, fyg = 0.0f, fyb = 0.0f;
     for (int dy = -radius; dy <= radius; dy++) {
         int qy = y + dy * step;
         if (qy < 0 || qy > ym)
@@ -187,13 +199,32 @@ __kernel void filter_cone(__global const float *color_in, __global const float *
             float8 lq = LD8(color_in, 4, off);
             float8 w = ws * (g + guide_floor) * exp(-fabs(lp - lq) * inv_sl);
             w = select((float8)(0.0f), w, use && w > 0.0f);
-            accr += w * (qr - cr); accg += w * (qg - cg); accb += w * (qb - cb);
+            float8 dr = qr - cr, dg = qg - cg, db = qb - cb;
+            accr += w * dr; accg += w * dg; accb += w * db;
             wsum += w;
             w2v += w * w * qv;
+            if (fit) {
+                float xt = (float)dx / (float)radius, yt = (float)dy / (float)radius;
+                float8 wx = w * xt, wy = w * yt;
+                sx += wx; sy += wy; sxx += wx * xt; syy += wy * yt; sxy += wx * yt;
+                fxr += wx * dr; fxg += wx * dg; fxb += wx * db;
+                fyr += wy * dr; fyg += wy * dg; fyb += wy * db;
+            }
         }
     }
-    vstore8(cr + accr / wsum, 0, color_out + row0);
-    vstore8(cg + accg / wsum, 0, color_out + plane + row0);
-    vstore8(cb + accb / wsum, 0, color_out + 2 * plane + row0);
+    if (fit) {
+        // a: the first row of the normal matrix's cofactors against the sums, over its determinant
+        float8 lam = 1e-3f * wsum;
+        float8 axx = sxx + lam, ayy = syy + lam;
+        float8 m0 = axx * ayy - sxy * sxy, m1 = sxy * sy - sx * ayy, m2 = sx * sxy - axx * sy;
+        float8 inv = 1.0f / (wsum * m0 + sx * m1 + sy * m2);
+        vstore8(cr + (m0 * accr + m1 * fxr + m2 * fyr) * inv, 0, color_out + row0);
+        vstore8(cg + (m0 * accg + m1 * fxg + m2 * fyg) * inv, 0, color_out + plane + row0);
+        vstore8(cb + (m0 * accb + m1 * fxb + m2 * fyb) * inv, 0, color_out + 2 * plane + row0);
+    } else {
+        vstore8(cr + accr / wsum, 0, color_out + row0);
+        vstore8(cg + accg / wsum, 0, color_out + plane + row0);
+        vstore8(cb + accb / wsum, 0, color_out + 2 * plane + row0);
+    }
     vstore8(w2v / (wsum * wsum), 0, color_out + 3 * plane + row0);
 }

@@ -12,7 +12,9 @@ mirror and glass balls, the caustic, the lamps' reflections, the brightest
 
 Variants (all start from the same demodulated, firefly-clamped image and the
 same guides as the shipped filter):
-  cone        the shipped filter's numpy twin (reference_cone_filter)
+  cone        the shipped filter's numpy twin (reference_cone_filter): two
+              averaging passes, then one that fits a plane (fit_last)
+  avg         the same with the last pass averaging too (fit_last=False)
   reg         the three cone passes, then a first-order weighted regression
               of the *noisy* colour on screen position within a 7x7 window,
               the weights (cone kernel, guides, values) taken from the
@@ -35,6 +37,21 @@ same guides as the shipped filter):
   splat       the emission the filter would smooth (unconfirmed: a lamp met by
               a few samples through glass) taken out of the cone's input and
               added back spread by an energy-conserving 7-tap binomial splat
+  sure        five averaging passes; each pixel takes the output after 2, 3,
+              4 or 5 passes whose SURE estimate of the squared error (with
+              the weights held fixed: the product of the passes' self-weights
+              is the output's derivative in its input), summed over 5x5, is
+              least
+  halfsel     the same choice among 2, 3 and 4 passes by the squared
+              difference, over 11x11, of each half's filtered image from the
+              other half's raw one (an unbiased error estimate up to a
+              constant), applied to the whole render's filtered images
+  ivw         taps weighted by the inverse square root of their (3x3-smoothed)
+              variance over the pixel's: less noisy pixels count more
+  steps421    the passes' steps reversed, 4, 2, 1
+  lamp-pool   the unconfirmed emission kept out of the filter where the 3x3's
+              hits together confirm it (sum f n >= (1 - F), k = 1), and added
+              back as the 3x3's mean
   oidn        OIDN with cleaned albedo and normal (needs pyoidn)
 """
 
@@ -42,6 +59,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -50,10 +68,13 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
 from clpt.denoise import (LUMA, FilterSettings, OidnSettings, _lum, apply_denoiser, demodulate,  # noqa: E402
-                          kept_caustic_share, kept_emission, reference_cone_filter, reference_firefly, smooth3)
+                          dilate, kept_caustic_share, kept_emission, reference_cone_filter, reference_firefly,
+                          smooth3)
 from clpt.tools.metrics import relmse  # noqa: E402
 
-ALL = ("cone", "reg", "reg-late", "reg-disc", "sym", "halves", "cross", "splat", "oidn")
+ALL = ("cone", "avg", "reg", "reg-late", "reg-disc", "sym", "halves", "cross", "splat", "sure", "halfsel", "ivw",
+       "steps421", "lamp-pool", "oidn")
+HALVES = ("halves", "cross", "halfsel")
 
 
 def shifted(a, dy, dx):
@@ -98,8 +119,9 @@ def taps(radius, step, rmax=None):
                 yield dy * step, dx * step, r, ws
 
 
-def value_weights(c_guide, v_guide, gd, step, s, radius=1, symmetric=False, floor=None, rmax=None):
-    """{(dy, dx): weight} of the cone kernel, with the value term from c_guide."""
+def value_weights(c_guide, v_guide, gd, step, s, radius=1, symmetric=False, floor=None, rmax=None, ivw=0.0):
+    """{(dy, dx): weight} of the cone kernel, with the value term from c_guide
+    (ivw: times (v_p / v_q)^ivw, the variances smoothed over 3x3)."""
     lp, vs = smooth3(_lum(c_guide)), smooth3(v_guide)
     floor = s.guide_floor if floor is None else floor
     out = {}
@@ -108,13 +130,17 @@ def value_weights(c_guide, v_guide, gd, step, s, radius=1, symmetric=False, floo
         lq, _ = shifted(lp, dy, dx)
         vq, _ = shifted(vs, dy, dx)
         sl = s.sigma_luminance * np.sqrt(np.maximum(vs, vq) if symmetric else vs) + 1e-6
-        out[(dy, dx)] = np.where(ok, ws * (g + floor) * np.exp(-np.abs(lp - lq) / sl), 0.0)
+        w = ws * (g + floor) * np.exp(-np.abs(lp - lq) / sl)
+        if ivw:
+            w = w * (vs / np.maximum(vq, 1e-12)) ** ivw
+        out[(dy, dx)] = np.where(ok, w, 0.0)
     return out
 
 
-def cone_pass(c, v, gd, step, s, c_guide=None, v_guide=None, symmetric=False):
+def cone_pass(c, v, gd, step, s, c_guide=None, v_guide=None, symmetric=False, ivw=0.0, self_weight=None):
+    """One averaging pass: (colour, variance); self_weight, a list, gets the centre's share."""
     W = value_weights(c if c_guide is None else c_guide, v if v_guide is None else v_guide, gd, step, s,
-                      symmetric=symmetric)
+                      symmetric=symmetric, ivw=ivw)
     wsum = 1 + sum(W.values())
     acc, var, selfw = np.zeros_like(c), np.zeros_like(v), np.ones_like(v)
     for (dy, dx), w in W.items():
@@ -124,6 +150,8 @@ def cone_pass(c, v, gd, step, s, c_guide=None, v_guide=None, symmetric=False):
         acc += m[..., None] * (cq - c)
         selfw -= m
         var += m * m * vq
+    if self_weight is not None:
+        self_weight.append(selfw)
     return c + acc, selfw ** 2 * v + var
 
 
@@ -150,11 +178,18 @@ def prepared(color, var, albedo, s):
     return c.astype(np.float64), v.astype(np.float64), alb
 
 
+def box(x, r):
+    """x (H x W) summed over each pixel's (2r+1)^2 (zeros outside)."""
+    h, w = x.shape
+    p = np.pad(x, r)
+    return sum(p[dy:dy + h, dx:dx + w] for dy in range(2 * r + 1) for dx in range(2 * r + 1))
+
+
 def variant_cone(kind):
     def cone(color, var, normal, albedo, depth, s, emitter=None):
         c, v, alb = prepared(color, var, albedo, s)
         gd = Guides(normal, albedo, depth, emitter)
-        c0 = c
+        c0, v0 = c, v
         if kind == "reg":
             for it in range(3):
                 c, v = cone_pass(c, v, gd, 1 << it, s)
@@ -170,6 +205,18 @@ def variant_cone(kind):
         elif kind == "sym":
             for it in range(3):
                 c, v = cone_pass(c, v, gd, 1 << it, s, symmetric=True)
+        elif kind in ("ivw", "steps421"):
+            for step in ((1, 2, 4) if kind == "ivw" else (4, 2, 1)):
+                c, v = cone_pass(c, v, gd, step, s, ivw=0.5 if kind == "ivw" else 0.0)
+        elif kind == "sure":
+            outs, sure, selfw = [], [], []
+            for it in range(5):
+                c, v = cone_pass(c, v, gd, 1 << it, s, self_weight=selfw)
+                if it >= 1:  # SURE: |F - y|^2 - n var + 2 var dF/dy, dF/dy the self-weights' product
+                    e = ((c - c0) ** 2).sum(-1) + 3 * v0 * (2 * np.prod(selfw, axis=0) - 1)
+                    outs.append(c)
+                    sure.append(box(e, 2))
+            c = np.take_along_axis(np.array(outs), np.argmin(sure, 0)[None, ..., None], 0)[0]
         return (c * alb).astype(np.float32)
     return cone
 
@@ -211,13 +258,57 @@ def halves_filter(a, b, full, s, cross):
     return np.maximum(keep + 0.5 * (cs[0] + cs[1]) * alb, 0).astype(np.float32)
 
 
+def pass_outputs(run, s, passes):
+    """The filtered images (modulated, what the host keeps out added back) after each of `passes` averaging passes."""
+    got = {}
+
+    def cone(color, var, normal, albedo, depth, s_, emitter=None):
+        c, v, alb = prepared(color, var, albedo, s_)
+        gd = Guides(normal, albedo, depth, emitter)
+        for it in range(max(passes)):
+            c, v = cone_pass(c, v, gd, 1 << it, s_)
+            if it + 1 in passes:
+                got[it + 1] = c * alb
+        return np.zeros_like(color)
+    keep = apply_denoiser(cone, run["image"], run["lum_var"], run["count"], run["aux"], s)
+    return [np.maximum(keep + got[k], 0) for k in passes]
+
+
+def halfsel(run, s, passes=(2, 3, 4), r=5):
+    a, b = run["halves"]
+    fa, fb, full = (pass_outputs(x, s, passes) for x in (a, b, run))
+    err = [box(((x - b["image"]) ** 2 + (y - a["image"]) ** 2).sum(-1), r) for x, y in zip(fa, fb)]
+    return np.take_along_axis(np.array(full), np.argmin(err, 0)[None, ..., None], 0)[0].astype(np.float32)
+
+
+def lamp_pool(run, s, k=1.0):
+    """Unconfirmed emission confirmed by the 3x3's hits together: kept out, added back as its 3x3 mean."""
+    aux = run["aux"]
+    u = np.maximum(aux["emission"] - kept_emission(aux, run["count"], s.confirm_k), 0)
+    hit = (u @ LUMA) > 0
+    f, n = np.clip(aux["emitter"], 0, 1), np.maximum(run["count"], 1.0)
+    hits, tot = box(f * n * hit, 1), box(n, 1)
+    group = (hits > 0) & (hits >= k * k * (1 - hits / tot))
+    out_ = np.where((dilate(group, 1) & hit)[..., None], u, 0.0)
+    back = np.where(group[..., None], np.stack([box(out_[..., i], 1) for i in range(3)], -1)
+                    / box(np.ones(f.shape), 1)[..., None], 0.0)
+    out = apply_denoiser(reference_cone_filter, run["image"] - out_, run["lum_var"], run["count"], aux, s)
+    return np.maximum(out + back, 0).astype(np.float32)
+
+
 def run_variant(kind, run, s=FilterSettings()):
     args = (run["image"], run["lum_var"], run["count"], run["aux"])
     if kind == "raw":
         return run["image"]
     if kind == "cone":
         return apply_denoiser(reference_cone_filter, *args, s)
-    if kind in ("reg", "reg-late", "reg-disc", "sym"):
+    if kind == "avg":
+        return apply_denoiser(reference_cone_filter, *args, replace(s, fit_last=False))
+    if kind == "halfsel":
+        return halfsel(run, s)
+    if kind == "lamp-pool":
+        return lamp_pool(run, s)
+    if kind in ("reg", "reg-late", "reg-disc", "sym", "ivw", "steps421", "sure"):
         return apply_denoiser(variant_cone(kind), *args, s)
     if kind == "oidn":
         return apply_denoiser(None, *args, OidnSettings(aux="clean"))
@@ -266,12 +357,12 @@ def main(argv=None) -> int:
         for spp in (int(x) for x in a.spp.split(",")):
             runs = [as_run(r.render(spp, width=W, height=H, max_depth=64, seed=k)) for k in range(1, a.seeds + 1)]
             halves = []
-            if {"halves", "cross"} & set(kinds):  # both halves' combination is what "cone" is compared on there
+            if set(HALVES) & set(kinds):  # both halves' combination is what "cone" is compared on there
                 halves = [combined(*(as_run(r.render(spp // 2, width=W, height=H, max_depth=64, seed=1000 * j + k))
                                      for j in (1, 2))) for k in range(1, a.seeds + 1)]
             for kind in kinds:
-                for label, rs in ((kind, runs if kind not in ("halves", "cross") else halves),
-                                  ) + ((("cone (halves' sum)", halves),) if kind == "cross" else ()):
+                for label, rs in ((kind, runs if kind not in HALVES else halves),
+                                  ) + ((("cone (halves' sum)", halves),) if kind in ("cross", "halfsel") else ()):
                     outs = [run_variant("cone" if label.startswith("cone (") else kind, x) for x in rs]
                     whole = np.mean([relmse(o, ref) for o in outs])
                     regs = [region_errors(o, ref, masks) for o in outs]

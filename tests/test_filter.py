@@ -35,7 +35,9 @@ def noisy(rng, h, w, level=0.3, sigma=0.05):
 @pytest.mark.parametrize("settings", [FilterSettings(), FilterSettings(width=1, iterations=1),
                                       FilterSettings(width=3, iterations=3, sigma_luminance=1.0, guide_floor=0.0),
                                       FilterSettings(firefly_k=0.0, guide_floor=0.5),
-                                      FilterSettings(confirm_k=0.0), FilterSettings(confirm_k=1e6)])
+                                      FilterSettings(confirm_k=0.0), FilterSettings(confirm_k=1e6),
+                                      FilterSettings(fit_last=False), FilterSettings(width=2, iterations=2,
+                                                                                     fit_guide_floor=0.3)])
 def test_kernel_matches_numpy_twin(cone, settings):
     rng = np.random.default_rng(0)
     h, w = 20, 23
@@ -107,6 +109,24 @@ def test_a_step_in_the_guides_is_not_blurred_across(cone):
     for col, want in ((19, 0.3), (20, 0.42)):
         got = float(out[:, col].mean())
         assert abs(got - want) < 0.1 * 0.12 + 3 * sigma / np.sqrt(h), (col, got)
+
+
+def test_the_last_pass_fits_a_plane(cone):
+    """A brightness gradient (a lit wall's falloff) with little noise: the
+    fitting pass (alone here: one pass) returns it as it is, the corners and
+    edges of the image included, where the taps are one-sided; averaging
+    (fit_last off) pulls those towards the inside. In the twin too."""
+    h, w = 12, 14
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    ramp = 0.3 + 0.01 * xs + 0.006 * ys
+    img = np.repeat(ramp[..., None], 3, -1).astype(np.float32)
+    var = np.full((h, w), 1e-4, np.float32)  # a step is 0.3 to 0.4 of the value term's scale: weights ~ 0.75
+    g = guides(h, w)
+    fit = FilterSettings(width=2, iterations=1)
+    for out in (cone(img, var, *g, fit), reference_cone_filter(img, var, *g, fit)):
+        assert np.abs(out - img).max() < 2e-4  # the slopes' ridge: 1e-4 at the corners
+    avg = cone(img, var, *g, replace(fit, fit_last=False))
+    assert abs(avg[0, 0, 0] - img[0, 0, 0]) > 5e-3 and abs(avg[-1, -1, 0] - img[-1, -1, 0]) > 5e-3
 
 
 def test_zero_variance_and_black_pixels(cone):

@@ -473,11 +473,14 @@ class FilterPass:
         items = h * lay.pitch // 8
         gsize = -(-items // local) * local
         for it in range(passes):
+            fit = bool(settings.fit_last) and it == passes - 1  # the last pass fits a plane
+            sigma_l, floor = ((settings.fit_sigma_luminance, settings.fit_guide_floor) if fit
+                              else (settings.sigma_luminance, settings.guide_floor))
             self.counters.launched("filter_luma", self.luma(q, (psize,), (local,), c[src], *dims))
             self.counters.launched("filter_cone", self.kernel(
                 q, (gsize,), (local,), c[src], gb, *dims, np.int32(radius), np.int32(1 << it),
                 np.int32(settings.sigma_normal), np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
-                np.float32(settings.sigma_luminance), np.float32(settings.guide_floor), c[1 - src]))
+                np.float32(sigma_l), np.float32(floor), np.int32(fit), c[1 - src]))
             src = 1 - src
         out = np.empty(3 * lay.plane, np.float32)  # the colour planes only
         cl.enqueue_copy(q, out, c[src])
