@@ -100,11 +100,12 @@ __kernel void bucket_starts(__global const uint *keys, uint n, uint mask, __glob
 }
 
 // One work-item per slot: sets, in a bit table hashed like the buckets (with
-// its own mask), the bits of the 2 x 2 x 2 cells whose points can lie within
-// the radius of a stored photon (grid_lower_corner). A gather point whose own
-// cell's bit is clear has no photon within the radius (a set bit may be a
-// hash collision), so most empty gathers end after one vector test
-// (photon_maybe). OR is order-free: the table is the same bits every time.
+// its own mask), the bits of the occupancy cells (OCC_SPLIT per grid cell
+// and axis: photon_grid.h) that come within the radius of a stored photon,
+// padded for rounding. A gather point whose own occupancy cell's bit is clear
+// has no photon within the radius (a set bit may be a hash collision), so
+// most empty gathers end after one vector test (photon_maybe). OR is
+// order-free: the table is the same bits every time.
 __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_cell, uint occ_mask,
                                __global uint *occ)
 {
@@ -114,11 +115,22 @@ __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_c
     float4 p = ph_pos[i];
     if (p.w == 0.0f)
         return;
-    int3 c = grid_lower_corner(REAL3(p.xyz), inv_cell);
-    for (int dz = 0; dz <= 1; dz++)
-        for (int dy = 0; dy <= 1; dy++)
-            for (int dx = 0; dx <= 1; dx++) {
-                uint b = grid_bucket(c + (int3)(dx, dy, dz), occ_mask);
+    // In occupancy cells: the photon at q, the radius `reach` (grid cells are two radii).
+    real3 q = clamp(REAL3(p.xyz) * (inv_cell * R(OCC_SPLIT)), -GRID_COORD_LIMIT, GRID_COORD_LIMIT);
+    real reach = R(0.5 * OCC_SPLIT * OCC_PAD);
+    real3 tol = fabs(q) * R(OCC_REL_TOL);  // the gather's rounding of a coordinate, in cells
+    real3 lo = floor(q - reach - tol), hi = floor(q + reach + tol);
+    for (real cz = lo.z; cz <= hi.z; cz += R(1)) {
+        real dz = fmax(fmax(cz - q.z, q.z - cz - R(1)) - tol.z, R(0));
+        for (real cy = lo.y; cy <= hi.y; cy += R(1)) {
+            real dy = fmax(fmax(cy - q.y, q.y - cy - R(1)) - tol.y, R(0));
+            for (real cx = lo.x; cx <= hi.x; cx += R(1)) {
+                real dx = fmax(fmax(cx - q.x, q.x - cx - R(1)) - tol.x, R(0));
+                if (dx * dx + dy * dy + dz * dz > reach * reach)
+                    continue;  // the cell's nearest point is beyond the radius
+                uint b = grid_bucket((int3)((int)cx, (int)cy, (int)cz), occ_mask);
                 atomic_or(&occ[b >> 5], 1u << (b & 31u));
             }
+        }
+    }
 }

@@ -22,6 +22,13 @@
 #define GRID_ROW_HASH(y, z) (((y) * 73856093u) ^ ((z) * 19349663u))
 // Cell coordinates far outside any scene are clamped, not overflowed.
 #define GRID_COORD_LIMIT R(1.0e9)
+// The occupancy bits (photon_maybe) are kept for cells OCC_SPLIT times finer
+// than the grid's per axis (one radius across), set for every cell within
+// OCC_PAD radii of a photon, less the rounding of coordinates (OCC_REL_TOL
+// of a coordinate, in cells).
+#define OCC_SPLIT 2
+#define OCC_PAD 1.02
+#define OCC_REL_TOL 1e-6
 
 inline int grid_coord(real v, real inv_cell)
 {
@@ -87,13 +94,14 @@ inline void photon_map_init(PhotonMap *pm, const PhotonLookup *pl, __global cons
 #define VAS_UINT(x) CLPT_CAT(as_uint, CLPT_LANES)(x)
 #endif
 
-// Lanes (among `active`) whose cell's occupancy bit is set: only they can
+// Lanes (among `active`) whose occupancy cell's bit is set: only they can
 // have photons within the radius. Vector code, one load per lane.
 inline vmask photon_maybe(const PhotonMap *pm, V3 x, vmask active)
 {
-    vint cx = VINT(floor(clamp(x.x * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
-    vint cy = VINT(floor(clamp(x.y * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
-    vint cz = VINT(floor(clamp(x.z * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    real inv_occ = pm->inv_cell * R(OCC_SPLIT);
+    vint cx = VINT(floor(clamp(x.x * inv_occ, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    vint cy = VINT(floor(clamp(x.y * inv_occ, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    vint cz = VINT(floor(clamp(x.z * inv_occ, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
     vuint b = (GRID_ROW_HASH(VAS_UINT(cy), VAS_UINT(cz)) + VAS_UINT(cx)) & pm->occ_mask;
     vuint word = (vuint)0u;
     for (int l = 0; l < CLPT_LANES; l++)
