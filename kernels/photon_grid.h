@@ -188,14 +188,20 @@ INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3
     int phong = ks.x > R(0) || ks.y > R(0) || ks.z > R(0);
 #endif
     uint found = 0;
-    for (int dz = 0; dz <= 1; dz++) {
-        for (int dy = 0; dy <= 1; dy++) {
-            int3 cell = base + (int3)(0, dy, dz);  // first cell of the row
-            uint s0, e0, s1, e1;
-            uint n_first = grid_row_range(pm, cell, &s0, &e0, &s1, &e1);
+    // The four rows' ranges first: their loads overlap.
+    uint rs0[4], re0[4], rs1[4], re1[4], rn[4];
+    uint rows = 0u;  // the rows with photons, as bits
+    for (int k = 0; k < 4; k++) {
+        rn[k] = grid_row_range(pm, base + (int3)(0, k & 1, k >> 1), &rs0[k], &re0[k], &rs1[k], &re1[k]);
+        rows |= (re0[k] - rs0[k] + re1[k] - rs1[k] != 0u ? 1u : 0u) << k;
+    }
+    {
+        while (rows != 0u) {
+            int k = 31 - (int)clz(rows & (0u - rows));
+            rows &= rows - 1u;
+            int3 cell = base + (int3)(0, k & 1, k >> 1);  // first cell of the row
+            uint s0 = rs0[k], e0 = re0[k], s1 = rs1[k], e1 = re1[k], n_first = rn[k];
             uint count = (e0 - s0) + (e1 - s1);
-            if (count == 0u)
-                continue;
             uint stride = 1u, offset = 0u;
             if (count > pm->budget) {
                 stride = (count + pm->budget - 1u) / pm->budget;
@@ -282,9 +288,13 @@ inline V3 photon_gather(const PhotonMap *pm, const Material *m, LobeProbs pr, V3
 #if CLPT_AUX
     *m2 = (vreal)R(0);
 #endif
-    for (int l = 0; l < CLPT_LANES; l++) {
-        if (VLANE_M(active, l) == 0)
-            continue;
+    // The active lanes as bits, visited lowest first (no branch per lane).
+    uint lanes = 0u;
+    for (int l = 0; l < CLPT_LANES; l++)
+        lanes |= (VLANE_M(active, l) != 0 ? 1u : 0u) << l;
+    while (lanes != 0u) {
+        int l = 31 - (int)clz(lanes & (0u - lanes));
+        lanes &= lanes - 1u;
         real3 xl = (real3)(VLANE_R(x.x, l), VLANE_R(x.y, l), VLANE_R(x.z, l));
         real3 nl = (real3)(VLANE_R(n.x, l), VLANE_R(n.y, l), VLANE_R(n.z, l));
         real3 dl = (real3)(VLANE_R(d.x, l), VLANE_R(d.y, l), VLANE_R(d.z, l));
