@@ -124,13 +124,23 @@ __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_c
         real dz = fmax(fmax(cz - q.z, q.z - cz - R(1)) - tol.z, R(0));
         for (real cy = lo.y; cy <= hi.y; cy += R(1)) {
             real dy = fmax(fmax(cy - q.y, q.y - cy - R(1)) - tol.y, R(0));
+            // A row's cells are consecutive bits: one atomic per word they fill.
+            uint word = 0xFFFFFFFFu, bits = 0u;
             for (real cx = lo.x; cx <= hi.x; cx += R(1)) {
                 real dx = fmax(fmax(cx - q.x, q.x - cx - R(1)) - tol.x, R(0));
                 if (dx * dx + dy * dy + dz * dz > reach * reach)
                     continue;  // the cell's nearest point is beyond the radius
                 uint b = grid_bucket((int3)((int)cx, (int)cy, (int)cz), occ_mask);
-                atomic_or(&occ[b >> 5], 1u << (b & 31u));
+                if (b >> 5 != word) {
+                    if (bits != 0u)
+                        atomic_or(&occ[word], bits);
+                    word = b >> 5;
+                    bits = 0u;
+                }
+                bits |= 1u << (b & 31u);
             }
+            if (bits != 0u)
+                atomic_or(&occ[word], bits);
         }
     }
 }
