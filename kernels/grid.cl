@@ -99,13 +99,29 @@ __kernel void bucket_starts(__global const uint *keys, uint n, uint mask, __glob
         bucket_start[b] = i;
 }
 
+// Sets the occupancy bits of the cells x0..x1 of the row (y, z): consecutive
+// bits (wrapping at the table's end), one atomic per word they fill.
+inline void occupancy_row(__global uint *occ, uint occ_mask, int y, int z, int x0, int x1)
+{
+    uint b = grid_bucket((int3)(x0, y, z), occ_mask);
+    uint n = (uint)(x1 - x0 + 1);
+    while (n > 0u) {
+        uint shift = b & 31u;
+        uint k = min(n, min(32u - shift, occ_mask + 1u - b));
+        atomic_or(&occ[b >> 5], (k == 32u ? 0xFFFFFFFFu : (1u << k) - 1u) << shift);
+        n -= k;
+        b = (b + k) & occ_mask;
+    }
+}
+
 // One work-item per slot: sets, in a bit table hashed like the buckets (with
 // its own mask), the bits of the occupancy cells (OCC_SPLIT per grid cell
 // and axis: photon_grid.h) that come within the radius of a stored photon,
-// padded for rounding. A gather point whose own occupancy cell's bit is clear
-// has no photon within the radius (a set bit may be a hash collision), so
-// most empty gathers end after one vector test (photon_maybe). OR is
-// order-free: the table is the same bits every time.
+// padded for rounding: per row of cells, the run of x the ball reaches. A
+// gather point whose own occupancy cell's bit is clear has no photon within
+// the radius (a set bit may be a hash collision), so most empty gathers end
+// after one vector test (photon_maybe). OR is order-free: the table is the
+// same bits every time.
 __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_cell, uint occ_mask,
                                __global uint *occ)
 {
@@ -119,28 +135,17 @@ __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_c
     real3 q = clamp(REAL3(p.xyz) * (inv_cell * R(OCC_SPLIT)), -GRID_COORD_LIMIT, GRID_COORD_LIMIT);
     real reach = R(0.5 * OCC_SPLIT * OCC_PAD);
     real3 tol = fabs(q) * R(OCC_REL_TOL);  // the gather's rounding of a coordinate, in cells
-    real3 lo = floor(q - reach - tol), hi = floor(q + reach + tol);
-    for (real cz = lo.z; cz <= hi.z; cz += R(1)) {
-        real dz = fmax(fmax(cz - q.z, q.z - cz - R(1)) - tol.z, R(0));
-        for (real cy = lo.y; cy <= hi.y; cy += R(1)) {
-            real dy = fmax(fmax(cy - q.y, q.y - cy - R(1)) - tol.y, R(0));
-            // A row's cells are consecutive bits: one atomic per word they fill.
-            uint word = 0xFFFFFFFFu, bits = 0u;
-            for (real cx = lo.x; cx <= hi.x; cx += R(1)) {
-                real dx = fmax(fmax(cx - q.x, q.x - cx - R(1)) - tol.x, R(0));
-                if (dx * dx + dy * dy + dz * dz > reach * reach)
-                    continue;  // the cell's nearest point is beyond the radius
-                uint b = grid_bucket((int3)((int)cx, (int)cy, (int)cz), occ_mask);
-                if (b >> 5 != word) {
-                    if (bits != 0u)
-                        atomic_or(&occ[word], bits);
-                    word = b >> 5;
-                    bits = 0u;
-                }
-                bits |= 1u << (b & 31u);
-            }
-            if (bits != 0u)
-                atomic_or(&occ[word], bits);
+    int z0 = (int)floor(q.z - reach - tol.z), z1 = (int)floor(q.z + reach + tol.z);
+    int y0 = (int)floor(q.y - reach - tol.y), y1 = (int)floor(q.y + reach + tol.y);
+    for (int z = z0; z <= z1; z++) {
+        real dz = fmax(fmax((real)z - q.z, q.z - (real)z - R(1)) - tol.z, R(0));
+        for (int y = y0; y <= y1; y++) {
+            real dy = fmax(fmax((real)y - q.y, q.y - (real)y - R(1)) - tol.y, R(0));
+            real rest = reach * reach - dy * dy - dz * dz;
+            if (rest < R(0))
+                continue;  // the row's nearest point is beyond the radius
+            real h = sqrt(rest) + tol.x;
+            occupancy_row(occ, occ_mask, y, z, (int)floor(q.x - h), (int)floor(q.x + h));
         }
     }
 }
