@@ -195,72 +195,70 @@ INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3
         rn[k] = grid_row_range(pm, base + (int3)(0, k & 1, k >> 1), &rs0[k], &re0[k], &rs1[k], &re1[k]);
         rows |= (re0[k] - rs0[k] + re1[k] - rs1[k] != 0u ? 1u : 0u) << k;
     }
-    {
-        while (rows != 0u) {
-            int k = 31 - (int)clz(rows & (0u - rows));
-            rows &= rows - 1u;
-            int3 cell = base + (int3)(0, k & 1, k >> 1);  // first cell of the row
-            uint s0 = rs0[k], e0 = re0[k], s1 = rs1[k], e1 = re1[k], n_first = rn[k];
-            uint count = (e0 - s0) + (e1 - s1);
-            uint stride = 1u, offset = 0u;
-            if (count > pm->budget) {
-                stride = (count + pm->budget - 1u) / pm->budget;
-                offset = min((uint)(u * (real)stride), stride - 1u);
-            }
-            real weight = (real)stride;
-            for (int part = 0; part < 2; part++) {
-                uint end = part == 0 ? e0 : e1;
-                // The stride runs on across the wrap: row index k is visited when k % stride == offset.
-                uint first = part == 0 ? s0 + offset : s1 + (offset + stride - (e0 - s0) % stride) % stride;
-                for (uint i = first; i < end; i += stride) {
-                    float4 p = pm->pos[i];
-                    real3 to = REAL3(p.xyz) - x;
-                    real d2 = dot(to, to);
-                    if (d2 >= r2)
-                        continue;
-                    if (p.w > max_bounces)
-                        continue;
-                    int3 pc = grid_cell(REAL3(p.xyz), pm->inv_cell);
-                    if (pc.y != cell.y || pc.z != cell.z || pc.x < cell.x || pc.x > cell.x + 1)
-                        continue;  // another cell's photon in these buckets
-                    float4 dir = pm->dir[i];
+    while (rows != 0u) {
+        int k = 31 - (int)clz(rows & (0u - rows));
+        rows &= rows - 1u;
+        int3 cell = base + (int3)(0, k & 1, k >> 1);  // first cell of the row
+        uint s0 = rs0[k], e0 = re0[k], s1 = rs1[k], e1 = re1[k], n_first = rn[k];
+        uint count = (e0 - s0) + (e1 - s1);
+        uint stride = 1u, offset = 0u;
+        if (count > pm->budget) {
+            stride = (count + pm->budget - 1u) / pm->budget;
+            offset = min((uint)(u * (real)stride), stride - 1u);
+        }
+        real weight = (real)stride;
+        for (int part = 0; part < 2; part++) {
+            uint end = part == 0 ? e0 : e1;
+            // The stride runs on across the wrap: row index j is visited when j % stride == offset.
+            uint first = part == 0 ? s0 + offset : s1 + (offset + stride - (e0 - s0) % stride) % stride;
+            for (uint i = first; i < end; i += stride) {
+                float4 p = pm->pos[i];
+                real3 to = REAL3(p.xyz) - x;
+                real d2 = dot(to, to);
+                if (d2 >= r2)
+                    continue;
+                if (p.w > max_bounces)
+                    continue;
+                int3 pc = grid_cell(REAL3(p.xyz), pm->inv_cell);
+                if (pc.y != cell.y || pc.z != cell.z || pc.x < cell.x || pc.x > cell.x + 1)
+                    continue;  // another cell's photon in these buckets
+                float4 dir = pm->dir[i];
 #if CLPT_HAS_DELTA_LIGHTS
-                    if (mis == 2 && !isinf(dir.w))
-                        continue;  // (delta lights' photons only)
+                if (mis == 2 && !isinf(dir.w))
+                    continue;  // (delta lights' photons only)
 #endif
-                    real3 w_in = REAL3(dir.xyz);
-                    real cos_n = -dot(w_in, n);
-                    if (cos_n <= R(0))
-                        continue;  // arrives from behind the surface
-                    real w = weight * (R(1) - sqrt(d2) * inv_kr);
-                    real lobe_s = R(0);
+                real3 w_in = REAL3(dir.xyz);
+                real cos_n = -dot(w_in, n);
+                if (cos_n <= R(0))
+                    continue;  // arrives from behind the surface
+                real w = weight * (R(1) - sqrt(d2) * inv_kr);
+                real lobe_s = R(0);
 #if CLPT_HAS_PHONG
-                    if (phong) {
-                        real ca = -dot(refl, w_in);
-                        lobe_s = ca > R(0) ? exp(shininess * log(fmax(ca, R(1e-30)))) : R(0);
-                    }
-#endif
-                    real p_pt = p_d * cos_n * R(M_1_PI) + p_s * (shininess + R(1)) * R(0.5 * M_1_PI) * lobe_s;
-                    real q = p_pt / ((real)dir.w * cos_n * pm->mis_k);
-#if CLPT_AUX
-                    if (pm->moments)
-                        *m2 += photon_moment(lw, kd, ks, shininess, lobe_s, REAL3(pm->pow[i].xyz) * w, weight, q);
-#endif
-                    if (mis == 1) {
-                        real wm = R(1) / (R(1) + q * q);
-                        w *= isnan(wm) ? R(0) : wm;
-                    }
-                    real3 flux = REAL3(pm->pow[i].xyz) * w;
-                    sum_d += flux;
-#if CLPT_HAS_PHONG
-                    sum_s += flux * lobe_s;
-#endif
-                    if (++found >= pm->max_photons)
-                        goto done;
+                if (phong) {
+                    real ca = -dot(refl, w_in);
+                    lobe_s = ca > R(0) ? exp(shininess * log(fmax(ca, R(1e-30)))) : R(0);
                 }
-                if (n_first == 2u)
-                    break;
+#endif
+                real p_pt = p_d * cos_n * R(M_1_PI) + p_s * (shininess + R(1)) * R(0.5 * M_1_PI) * lobe_s;
+                real q = p_pt / ((real)dir.w * cos_n * pm->mis_k);
+#if CLPT_AUX
+                if (pm->moments)
+                    *m2 += photon_moment(lw, kd, ks, shininess, lobe_s, REAL3(pm->pow[i].xyz) * w, weight, q);
+#endif
+                if (mis == 1) {
+                    real wm = R(1) / (R(1) + q * q);
+                    w *= isnan(wm) ? R(0) : wm;
+                }
+                real3 flux = REAL3(pm->pow[i].xyz) * w;
+                sum_d += flux;
+#if CLPT_HAS_PHONG
+                sum_s += flux * lobe_s;
+#endif
+                if (++found >= pm->max_photons)
+                    goto done;
             }
+            if (n_first == 2u)
+                break;
         }
     }
 done:;
