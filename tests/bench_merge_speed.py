@@ -40,9 +40,11 @@ def main(argv=None):
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     import clpt
+    from clpt.loading import load_scene
+    from clpt.pack import pack_scene
     from clpt.resources import shipped_scenes
 
-    scenes = a.scenes or [s for s in shipped_scenes() if clpt.Renderer(s, device=a.device).packed.has_caustics]
+    scenes = a.scenes or [s for s in shipped_scenes() if pack_scene(load_scene(s)).has_caustics]
     kw = dict(width=a.size, height=a.size, max_depth=a.depth, seed=a.seed)
     n_pix = a.size * a.size
     out = {}
