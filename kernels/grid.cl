@@ -134,7 +134,9 @@ __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_c
     // In occupancy cells: the photon at q, the radius `reach` (grid cells are two radii).
     real3 q = clamp(REAL3(p.xyz) * (inv_cell * R(OCC_SPLIT)), -GRID_COORD_LIMIT, GRID_COORD_LIMIT);
     real reach = R(0.5 * OCC_SPLIT * OCC_PAD);
-    real3 tol = fabs(q) * R(OCC_REL_TOL);  // the gather's rounding of a coordinate, in cells
+    // The gather's rounding of a coordinate, in cells (at most one: past that,
+    // far from the origin at a tiny radius, cells are no longer told apart).
+    real3 tol = fmin(fabs(q) * R(OCC_REL_TOL), R(1));
     int z0 = (int)floor(q.z - reach - tol.z), z1 = (int)floor(q.z + reach + tol.z);
     int y0 = (int)floor(q.y - reach - tol.y), y1 = (int)floor(q.y + reach + tol.y);
     for (int z = z0; z <= z1; z++) {

@@ -24,8 +24,8 @@
 #define GRID_COORD_LIMIT R(1.0e9)
 // The occupancy bits (photon_maybe) are kept for cells OCC_SPLIT times finer
 // than the grid's per axis (one radius across), set for every cell within
-// OCC_PAD radii of a photon, less the rounding of coordinates (OCC_REL_TOL
-// of a coordinate, in cells).
+// OCC_PAD radii of a photon, plus the rounding of coordinates (OCC_REL_TOL
+// of a coordinate, in cells; grid.cl photon_occupancy).
 #define OCC_SPLIT 2
 #define OCC_PAD 1.02
 #define OCC_REL_TOL 1e-6
