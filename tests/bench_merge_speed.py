@@ -15,6 +15,11 @@ difference between the two renders over (HI - LO) * pixels: the pilot, the
 builds and the first map cancel out. Best of the rounds (the fastest of
 each render), in Msamples per CPU second; the ratio is merging's over path
 tracing's (the target: at least 0.5). --json writes every render's times.
+
+--base-kernels DIR adds a third method to the same rounds: the default
+render built from another tree's kernels/ folder (e.g. `git archive main
+kernels | tar -x -C /tmp/base`), so that a change's before and after are
+measured side by side, under the same load (the host code is this tree's).
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ import json
 import sys
 import time
 import warnings
+from pathlib import Path
 
 
 def main(argv=None):
@@ -37,9 +43,11 @@ def main(argv=None):
     ap.add_argument("--depth", type=int, default=64)
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--base-kernels", default=None, help="a kernels/ folder to render the default with as well")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
     import clpt
+    import clpt.program as program
     from clpt.loading import load_scene
     from clpt.pack import pack_scene
     from clpt.resources import shipped_scenes
@@ -54,6 +62,13 @@ def main(argv=None):
           "  chosen", flush=True)
     for s in scenes:
         rs = {"merge": clpt.Renderer(s, device=a.device), "path": clpt.Renderer(s, device=a.device, photons=False)}
+        if a.base_kernels:
+            own = program.kernel_dir
+            program.kernel_dir = lambda: Path(a.base_kernels)
+            try:
+                rs["base"] = clpt.Renderer(s, device=a.device)
+            finally:
+                program.kernel_dir = own
         chosen = ""
         for name, r in rs.items():
             res = r.render(4, **kw)  # builds, first launches, the pilot's cached trial
@@ -74,9 +89,13 @@ def main(argv=None):
             for what in ("cpu", "kernel"):
                 dt = min(t[what][a.hi]) - min(t[what][a.lo])
                 rate[name, what] = (a.hi - a.lo) * n_pix / dt / 1e6 if dt > 0 else float("nan")
+        base = ""
+        if "base" in rs:
+            base = (f"  base merge {rate['base', 'cpu']:5.2f} ratio {rate['base', 'cpu'] / rate['path', 'cpu']:4.2f}"
+                    f" (merge/base {rate['merge', 'cpu'] / rate['base', 'cpu']:4.2f})")
         print(f"{s:32s} {rate['path', 'cpu']:7.2f} {rate['merge', 'cpu']:7.2f} "
               f"{rate['merge', 'cpu'] / rate['path', 'cpu']:6.2f}  {rate['path', 'kernel']:11.2f} "
-              f"{rate['merge', 'kernel']:7.2f} {rate['merge', 'kernel'] / rate['path', 'kernel']:6.2f}  {chosen}",
+              f"{rate['merge', 'kernel']:7.2f} {rate['merge', 'kernel'] / rate['path', 'kernel']:6.2f}  {chosen}{base}",
               flush=True)
         out[s] = {"times": times, "rate": {f"{k[0]}_{k[1]}": v for k, v in rate.items()}, "chosen": chosen}
     if a.json:
