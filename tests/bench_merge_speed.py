@@ -20,6 +20,10 @@ tracing's (the target: at least 0.5). --json writes every render's times.
 render built from another tree's kernels/ folder (e.g. `git archive main
 kernels | tar -x -C /tmp/base`), so that a change's before and after are
 measured side by side, under the same load (the host code is this tree's).
+On a machine other jobs share, the best of 3 rounds still moved by about
+10% between runs here: a difference smaller than that needs more rounds.
+(The kernel columns are profiling-event seconds: PoCL's exceed its CPU
+seconds at times; compare CPU seconds.)
 """
 
 from __future__ import annotations
