@@ -99,12 +99,29 @@ __kernel void bucket_starts(__global const uint *keys, uint n, uint mask, __glob
         bucket_start[b] = i;
 }
 
+// Sets the occupancy bits of the cells x0..x1 of the row (y, z): consecutive
+// bits (wrapping at the table's end), one atomic per word they fill.
+inline void occupancy_row(__global uint *occ, uint occ_mask, int y, int z, int x0, int x1)
+{
+    uint b = grid_bucket((int3)(x0, y, z), occ_mask);
+    uint n = (uint)(x1 - x0 + 1);
+    while (n > 0u) {
+        uint shift = b & 31u;
+        uint k = min(n, min(32u - shift, occ_mask + 1u - b));
+        atomic_or(&occ[b >> 5], (k == 32u ? 0xFFFFFFFFu : (1u << k) - 1u) << shift);
+        n -= k;
+        b = (b + k) & occ_mask;
+    }
+}
+
 // One work-item per slot: sets, in a bit table hashed like the buckets (with
-// its own mask), the bits of the 2 x 2 x 2 cells whose points can lie within
-// the radius of a stored photon (grid_lower_corner). A gather point whose own
-// cell's bit is clear has no photon within the radius (a set bit may be a
-// hash collision), so most empty gathers end after one vector test
-// (photon_maybe). OR is order-free: the table is the same bits every time.
+// its own mask), the bits of the occupancy cells (OCC_SPLIT per grid cell
+// and axis: photon_grid.h) that come within the radius of a stored photon,
+// padded for rounding: per row of cells, the run of x the ball reaches. A
+// gather point whose own occupancy cell's bit is clear has no photon within
+// the radius (a set bit may be a hash collision), so most empty gathers end
+// after one vector test (photon_maybe). OR is order-free: the table is the
+// same bits every time.
 __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_cell, uint occ_mask,
                                __global uint *occ)
 {
@@ -114,11 +131,23 @@ __kernel void photon_occupancy(__global const float4 *ph_pos, uint n, real inv_c
     float4 p = ph_pos[i];
     if (p.w == 0.0f)
         return;
-    int3 c = grid_lower_corner(REAL3(p.xyz), inv_cell);
-    for (int dz = 0; dz <= 1; dz++)
-        for (int dy = 0; dy <= 1; dy++)
-            for (int dx = 0; dx <= 1; dx++) {
-                uint b = grid_bucket(c + (int3)(dx, dy, dz), occ_mask);
-                atomic_or(&occ[b >> 5], 1u << (b & 31u));
-            }
+    // In occupancy cells: the photon at q, the radius `reach` (grid cells are two radii).
+    real3 q = clamp(REAL3(p.xyz) * (inv_cell * R(OCC_SPLIT)), -GRID_COORD_LIMIT, GRID_COORD_LIMIT);
+    real reach = R(0.5 * OCC_SPLIT * OCC_PAD);
+    // The gather's rounding of a coordinate, in cells (at most one: past that,
+    // far from the origin at a tiny radius, cells are no longer told apart).
+    real3 tol = fmin(fabs(q) * R(OCC_REL_TOL), R(1));
+    int z0 = (int)floor(q.z - reach - tol.z), z1 = (int)floor(q.z + reach + tol.z);
+    int y0 = (int)floor(q.y - reach - tol.y), y1 = (int)floor(q.y + reach + tol.y);
+    for (int z = z0; z <= z1; z++) {
+        real dz = fmax(fmax((real)z - q.z, q.z - (real)z - R(1)) - tol.z, R(0));
+        for (int y = y0; y <= y1; y++) {
+            real dy = fmax(fmax((real)y - q.y, q.y - (real)y - R(1)) - tol.y, R(0));
+            real rest = reach * reach - dy * dy - dz * dz;
+            if (rest < R(0))
+                continue;  // the row's nearest point is beyond the radius
+            real h = sqrt(rest) + tol.x;
+            occupancy_row(occ, occ_mask, y, z, (int)floor(q.x - h), (int)floor(q.x + h));
+        }
+    }
 }

@@ -22,6 +22,13 @@
 #define GRID_ROW_HASH(y, z) (((y) * 73856093u) ^ ((z) * 19349663u))
 // Cell coordinates far outside any scene are clamped, not overflowed.
 #define GRID_COORD_LIMIT R(1.0e9)
+// The occupancy bits (photon_maybe) are kept for cells OCC_SPLIT times finer
+// than the grid's per axis (one radius across), set for every cell within
+// OCC_PAD radii of a photon, plus the rounding of coordinates (OCC_REL_TOL
+// of a coordinate, in cells; grid.cl photon_occupancy).
+#define OCC_SPLIT 2
+#define OCC_PAD 1.02
+#define OCC_REL_TOL 1e-6
 
 inline int grid_coord(real v, real inv_cell)
 {
@@ -87,13 +94,14 @@ inline void photon_map_init(PhotonMap *pm, const PhotonLookup *pl, __global cons
 #define VAS_UINT(x) CLPT_CAT(as_uint, CLPT_LANES)(x)
 #endif
 
-// Lanes (among `active`) whose cell's occupancy bit is set: only they can
+// Lanes (among `active`) whose occupancy cell's bit is set: only they can
 // have photons within the radius. Vector code, one load per lane.
 inline vmask photon_maybe(const PhotonMap *pm, V3 x, vmask active)
 {
-    vint cx = VINT(floor(clamp(x.x * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
-    vint cy = VINT(floor(clamp(x.y * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
-    vint cz = VINT(floor(clamp(x.z * pm->inv_cell, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    real inv_occ = pm->inv_cell * R(OCC_SPLIT);
+    vint cx = VINT(floor(clamp(x.x * inv_occ, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    vint cy = VINT(floor(clamp(x.y * inv_occ, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
+    vint cz = VINT(floor(clamp(x.z * inv_occ, -GRID_COORD_LIMIT, GRID_COORD_LIMIT)));
     vuint b = (GRID_ROW_HASH(VAS_UINT(cy), VAS_UINT(cz)) + VAS_UINT(cx)) & pm->occ_mask;
     vuint word = (vuint)0u;
     for (int l = 0; l < CLPT_LANES; l++)
@@ -180,73 +188,77 @@ INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3
     int phong = ks.x > R(0) || ks.y > R(0) || ks.z > R(0);
 #endif
     uint found = 0;
-    for (int dz = 0; dz <= 1; dz++) {
-        for (int dy = 0; dy <= 1; dy++) {
-            int3 cell = base + (int3)(0, dy, dz);  // first cell of the row
-            uint s0, e0, s1, e1;
-            uint n_first = grid_row_range(pm, cell, &s0, &e0, &s1, &e1);
-            uint count = (e0 - s0) + (e1 - s1);
-            if (count == 0u)
-                continue;
-            uint stride = 1u, offset = 0u;
-            if (count > pm->budget) {
-                stride = (count + pm->budget - 1u) / pm->budget;
-                offset = min((uint)(u * (real)stride), stride - 1u);
-            }
-            real weight = (real)stride;
-            for (int part = 0; part < 2; part++) {
-                uint end = part == 0 ? e0 : e1;
-                // The stride runs on across the wrap: row index k is visited when k % stride == offset.
-                uint first = part == 0 ? s0 + offset : s1 + (offset + stride - (e0 - s0) % stride) % stride;
-                for (uint i = first; i < end; i += stride) {
-                    float4 p = pm->pos[i];
-                    real3 to = REAL3(p.xyz) - x;
-                    real d2 = dot(to, to);
-                    if (d2 >= r2)
-                        continue;
-                    if (p.w > max_bounces)
-                        continue;
-                    int3 pc = grid_cell(REAL3(p.xyz), pm->inv_cell);
-                    if (pc.y != cell.y || pc.z != cell.z || pc.x < cell.x || pc.x > cell.x + 1)
-                        continue;  // another cell's photon in these buckets
-                    float4 dir = pm->dir[i];
+    // The four rows' ranges first: their loads overlap.
+    uint rs0[4], re0[4], rs1[4], re1[4], rn[4];
+    uint rows = 0u;  // the rows with photons, as bits
+    for (int k = 0; k < 4; k++) {
+        rn[k] = grid_row_range(pm, base + (int3)(0, k & 1, k >> 1), &rs0[k], &re0[k], &rs1[k], &re1[k]);
+        rows |= (re0[k] - rs0[k] + re1[k] - rs1[k] != 0u ? 1u : 0u) << k;
+    }
+    while (rows != 0u) {
+        int k = 31 - (int)clz(rows & (0u - rows));
+        rows &= rows - 1u;
+        int3 cell = base + (int3)(0, k & 1, k >> 1);  // first cell of the row
+        uint s0 = rs0[k], e0 = re0[k], s1 = rs1[k], e1 = re1[k], n_first = rn[k];
+        uint count = (e0 - s0) + (e1 - s1);
+        uint stride = 1u, offset = 0u;
+        if (count > pm->budget) {
+            stride = (count + pm->budget - 1u) / pm->budget;
+            offset = min((uint)(u * (real)stride), stride - 1u);
+        }
+        real weight = (real)stride;
+        for (int part = 0; part < 2; part++) {
+            uint end = part == 0 ? e0 : e1;
+            // The stride runs on across the wrap: row index j is visited when j % stride == offset.
+            uint first = part == 0 ? s0 + offset : s1 + (offset + stride - (e0 - s0) % stride) % stride;
+            for (uint i = first; i < end; i += stride) {
+                float4 p = pm->pos[i];
+                real3 to = REAL3(p.xyz) - x;
+                real d2 = dot(to, to);
+                if (d2 >= r2)
+                    continue;
+                if (p.w > max_bounces)
+                    continue;
+                int3 pc = grid_cell(REAL3(p.xyz), pm->inv_cell);
+                if (pc.y != cell.y || pc.z != cell.z || pc.x < cell.x || pc.x > cell.x + 1)
+                    continue;  // another cell's photon in these buckets
+                float4 dir = pm->dir[i];
 #if CLPT_HAS_DELTA_LIGHTS
-                    if (mis == 2 && !isinf(dir.w))
-                        continue;  // (delta lights' photons only)
+                if (mis == 2 && !isinf(dir.w))
+                    continue;  // (delta lights' photons only)
 #endif
-                    real3 w_in = REAL3(dir.xyz);
-                    real cos_n = -dot(w_in, n);
-                    if (cos_n <= R(0))
-                        continue;  // arrives from behind the surface
-                    real w = weight * (R(1) - sqrt(d2) * inv_kr);
-                    real lobe_s = R(0);
+                real3 w_in = REAL3(dir.xyz);
+                real cos_n = -dot(w_in, n);
+                if (cos_n <= R(0))
+                    continue;  // arrives from behind the surface
+                real w = weight * (R(1) - sqrt(d2) * inv_kr);
+                real lobe_s = R(0);
 #if CLPT_HAS_PHONG
-                    if (phong) {
-                        real ca = -dot(refl, w_in);
-                        lobe_s = ca > R(0) ? exp(shininess * log(fmax(ca, R(1e-30)))) : R(0);
-                    }
-#endif
-                    real p_pt = p_d * cos_n * R(M_1_PI) + p_s * (shininess + R(1)) * R(0.5 * M_1_PI) * lobe_s;
-                    real q = p_pt / ((real)dir.w * cos_n * pm->mis_k);
-#if CLPT_AUX
-                    if (pm->moments)
-                        *m2 += photon_moment(lw, kd, ks, shininess, lobe_s, REAL3(pm->pow[i].xyz) * w, weight, q);
-#endif
-                    if (mis == 1) {
-                        real wm = R(1) / (R(1) + q * q);
-                        w *= isnan(wm) ? R(0) : wm;
-                    }
-                    real3 flux = REAL3(pm->pow[i].xyz) * w;
-                    sum_d += flux;
-#if CLPT_HAS_PHONG
-                    sum_s += flux * lobe_s;
-#endif
-                    if (++found >= pm->max_photons)
-                        goto done;
+                if (phong) {
+                    real ca = -dot(refl, w_in);
+                    lobe_s = ca > R(0) ? exp(shininess * log(fmax(ca, R(1e-30)))) : R(0);
                 }
-                if (n_first == 2u)
-                    break;
+#endif
+                real p_pt = p_d * cos_n * R(M_1_PI) + p_s * (shininess + R(1)) * R(0.5 * M_1_PI) * lobe_s;
+                real q = p_pt / ((real)dir.w * cos_n * pm->mis_k);
+#if CLPT_AUX
+                if (pm->moments)
+                    *m2 += photon_moment(lw, kd, ks, shininess, lobe_s, REAL3(pm->pow[i].xyz) * w, weight, q);
+#endif
+                if (mis == 1) {
+                    real wm = R(1) / (R(1) + q * q);
+                    w *= isnan(wm) ? R(0) : wm;
+                }
+                real3 flux = REAL3(pm->pow[i].xyz) * w;
+                sum_d += flux;
+#if CLPT_HAS_PHONG
+                sum_s += flux * lobe_s;
+#endif
+                if (++found >= pm->max_photons)
+                    goto done;
             }
+            if (n_first == 2u)
+                break;
         }
     }
 done:;
@@ -274,9 +286,13 @@ inline V3 photon_gather(const PhotonMap *pm, const Material *m, LobeProbs pr, V3
 #if CLPT_AUX
     *m2 = (vreal)R(0);
 #endif
-    for (int l = 0; l < CLPT_LANES; l++) {
-        if (VLANE_M(active, l) == 0)
-            continue;
+    // The active lanes as bits, visited lowest first (no branch per lane).
+    uint lanes = 0u;
+    for (int l = 0; l < CLPT_LANES; l++)
+        lanes |= (VLANE_M(active, l) != 0 ? 1u : 0u) << l;
+    while (lanes != 0u) {
+        int l = 31 - (int)clz(lanes & (0u - lanes));
+        lanes &= lanes - 1u;
         real3 xl = (real3)(VLANE_R(x.x, l), VLANE_R(x.y, l), VLANE_R(x.z, l));
         real3 nl = (real3)(VLANE_R(n.x, l), VLANE_R(n.y, l), VLANE_R(n.z, l));
         real3 dl = (real3)(VLANE_R(d.x, l), VLANE_R(d.y, l), VLANE_R(d.z, l));
