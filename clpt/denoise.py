@@ -148,6 +148,14 @@ class Planar:
             body[k, :, :self.width] = p
         return out
 
+    def fill(self, out: np.ndarray, planes) -> None:
+        """The planes' pixels written into a packed array (pack's), in place;
+        margins and padding are left as they are."""
+        body = out[:len(planes), self.margin:self.margin + self.pitch * self.height].reshape(len(planes), self.height,
+                                                                                   self.pitch)
+        for k, p in enumerate(planes):
+            body[k, :, :self.width] = p
+
     def unpack(self, flat: np.ndarray, planes: int) -> np.ndarray:
         body = flat.reshape(planes, self.plane)[:, self.margin:self.margin + self.pitch * self.height]
         return np.moveaxis(body.reshape(planes, self.height, self.pitch)[:, :, :self.width], 0, -1)

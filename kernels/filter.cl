@@ -61,52 +61,73 @@ inline float luma(float r, float g, float b)
     return (float)CLPT_LUMA_R * r + (float)CLPT_LUMA_G * g + (float)CLPT_LUMA_B * b;
 }
 
+inline float8 luma8(float8 r, float8 g, float8 b)
+{
+    return (float)CLPT_LUMA_R * r + (float)CLPT_LUMA_G * g + (float)CLPT_LUMA_B * b;
+}
+
+#define LD8(buf, k, off) vload8(0, (buf) + (k) * plane + (off))
+
+// All three kernels: one work-item per 8 pixels of a row, in float8 lanes
+// (global size height * pitch / 8); lanes past the width (the row's padding)
+// write zeros, so that the padding stays finite for the taps that read it
+// (their weights are zero).
 __kernel void filter_firefly(__global const float *color_in, uint width, uint height, uint pitch, uint plane,
                              uint margin, float k, float k_confirm, __global float *color_out)
 {
-    uint i = get_global_id(0);
-    if (i >= width * height)
+    uint gid = get_global_id(0);
+    uint per_row = pitch / 8u;
+    if (gid >= per_row * height)
         return;
-    int x = (int)(i % width), y = (int)(i / width);
-    int xm = (int)width - 1, ym = (int)height - 1;
-    uint o = margin + (uint)y * pitch + (uint)x;
-    // Branch-free (lanes of neighbouring pixels stay together): pixels outside
-    // the image read a clamped address and count as +inf variance, n as 0 luminance.
-    float v[9];
-    int n = 0;
-    float lmax = -INFINITY;
+    int y = (int)(gid / per_row), x0 = (int)(gid % per_row) * 8;
+    int ym = (int)height - 1;
+    int8 xs = (int8)(x0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    int8 inside = xs < (int)width;
+    int o = (int)margin + y * (int)pitch + x0;
+    // Pixels outside the image count as +inf variance, n as 0 luminance (rows
+    // outside read a clamped row's address, columns the padding or the margin).
+    float8 v[9];
+    int8 n = 0;
+    float8 lmax = -INFINITY;
     for (int dy = -1; dy <= 1; dy++) {
+        int qy = y + dy;
+        int row_in = qy >= 0 && qy <= ym;
+        int off = (int)margin + clamp(qy, 0, ym) * (int)pitch + x0;
         for (int dx = -1; dx <= 1; dx++) {
-            int qx = x + dx, qy = y + dy;
-            int in = qx >= 0 && qy >= 0 && qx <= xm && qy <= ym;
-            uint q = margin + (uint)clamp(qy, 0, ym) * pitch + (uint)clamp(qx, 0, xm);
-            v[(dy + 1) * 3 + dx + 1] = in ? color_in[3 * plane + q] : INFINITY;
-            n += in;
-            if ((dx != 0 || dy != 0) && in)
-                lmax = fmax(lmax, luma(color_in[q], color_in[plane + q], color_in[2 * plane + q]));
+            int8 qx = xs + dx;
+            int8 in = qx >= 0 && qx < (int)width && (int8)(row_in ? -1 : 0);
+            v[(dy + 1) * 3 + dx + 1] = select((float8)(INFINITY), LD8(color_in, 3, off + dx), in);
+            n -= in;  // in: -1 where true
+            if (dx != 0 || dy != 0)
+                lmax = select(lmax, fmax(lmax, luma8(LD8(color_in, 0, off + dx), LD8(color_in, 1, off + dx),
+                                                     LD8(color_in, 2, off + dx))), in);
         }
     }
     // The median of the n variances in the image: the one of rank n / 2 (ties
     // ranked by position), without sorting.
-    float vmed = 0.0f;
+    float8 vmed = 0.0f;
+    int8 mid = n / 2;
     for (int a = 0; a < 9; a++) {
-        int rank = 0;
+        int8 rank = 0;
         for (int b = 0; b < 9; b++)
-            rank += v[b] < v[a] || (b < a && v[b] == v[a]);
-        vmed = rank == n / 2 ? v[a] : vmed;
+            rank -= v[b] < v[a] || (b < a ? (v[b] == v[a]) : (int8)(0));
+        vmed = select(vmed, v[a], rank == mid);
     }
-    float r = color_in[o], g = color_in[plane + o], b = color_in[2 * plane + o], var = color_in[3 * plane + o];
-    float bound = lmax + k * sqrt(vmed);
-    float lp = luma(r, g, b);
+    float8 r = LD8(color_in, 0, o), g = LD8(color_in, 1, o), b = LD8(color_in, 2, o), var = LD8(color_in, 3, o);
+    float8 bound = lmax + k * sqrt(vmed);
+    float8 lp = luma8(r, g, b);
     // Brightness the pixel's own samples confirm is kept: it is clamped only
     // where its excess over the bound is within k_confirm of its own standard errors
     // (a firefly's standard error is about its value; a highlight's, a lamp's
     // reflection's, a caustic's, seen by most of the pixel's samples, is not).
-    if (n > 1 && lp > bound && lp - k_confirm * sqrt(var) <= bound) {
-        float s = fmax(bound, 0.0f) / lp;
-        r *= s; g *= s; b *= s; var = vmed;
-    }
-    color_out[o] = r; color_out[plane + o] = g; color_out[2 * plane + o] = b; color_out[3 * plane + o] = var;
+    int8 clip = n > 1 && lp > bound && lp - k_confirm * sqrt(var) <= bound;
+    float8 s = fmax(bound, 0.0f) / lp;
+    r = select(r, r * s, clip); g = select(g, g * s, clip); b = select(b, b * s, clip);
+    var = select(var, vmed, clip);
+    vstore8(select((float8)(0.0f), r, inside), 0, color_out + o);
+    vstore8(select((float8)(0.0f), g, inside), 0, color_out + plane + o);
+    vstore8(select((float8)(0.0f), b, inside), 0, color_out + 2 * plane + o);
+    vstore8(select((float8)(0.0f), var, inside), 0, color_out + 3 * plane + o);
 }
 
 // filter_luma: planes 4 and 5 of color, the luminance of planes 0-2 and the
@@ -114,29 +135,34 @@ __kernel void filter_firefly(__global const float *color_in, uint width, uint he
 // (1 2 1) x (1 2 1).
 __kernel void filter_luma(__global float *color, uint width, uint height, uint pitch, uint plane, uint margin)
 {
-    uint i = get_global_id(0);
-    if (i >= width * height)
+    uint gid = get_global_id(0);
+    uint per_row = pitch / 8u;
+    if (gid >= per_row * height)
         return;
-    int x = (int)(i % width), y = (int)(i / width);
-    float s = 0.0f, sv = 0.0f, ws = 0.0f;
+    int y = (int)(gid / per_row), x0 = (int)(gid % per_row) * 8;
+    int8 xs = (int8)(x0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    float8 s = 0.0f, sv = 0.0f, ws = 0.0f;
     for (int dy = -1; dy <= 1; dy++) {
+        int qy = y + dy;
+        if (qy < 0 || qy >= (int)height)
+            continue;
+        int off = (int)margin + qy * (int)pitch + x0;
         for (int dx = -1; dx <= 1; dx++) {
-            int qx = x + dx, qy = y + dy;
-            if (qx < 0 || qy < 0 || qx >= (int)width || qy >= (int)height)
-                continue;
-            uint q = margin + (uint)qy * pitch + (uint)qx;
+            int8 qx = xs + dx;
+            int8 in = qx >= 0 && qx < (int)width;
             float w = (float)((2 - abs(dx)) * (2 - abs(dy)));
-            s += w * luma(color[q], color[plane + q], color[2 * plane + q]);
-            sv += w * color[3 * plane + q];
-            ws += w;
+            float8 l = luma8(LD8(color, 0, off + dx), LD8(color, 1, off + dx), LD8(color, 2, off + dx));
+            s = select(s, s + w * l, in);
+            sv = select(sv, sv + w * LD8(color, 3, off + dx), in);
+            ws = select(ws, ws + w, in);
         }
     }
-    uint o = margin + (uint)y * pitch + (uint)x;
-    color[4 * plane + o] = s / ws;
-    color[5 * plane + o] = sv / ws;
+    int o = (int)margin + y * (int)pitch + x0;
+    int8 inside = xs < (int)width;
+    vstore8(select((float8)(0.0f), s / ws, inside), 0, color + 4 * plane + o);
+    vstore8(select((float8)(0.0f), sv / ws, inside), 0, color + 5 * plane + o);
 }
 
-#define LD8(buf, k, off) vload8(0, (buf) + (k) * plane + (off))
 
 __kernel void filter_cone(__global const float *color_in, __global const float *guides, uint width, uint height,
                           uint pitch, uint plane, uint margin, int radius, int step, int n_pow, float sigma_depth,
@@ -212,19 +238,22 @@ __kernel void filter_cone(__global const float *color_in, __global const float *
             }
         }
     }
+    int8 inside = xs < (int)width;
     if (fit) {
         // a: the first row of the normal matrix's cofactors against the sums, over its determinant
         float8 lam = 1e-3f * wsum;
         float8 axx = sxx + lam, ayy = syy + lam;
         float8 m0 = axx * ayy - sxy * sxy, m1 = sxy * sy - sx * ayy, m2 = sx * sxy - axx * sy;
         float8 inv = 1.0f / (wsum * m0 + sx * m1 + sy * m2);
-        vstore8(cr + (m0 * accr + m1 * fxr + m2 * fyr) * inv, 0, color_out + row0);
-        vstore8(cg + (m0 * accg + m1 * fxg + m2 * fyg) * inv, 0, color_out + plane + row0);
-        vstore8(cb + (m0 * accb + m1 * fxb + m2 * fyb) * inv, 0, color_out + 2 * plane + row0);
+        vstore8(select((float8)(0.0f), cr + (m0 * accr + m1 * fxr + m2 * fyr) * inv, inside), 0, color_out + row0);
+        vstore8(select((float8)(0.0f), cg + (m0 * accg + m1 * fxg + m2 * fyg) * inv, inside), 0,
+                color_out + plane + row0);
+        vstore8(select((float8)(0.0f), cb + (m0 * accb + m1 * fxb + m2 * fyb) * inv, inside), 0,
+                color_out + 2 * plane + row0);
     } else {
-        vstore8(cr + accr / wsum, 0, color_out + row0);
-        vstore8(cg + accg / wsum, 0, color_out + plane + row0);
-        vstore8(cb + accb / wsum, 0, color_out + 2 * plane + row0);
+        vstore8(select((float8)(0.0f), cr + accr / wsum, inside), 0, color_out + row0);
+        vstore8(select((float8)(0.0f), cg + accg / wsum, inside), 0, color_out + plane + row0);
+        vstore8(select((float8)(0.0f), cb + accb / wsum, inside), 0, color_out + 2 * plane + row0);
     }
-    vstore8(w2v / (wsum * wsum), 0, color_out + 3 * plane + row0);
+    vstore8(select((float8)(0.0f), w2v / (wsum * wsum), inside), 0, color_out + 3 * plane + row0);
 }
