@@ -164,10 +164,12 @@ __kernel void filter_luma(__global float *color, uint width, uint height, uint p
 }
 
 
-__kernel void filter_cone(__global const float *color_in, __global const float *guides, uint width, uint height,
-                          uint pitch, uint plane, uint margin, int radius, int step, int n_pow, float sigma_depth,
-                          float sigma_albedo, float sigma_lum, float guide_floor, int fit,
-                          __global float *color_out)
+// One work-item's 8 pixels; `fit` is a constant in each of the two inlined
+// copies (the averaging passes keep fewer values live).
+inline void cone8(__global const float *color_in, __global const float *guides, uint width, uint height,
+                  uint pitch, uint plane, uint margin, int radius, int step, int n_pow, float sigma_depth,
+                  float sigma_albedo, float sigma_lum, float guide_floor, const int fit,
+                  __global float *color_out)
 {
     uint gid = get_global_id(0);
     uint per_row = pitch / 8u;
@@ -211,7 +213,7 @@ __kernel void filter_cone(__global const float *color_in, __global const float *
             float8 fq = LD8(guides, 3, off);
             int8 use = qx >= 0 && qx < (int)width && has_n == ((mx * mx + my * my + mz * mz) > 0.0f) && fl == fq;
             float8 cn = fmax(nx * mx + ny * my + nz * mz, 0.0f), g = 1.0f;
-            for (int k = 0; k < 7; k++) {  // cn^n_pow by squaring (n_pow < 128)
+            for (int k = 0; (n_pow >> k) != 0; k++) {  // cn^n_pow by squaring (n_pow < 128)
                 if ((n_pow >> k) & 1)
                     g *= cn;
                 cn *= cn;
@@ -256,4 +258,17 @@ __kernel void filter_cone(__global const float *color_in, __global const float *
         vstore8(select((float8)(0.0f), cb + accb / wsum, inside), 0, color_out + 2 * plane + row0);
     }
     vstore8(select((float8)(0.0f), w2v / (wsum * wsum), inside), 0, color_out + 3 * plane + row0);
+}
+
+__kernel void filter_cone(__global const float *color_in, __global const float *guides, uint width, uint height,
+                          uint pitch, uint plane, uint margin, int radius, int step, int n_pow, float sigma_depth,
+                          float sigma_albedo, float sigma_lum, float guide_floor, int fit,
+                          __global float *color_out)
+{
+    if (fit)
+        cone8(color_in, guides, width, height, pitch, plane, margin, radius, step, n_pow, sigma_depth, sigma_albedo,
+              sigma_lum, guide_floor, 1, color_out);
+    else
+        cone8(color_in, guides, width, height, pitch, plane, margin, radius, step, n_pow, sigma_depth, sigma_albedo,
+              sigma_lum, guide_floor, 0, color_out);
 }
