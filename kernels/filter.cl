@@ -52,14 +52,11 @@
 // (zeros, so that lanes outside the image read finite values):
 //   color: r, g, b, variance of the pixel mean, smoothed luminance and variance (filter_luma)
 //   guides: normal x, y, z (0 if none), emitter flag (0/1), albedo r, g, b, depth
-// filter_firefly, filter_luma: one work-item per pixel (global size width * height).
-// filter_cone: one work-item per 8 pixels of a row, in float8 lanes (global
-// size height * pitch / 8); any local size.
-
-inline float luma(float r, float g, float b)
-{
-    return (float)CLPT_LUMA_R * r + (float)CLPT_LUMA_G * g + (float)CLPT_LUMA_B * b;
-}
+// All three kernels: one work-item per 8 pixels of a row, in float8 lanes
+// (global size height * pitch / 8); any local size. The lanes past the width
+// (the rows' padding) write zeros in filter_firefly and filter_luma, as the
+// host's upload would, and what the pass computes there in filter_cone; the
+// taps that read them have weight 0. The margins are never written.
 
 inline float8 luma8(float8 r, float8 g, float8 b)
 {
@@ -68,12 +65,8 @@ inline float8 luma8(float8 r, float8 g, float8 b)
 
 #define LD8(buf, k, off) vload8(0, (buf) + (k) * plane + (off))
 
-// All three kernels: one work-item per 8 pixels of a row, in float8 lanes
-// (global size height * pitch / 8); lanes past the width (the row's padding)
-// write zeros, so that the padding stays finite for the taps that read it
-// (their weights are zero).
 __kernel void filter_firefly(__global const float *color_in, uint width, uint height, uint pitch, uint plane,
-                             uint margin, float k, float k_confirm, __global float *color_out)
+                             uint margin, float k, float k_confirm, int any_nan, __global float *color_out)
 {
     uint gid = get_global_id(0);
     uint per_row = pitch / 8u;
@@ -104,14 +97,27 @@ __kernel void filter_firefly(__global const float *color_in, uint width, uint he
         }
     }
     // The median of the n variances in the image: the one of rank n / 2 (ties
-    // ranked by position), without sorting.
+    // ranked by position; n / 2 <= 4 and the outside's +inf rank last).
     float8 vmed = 0.0f;
     int8 mid = n / 2;
-    for (int a = 0; a < 9; a++) {
-        int8 rank = 0;
-        for (int b = 0; b < 9; b++)
-            rank -= v[b] < v[a] || (b < a ? (v[b] == v[a]) : (int8)(0));
-        vmed = select(vmed, v[a], rank == mid);
+    if (any_nan) {  // by the ranks (min and max would drop a NaN; the host says where the image has one)
+        for (int a = 0; a < 9; a++) {
+            int8 rank = 0;
+            for (int b = 0; b < 9; b++)
+                rank -= v[b] < v[a] || (b < a ? (v[b] == v[a]) : (int8)(0));
+            vmed = select(vmed, v[a], rank == mid);
+        }
+    } else {
+        // the 5 smallest in order, by a selection network (Batcher's odd-even
+        // merge sort of 16, pruned to 9 inputs and to the outputs 0-4)
+#define CE(i, j) { float8 lo = fmin(v[i], v[j]); v[j] = fmax(v[i], v[j]); v[i] = lo; }
+        CE(0, 1) CE(2, 3) CE(0, 2) CE(1, 3) CE(1, 2) CE(4, 5) CE(6, 7) CE(4, 6) CE(5, 7) CE(5, 6) CE(0, 4) CE(2, 6)
+        CE(2, 4) CE(1, 5) CE(3, 7) CE(3, 5) CE(1, 2) CE(3, 4) CE(5, 6) CE(0, 8) CE(4, 8) CE(2, 4) CE(3, 5) CE(1, 2)
+        CE(3, 4)
+#undef CE
+        vmed = v[0];
+        for (int a = 1; a < 5; a++)
+            vmed = select(vmed, v[a], mid == a);
     }
     float8 r = LD8(color_in, 0, o), g = LD8(color_in, 1, o), b = LD8(color_in, 2, o), var = LD8(color_in, 3, o);
     float8 bound = lmax + k * sqrt(vmed);
@@ -240,24 +246,21 @@ inline void cone8(__global const float *color_in, __global const float *guides, 
             }
         }
     }
-    int8 inside = xs < (int)width;
     if (fit) {
         // a: the first row of the normal matrix's cofactors against the sums, over its determinant
         float8 lam = 1e-3f * wsum;
         float8 axx = sxx + lam, ayy = syy + lam;
         float8 m0 = axx * ayy - sxy * sxy, m1 = sxy * sy - sx * ayy, m2 = sx * sxy - axx * sy;
         float8 inv = 1.0f / (wsum * m0 + sx * m1 + sy * m2);
-        vstore8(select((float8)(0.0f), cr + (m0 * accr + m1 * fxr + m2 * fyr) * inv, inside), 0, color_out + row0);
-        vstore8(select((float8)(0.0f), cg + (m0 * accg + m1 * fxg + m2 * fyg) * inv, inside), 0,
-                color_out + plane + row0);
-        vstore8(select((float8)(0.0f), cb + (m0 * accb + m1 * fxb + m2 * fyb) * inv, inside), 0,
-                color_out + 2 * plane + row0);
+        vstore8(cr + (m0 * accr + m1 * fxr + m2 * fyr) * inv, 0, color_out + row0);
+        vstore8(cg + (m0 * accg + m1 * fxg + m2 * fyg) * inv, 0, color_out + plane + row0);
+        vstore8(cb + (m0 * accb + m1 * fxb + m2 * fyb) * inv, 0, color_out + 2 * plane + row0);
     } else {
-        vstore8(select((float8)(0.0f), cr + accr / wsum, inside), 0, color_out + row0);
-        vstore8(select((float8)(0.0f), cg + accg / wsum, inside), 0, color_out + plane + row0);
-        vstore8(select((float8)(0.0f), cb + accb / wsum, inside), 0, color_out + 2 * plane + row0);
+        vstore8(cr + accr / wsum, 0, color_out + row0);
+        vstore8(cg + accg / wsum, 0, color_out + plane + row0);
+        vstore8(cb + accb / wsum, 0, color_out + 2 * plane + row0);
     }
-    vstore8(select((float8)(0.0f), w2v / (wsum * wsum), inside), 0, color_out + 3 * plane + row0);
+    vstore8(w2v / (wsum * wsum), 0, color_out + 3 * plane + row0);
 }
 
 __kernel void filter_cone(__global const float *color_in, __global const float *guides, uint width, uint height,

@@ -435,9 +435,10 @@ class FilterPass:
         """The two colour buffers (6 planes) and the guides' (8), with host
         arrays to stage the uploads (4 colour planes, the guides) and the
         readback (3 planes), made once per image layout (making them costs
-        more than the filter's passes) and zeroed: the margins are never
-        written again, and the kernels write zeros to the rows' padding, so
-        only the pixels need uploading."""
+        more than the filter's passes) and zeroed. The margins are never
+        written again; within a call, every plane is uploaded or written by a
+        kernel (padding included) before it is read, so only the first
+        buffer's four planes are uploaded."""
         key = (lay.width, lay.height, lay.pitch, lay.margin, lay.plane)
         if self._kept is None or self._kept[0] != key:
             self._kept = None  # the old ones go before the new are made
@@ -479,7 +480,8 @@ class FilterPass:
         if settings.firefly_k > 0:
             self.counters.launched("filter_firefly", self.firefly(q, (gsize,), (local,), c[0], *dims,
                                                                   np.float32(settings.firefly_k),
-                                                                  np.float32(settings.confirm_k), c[1]))
+                                                                  np.float32(settings.confirm_k),
+                                                                  np.int32(np.isnan(v).any()), c[1]))
             src = 1
         for it in range(passes):
             fit = bool(settings.fit_last) and it == passes - 1  # the last pass fits a plane
