@@ -9,7 +9,7 @@ filters it (apply_denoiser with the default FilterSettings, as `clpt render
 the OpenCL runtime's workers run in it) and wall seconds; the filter's
 kernels' device seconds come from their profiling events. Rounds alternate
 between the scenes and, with --a/--b, between two trees' interpreters (one
-child process per tree and round: AB BA AB ...). Prints medians and ranges,
+child process per tree and --per-child rounds: AB BA AB ...). Prints medians and ranges,
 the filter's share of the render (the ratio of the medians), and with
 --profile a breakdown of one filter call's host time by function (cProfile).
 """
@@ -91,6 +91,7 @@ def main(argv=None):
     ap.add_argument("--size", type=int, default=512)
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--rounds", type=int, default=10, help="rounds (per tree with --a/--b)")
+    ap.add_argument("--per-child", type=int, default=1, help="with --a/--b: rounds per child process")
     ap.add_argument("--a", default=sys.executable, help="tree A's python")
     ap.add_argument("--b", default=None, help="tree B's python (A/B alternating, one child per tree and round)")
     ap.add_argument("--profile", action="store_true", help="print one filter call's host profile per scene")
@@ -103,10 +104,10 @@ def main(argv=None):
         for s in a.scenes:
             got["A"][s] = res[s]
     else:
-        for i in range(a.rounds):
+        for i in range(-(-a.rounds // a.per_child)):
             order = ("A", "B") if i % 2 == 0 else ("B", "A")
             for t in order:
-                res = child(trees[t], a, 1, a.profile and i < 2)
+                res = child(trees[t], a, a.per_child, a.profile and i < 2)
                 for s in a.scenes:
                     got[t][s] += res[s]
     print(f"{a.device}, {a.size}x{a.size}, render {a.spp} spp vs apply_denoiser(FilterSettings()), "
