@@ -22,9 +22,12 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
+from pathlib import Path
 
 CHILD = r"""
 import cProfile, io, json, pstats, sys, time, warnings
+from pathlib import Path
 warnings.simplefilter("ignore")
 import numpy as np
 import clpt
@@ -64,15 +67,18 @@ for i in range(rounds):
             pstats.Stats(pr, stream=st).sort_stats("tottime").print_stats(14)
             row["profile"] = st.getvalue()
         out[s].append(row)
-print("JSON" + json.dumps(out))
+print("JSON" + json.dumps({"tree": str(Path(clpt.__file__).parent), **out}))
 """
 
 
 def child(python, a, rounds, profile):
     env = dict(os.environ)
     env.setdefault("CLPT_TUNE", "query")
+    # From a neutral directory: `python -c` puts the working directory first on sys.path, and a
+    # tree's checkout there would be imported instead of the interpreter's own installed tree.
+    scenes = [str(Path(s).resolve()) if Path(s).suffix else s for s in a.scenes]
     p = subprocess.run([python, "-c", CHILD, a.device, str(a.size), str(a.spp), str(rounds), "1" if profile else "0",
-                        *a.scenes], capture_output=True, text=True, env=env)
+                        *scenes], capture_output=True, text=True, env=env, cwd=tempfile.gettempdir())
     line = [x for x in p.stdout.splitlines() if x.startswith("JSON")]
     if p.returncode or not line:
         sys.exit(f"{python}: failed\n{p.stderr[-3000:]}")
@@ -99,8 +105,10 @@ def main(argv=None):
     a.scenes = [s for s in a.scenes.split(",") if s]
     trees = {"A": a.a} if a.b is None else {"A": a.a, "B": a.b}
     got = {t: {s: [] for s in a.scenes} for t in trees}
+    names = {}
     if a.b is None:
         res = child(a.a, a, a.rounds, a.profile)
+        names["A"] = res["tree"]
         for s in a.scenes:
             got["A"][s] = res[s]
     else:
@@ -108,6 +116,8 @@ def main(argv=None):
             order = ("A", "B") if i % 2 == 0 else ("B", "A")
             for t in order:
                 res = child(trees[t], a, a.per_child, a.profile and i < 2)
+                if i == 0:
+                    names[t] = res["tree"]
                 for s in a.scenes:
                     got[t][s] += res[s]
     print(f"{a.device}, {a.size}x{a.size}, render {a.spp} spp vs apply_denoiser(FilterSettings()), "
@@ -117,11 +127,11 @@ def main(argv=None):
             rows = got[t][s]
             rc, fc = summary(rows, "render_cpu"), summary(rows, "filter_cpu")
             rw, fw = summary(rows, "render_wall"), summary(rows, "filter_wall")
-            names = sorted({k for r in rows for k in r["kernels"]})
-            ks = "  ".join(f"{k} {1e3 * statistics.median(r['kernels'].get(k, 0.0) for r in rows):.1f}" for k in names)
+            kns = sorted({k for r in rows for k in r["kernels"]})
+            ks = "  ".join(f"{k} {1e3 * statistics.median(r['kernels'].get(k, 0.0) for r in rows):.1f}" for k in kns)
             dev = statistics.median(sum(r["kernels"].values()) for r in rows)
             shares = [r["filter_cpu"] / r["render_cpu"] for r in rows]
-            print(f"  {s:22s} {t} ({py})")
+            print(f"  {s:22s} {t} ({py}: clpt from {names.get(t, '?')})")
             print(f"    render CPU {rc[0]:.3f} [{rc[1]:.3f}, {rc[2]:.3f}]  wall {rw[0]:.3f} [{rw[1]:.3f}, {rw[2]:.3f}]")
             print(f"    filter CPU {1e3 * fc[0]:.1f} ms [{1e3 * fc[1]:.1f}, {1e3 * fc[2]:.1f}]  wall {1e3 * fw[0]:.1f} ms "
                   f"[{1e3 * fw[1]:.1f}, {1e3 * fw[2]:.1f}]  device (kernels) {1e3 * dev:.1f} ms: {ks}")
