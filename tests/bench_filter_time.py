@@ -77,6 +77,7 @@ def child(python, a, rounds, profile):
     # From a neutral directory: `python -c` puts the working directory first on sys.path, and a
     # tree's checkout there would be imported instead of the interpreter's own installed tree.
     scenes = [str(Path(s).resolve()) if Path(s).suffix else s for s in a.scenes]
+    python = os.path.abspath(python) if os.sep in python else python
     p = subprocess.run([python, "-c", CHILD, a.device, str(a.size), str(a.spp), str(rounds), "1" if profile else "0",
                         *scenes], capture_output=True, text=True, env=env, cwd=tempfile.gettempdir())
     line = [x for x in p.stdout.splitlines() if x.startswith("JSON")]
