@@ -6,7 +6,10 @@
 Each round renders the scene (16 spp, 512x512, feature buffers on) and
 filters it (apply_denoiser with the default FilterSettings, as `clpt render
 --filter` does), both timed in this process's CPU seconds (every thread's:
-the OpenCL runtime's workers run in it) and wall seconds; the filter's
+the OpenCL runtime's workers run in it) and wall seconds; the CPU times run
+on through --settle seconds of sleep after each (a render's process goes on
+using about 0.1 s of CPU for a while after render() returns, on Intel's
+runtime and PoCL alike: without the sleep it falls on the filter's time); the filter's
 kernels' device seconds come from their profiling events. Rounds alternate
 between the scenes and, with --a/--b, between two trees' interpreters (one
 child process per tree and --per-child rounds: AB BA AB ...). Prints medians and ranges,
@@ -33,7 +36,8 @@ import numpy as np
 import clpt
 from clpt.denoise import FilterSettings, apply_denoiser
 device, size, spp, rounds, profile = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), sys.argv[5] == "1"
-scenes = sys.argv[6:]
+settle = float(sys.argv[6])
+scenes = sys.argv[7:]
 rs = {}
 for s in scenes:
     r = clpt.Renderer(s, device=device, aux=True)
@@ -47,13 +51,17 @@ for i in range(rounds):
         r = rs[s]
         t, c = time.perf_counter(), time.process_time()
         res = r.render(spp, width=size, height=size, seed=1 + i)
-        rw, rc = time.perf_counter() - t, time.process_time() - c
+        rw = time.perf_counter() - t
+        time.sleep(settle)  # the render's CPU goes on for a while after it returns: counted as the render's
+        rc = time.process_time() - c
         f = r.states[0].filter
         f.counters.take()
         args = (res.image, res.lum_var, res.sample_count, res.aux, FilterSettings())
         t, c = time.perf_counter(), time.process_time()
         apply_denoiser(f, *args)
-        fw, fc = time.perf_counter() - t, time.process_time() - c
+        fw = time.perf_counter() - t
+        time.sleep(settle)
+        fc = time.process_time() - c
         _, secs = f.counters.take()
         row = {"render_cpu": rc, "render_wall": rw, "filter_cpu": fc, "filter_wall": fw,
                "kernels": {k: sum(v) for k, v in secs.items()}}
@@ -79,7 +87,7 @@ def child(python, a, rounds, profile):
     scenes = [str(Path(s).resolve()) if Path(s).suffix else s for s in a.scenes]
     python = os.path.abspath(python) if os.sep in python else python
     p = subprocess.run([python, "-c", CHILD, a.device, str(a.size), str(a.spp), str(rounds), "1" if profile else "0",
-                        *scenes], capture_output=True, text=True, env=env, cwd=tempfile.gettempdir())
+                        str(a.settle), *scenes], capture_output=True, text=True, env=env, cwd=tempfile.gettempdir())
     line = [x for x in p.stdout.splitlines() if x.startswith("JSON")]
     if p.returncode or not line:
         sys.exit(f"{python}: failed\n{p.stderr[-3000:]}")
@@ -101,6 +109,10 @@ def main(argv=None):
     ap.add_argument("--per-child", type=int, default=1, help="with --a/--b: rounds per child process")
     ap.add_argument("--a", default=sys.executable, help="tree A's python")
     ap.add_argument("--b", default=None, help="tree B's python (A/B alternating, one child per tree and round)")
+    ap.add_argument("--settle", type=float, default=0.5,
+                    help="seconds of sleep after the render and after the filter, inside their CPU times: a render "
+                         "leaves ~0.1 s of CPU work running in the process after it returns, which would otherwise "
+                         "land on the filter's")
     ap.add_argument("--profile", action="store_true", help="print one filter call's host profile per scene")
     a = ap.parse_args(argv)
     a.scenes = [s for s in a.scenes.split(",") if s]
