@@ -148,6 +148,14 @@ class Planar:
             body[k, :, :self.width] = p
         return out
 
+    def fill(self, out: np.ndarray, planes) -> None:
+        """The planes' pixels written into a packed array (pack's), in place;
+        margins and padding are left as they are."""
+        body = out[:len(planes), self.margin:self.margin + self.pitch * self.height].reshape(len(planes), self.height,
+                                                                                   self.pitch)
+        for k, p in enumerate(planes):
+            body[k, :, :self.width] = p
+
     def unpack(self, flat: np.ndarray, planes: int) -> np.ndarray:
         body = flat.reshape(planes, self.plane)[:, self.margin:self.margin + self.pitch * self.height]
         return np.moveaxis(body.reshape(planes, self.height, self.pitch)[:, :, :self.width], 0, -1)
@@ -289,11 +297,19 @@ def kept_emission(aux, count, k: float):
     emission = aux["emission"]
     if not k > 0:
         return emission
-    f = np.clip(aux["emitter"], 0.0, 1.0)
-    confirmed = (f > 0) & (f * np.maximum(count, 1.0) >= k * k * (1.0 - f))
+    e = np.asarray(aux["emitter"])
+    # Only pixels that see an emitter (f > 0) can be confirmed: the test runs on those alone.
+    idx = np.flatnonzero(e > 0)
+    f = np.clip(e.ravel()[idx], 0.0, 1.0)
+    n = np.broadcast_to(count, e.shape).ravel()[idx]
+    confirmed = np.zeros(e.shape, bool)
+    confirmed.ravel()[idx[f * np.maximum(n, 1.0) >= k * k * (1.0 - f)]] = True
     # The edge of a confirmed image (a lamp's, or its reflection's) is kept too.
     # (chosen in float32: no float64 image in between)
-    return np.where(dilate(confirmed, 1)[..., None], np.asarray(emission, np.float32), np.float32(0))
+    mask = dilate(confirmed, 1)
+    out = np.zeros(np.shape(emission), np.float32)
+    out[mask] = np.asarray(emission, np.float32)[mask]
+    return out
 
 
 def kept_caustic_share(caustic, image, share: float):
@@ -312,7 +328,7 @@ def kept_caustic_share(caustic, image, share: float):
     c = box3(caustic.astype(np.float32, copy=False) @ LUMA.astype(np.float32))
     lum = box3(np.asarray(image, np.float32) @ LUMA.astype(np.float32))
     s = c / np.maximum(lum, 1e-30)
-    return np.clip((s - 0.5 * share) / share, 0.0, 1.0).astype(np.float32)
+    return np.clip((s - 0.5 * share) / share, 0.0, 1.0).astype(np.float32, copy=False)
 
 
 def box3(x):
@@ -362,7 +378,7 @@ def apply_denoiser(cone, image, lum_var, count, aux, settings):
     mean_var = rest_var / np.maximum(count, 1.0)
     out = keep + cone(image - keep, mean_var, aux["normal"], aux["albedo"], aux["depth"], settings,
                       emitter=aux["emitter"])
-    return np.maximum(out, 0.0).astype(np.float32)
+    return np.maximum(out, 0.0).astype(np.float32, copy=False)
 
 
 def oidn_denoise(color, albedo, normal, settings: OidnSettings):

@@ -52,61 +52,88 @@
 // (zeros, so that lanes outside the image read finite values):
 //   color: r, g, b, variance of the pixel mean, smoothed luminance and variance (filter_luma)
 //   guides: normal x, y, z (0 if none), emitter flag (0/1), albedo r, g, b, depth
-// filter_firefly, filter_luma: one work-item per pixel (global size width * height).
-// filter_cone: one work-item per 8 pixels of a row, in float8 lanes (global
-// size height * pitch / 8); any local size.
+// All three kernels: one work-item per 8 pixels of a row, in float8 lanes
+// (global size height * pitch / 8); any local size. The lanes past the width
+// (the rows' padding) write zeros in filter_firefly and filter_luma, as the
+// host's upload would, and what the pass computes there in filter_cone; the
+// taps that read them have weight 0. The margins are never written.
 
-inline float luma(float r, float g, float b)
+inline float8 luma8(float8 r, float8 g, float8 b)
 {
     return (float)CLPT_LUMA_R * r + (float)CLPT_LUMA_G * g + (float)CLPT_LUMA_B * b;
 }
 
+#define LD8(buf, k, off) vload8(0, (buf) + (k) * plane + (off))
+
 __kernel void filter_firefly(__global const float *color_in, uint width, uint height, uint pitch, uint plane,
-                             uint margin, float k, float k_confirm, __global float *color_out)
+                             uint margin, float k, float k_confirm, int any_nan, __global float *color_out)
 {
-    uint i = get_global_id(0);
-    if (i >= width * height)
+    uint gid = get_global_id(0);
+    uint per_row = pitch / 8u;
+    if (gid >= per_row * height)
         return;
-    int x = (int)(i % width), y = (int)(i / width);
-    int xm = (int)width - 1, ym = (int)height - 1;
-    uint o = margin + (uint)y * pitch + (uint)x;
-    // Branch-free (lanes of neighbouring pixels stay together): pixels outside
-    // the image read a clamped address and count as +inf variance, n as 0 luminance.
-    float v[9];
-    int n = 0;
-    float lmax = -INFINITY;
+    int y = (int)(gid / per_row), x0 = (int)(gid % per_row) * 8;
+    int ym = (int)height - 1;
+    int8 xs = (int8)(x0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    int8 inside = xs < (int)width;
+    int o = (int)margin + y * (int)pitch + x0;
+    // Pixels outside the image count as +inf variance, n as 0 luminance (rows
+    // outside read a clamped row's address, columns the padding or the margin).
+    float8 v[9];
+    int8 n = 0;
+    float8 lmax = -INFINITY;
     for (int dy = -1; dy <= 1; dy++) {
+        int qy = y + dy;
+        int row_in = qy >= 0 && qy <= ym;
+        int off = (int)margin + clamp(qy, 0, ym) * (int)pitch + x0;
         for (int dx = -1; dx <= 1; dx++) {
-            int qx = x + dx, qy = y + dy;
-            int in = qx >= 0 && qy >= 0 && qx <= xm && qy <= ym;
-            uint q = margin + (uint)clamp(qy, 0, ym) * pitch + (uint)clamp(qx, 0, xm);
-            v[(dy + 1) * 3 + dx + 1] = in ? color_in[3 * plane + q] : INFINITY;
-            n += in;
-            if ((dx != 0 || dy != 0) && in)
-                lmax = fmax(lmax, luma(color_in[q], color_in[plane + q], color_in[2 * plane + q]));
+            int8 qx = xs + dx;
+            int8 in = qx >= 0 && qx < (int)width && (int8)(row_in ? -1 : 0);
+            v[(dy + 1) * 3 + dx + 1] = select((float8)(INFINITY), LD8(color_in, 3, off + dx), in);
+            n -= in;  // in: -1 where true
+            if (dx != 0 || dy != 0)
+                lmax = select(lmax, fmax(lmax, luma8(LD8(color_in, 0, off + dx), LD8(color_in, 1, off + dx),
+                                                     LD8(color_in, 2, off + dx))), in);
         }
     }
     // The median of the n variances in the image: the one of rank n / 2 (ties
-    // ranked by position), without sorting.
-    float vmed = 0.0f;
-    for (int a = 0; a < 9; a++) {
-        int rank = 0;
-        for (int b = 0; b < 9; b++)
-            rank += v[b] < v[a] || (b < a && v[b] == v[a]);
-        vmed = rank == n / 2 ? v[a] : vmed;
+    // ranked by position; n / 2 <= 4 and the outside's +inf rank last).
+    float8 vmed = 0.0f;
+    int8 mid = n / 2;
+    if (any_nan) {  // by the ranks (min and max would drop a NaN; the host says where the image has one)
+        for (int a = 0; a < 9; a++) {
+            int8 rank = 0;
+            for (int b = 0; b < 9; b++)
+                rank -= v[b] < v[a] || (b < a ? (v[b] == v[a]) : (int8)(0));
+            vmed = select(vmed, v[a], rank == mid);
+        }
+    } else {
+        // the 5 smallest in order, by a selection network (Batcher's odd-even
+        // merge sort of 16, pruned to 9 inputs and to the outputs 0-4: 23
+        // compare-exchanges, checked on all 2^9 inputs of 0s and 1s)
+#define CE(i, j) { float8 lo = fmin(v[i], v[j]); v[j] = fmax(v[i], v[j]); v[i] = lo; }
+        CE(0, 1) CE(2, 3) CE(0, 2) CE(1, 3) CE(1, 2) CE(4, 5) CE(6, 7) CE(4, 6) CE(5, 7) CE(5, 6) CE(0, 4) CE(2, 6)
+        CE(2, 4) CE(1, 5) CE(3, 7) CE(3, 5) CE(1, 2) CE(3, 4) CE(0, 8) CE(4, 8) CE(2, 4) CE(1, 2) CE(3, 4)
+#undef CE
+        vmed = v[0];
+        for (int a = 1; a < 5; a++)
+            vmed = select(vmed, v[a], mid == a);
     }
-    float r = color_in[o], g = color_in[plane + o], b = color_in[2 * plane + o], var = color_in[3 * plane + o];
-    float bound = lmax + k * sqrt(vmed);
-    float lp = luma(r, g, b);
+    float8 r = LD8(color_in, 0, o), g = LD8(color_in, 1, o), b = LD8(color_in, 2, o), var = LD8(color_in, 3, o);
+    float8 bound = lmax + k * sqrt(vmed);
+    float8 lp = luma8(r, g, b);
     // Brightness the pixel's own samples confirm is kept: it is clamped only
     // where its excess over the bound is within k_confirm of its own standard errors
     // (a firefly's standard error is about its value; a highlight's, a lamp's
     // reflection's, a caustic's, seen by most of the pixel's samples, is not).
-    if (n > 1 && lp > bound && lp - k_confirm * sqrt(var) <= bound) {
-        float s = fmax(bound, 0.0f) / lp;
-        r *= s; g *= s; b *= s; var = vmed;
-    }
-    color_out[o] = r; color_out[plane + o] = g; color_out[2 * plane + o] = b; color_out[3 * plane + o] = var;
+    int8 clip = n > 1 && lp > bound && lp - k_confirm * sqrt(var) <= bound;
+    float8 s = fmax(bound, 0.0f) / lp;
+    r = select(r, r * s, clip); g = select(g, g * s, clip); b = select(b, b * s, clip);
+    var = select(var, vmed, clip);
+    vstore8(select((float8)(0.0f), r, inside), 0, color_out + o);
+    vstore8(select((float8)(0.0f), g, inside), 0, color_out + plane + o);
+    vstore8(select((float8)(0.0f), b, inside), 0, color_out + 2 * plane + o);
+    vstore8(select((float8)(0.0f), var, inside), 0, color_out + 3 * plane + o);
 }
 
 // filter_luma: planes 4 and 5 of color, the luminance of planes 0-2 and the
@@ -114,34 +141,41 @@ __kernel void filter_firefly(__global const float *color_in, uint width, uint he
 // (1 2 1) x (1 2 1).
 __kernel void filter_luma(__global float *color, uint width, uint height, uint pitch, uint plane, uint margin)
 {
-    uint i = get_global_id(0);
-    if (i >= width * height)
+    uint gid = get_global_id(0);
+    uint per_row = pitch / 8u;
+    if (gid >= per_row * height)
         return;
-    int x = (int)(i % width), y = (int)(i / width);
-    float s = 0.0f, sv = 0.0f, ws = 0.0f;
+    int y = (int)(gid / per_row), x0 = (int)(gid % per_row) * 8;
+    int8 xs = (int8)(x0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
+    float8 s = 0.0f, sv = 0.0f, ws = 0.0f;
     for (int dy = -1; dy <= 1; dy++) {
+        int qy = y + dy;
+        if (qy < 0 || qy >= (int)height)
+            continue;
+        int off = (int)margin + qy * (int)pitch + x0;
         for (int dx = -1; dx <= 1; dx++) {
-            int qx = x + dx, qy = y + dy;
-            if (qx < 0 || qy < 0 || qx >= (int)width || qy >= (int)height)
-                continue;
-            uint q = margin + (uint)qy * pitch + (uint)qx;
+            int8 qx = xs + dx;
+            int8 in = qx >= 0 && qx < (int)width;
             float w = (float)((2 - abs(dx)) * (2 - abs(dy)));
-            s += w * luma(color[q], color[plane + q], color[2 * plane + q]);
-            sv += w * color[3 * plane + q];
-            ws += w;
+            float8 l = luma8(LD8(color, 0, off + dx), LD8(color, 1, off + dx), LD8(color, 2, off + dx));
+            s = select(s, s + w * l, in);
+            sv = select(sv, sv + w * LD8(color, 3, off + dx), in);
+            ws = select(ws, ws + w, in);
         }
     }
-    uint o = margin + (uint)y * pitch + (uint)x;
-    color[4 * plane + o] = s / ws;
-    color[5 * plane + o] = sv / ws;
+    int o = (int)margin + y * (int)pitch + x0;
+    int8 inside = xs < (int)width;
+    vstore8(select((float8)(0.0f), s / ws, inside), 0, color + 4 * plane + o);
+    vstore8(select((float8)(0.0f), sv / ws, inside), 0, color + 5 * plane + o);
 }
 
-#define LD8(buf, k, off) vload8(0, (buf) + (k) * plane + (off))
 
-__kernel void filter_cone(__global const float *color_in, __global const float *guides, uint width, uint height,
-                          uint pitch, uint plane, uint margin, int radius, int step, int n_pow, float sigma_depth,
-                          float sigma_albedo, float sigma_lum, float guide_floor, int fit,
-                          __global float *color_out)
+// One work-item's 8 pixels; `fit` is a constant in each of the two inlined
+// copies (the averaging passes keep fewer values live).
+inline void cone8(__global const float *color_in, __global const float *guides, uint width, uint height,
+                  uint pitch, uint plane, uint margin, int radius, int step, int n_pow, float sigma_depth,
+                  float sigma_albedo, float sigma_lum, float guide_floor, const int fit,
+                  __global float *color_out)
 {
     uint gid = get_global_id(0);
     uint per_row = pitch / 8u;
@@ -185,7 +219,7 @@ __kernel void filter_cone(__global const float *color_in, __global const float *
             float8 fq = LD8(guides, 3, off);
             int8 use = qx >= 0 && qx < (int)width && has_n == ((mx * mx + my * my + mz * mz) > 0.0f) && fl == fq;
             float8 cn = fmax(nx * mx + ny * my + nz * mz, 0.0f), g = 1.0f;
-            for (int k = 0; k < 7; k++) {  // cn^n_pow by squaring (n_pow < 128)
+            for (int k = 0; (n_pow >> k) != 0; k++) {  // cn^n_pow by squaring (n_pow < 128)
                 if ((n_pow >> k) & 1)
                     g *= cn;
                 cn *= cn;
@@ -227,4 +261,17 @@ __kernel void filter_cone(__global const float *color_in, __global const float *
         vstore8(cb + accb / wsum, 0, color_out + 2 * plane + row0);
     }
     vstore8(w2v / (wsum * wsum), 0, color_out + 3 * plane + row0);
+}
+
+__kernel void filter_cone(__global const float *color_in, __global const float *guides, uint width, uint height,
+                          uint pitch, uint plane, uint margin, int radius, int step, int n_pow, float sigma_depth,
+                          float sigma_albedo, float sigma_lum, float guide_floor, int fit,
+                          __global float *color_out)
+{
+    if (fit)
+        cone8(color_in, guides, width, height, pitch, plane, margin, radius, step, n_pow, sigma_depth, sigma_albedo,
+              sigma_lum, guide_floor, 1, color_out);
+    else
+        cone8(color_in, guides, width, height, pitch, plane, margin, radius, step, n_pow, sigma_depth, sigma_albedo,
+              sigma_lum, guide_floor, 0, color_out);
 }

@@ -57,6 +57,51 @@ def test_kernel_matches_numpy_twin(cone, settings):
     assert np.allclose(got, ref, rtol=2e-4, atol=1e-6)
 
 
+def _scene(rng, h, w):
+    img, var = noisy(rng, h, w)
+    img[rng.random((h, w)) < 0.02] *= 30  # fireflies
+    var *= rng.uniform(0.5, 2.0, (h, w)).astype(np.float32)
+    n, a, d = guides(h, w)
+    n[:, w // 2:] = (1, 0, 0)
+    d += rng.uniform(0, 0.5, (h, w)).astype(np.float32)
+    return img, var, n, a, d
+
+
+def test_kept_buffers_give_the_same_image(cone, probes):
+    # The buffers kept between images of one size (and the padding of a width
+    # that is not a multiple of 8) carry nothing from one image to the next.
+    rng = np.random.default_rng(5)
+    x, y = _scene(rng, 21, 29), _scene(rng, 21, 29)
+    s = FilterSettings(width=2)
+    first = cone(*x, s)
+    cone(*y, s)
+    cone(*y, replace(s, firefly_k=0.0))
+    assert np.array_equal(cone(*x, s), first)
+    fresh = FilterPass(probes(1).dctx, probes(1).program)
+    assert np.array_equal(fresh(*x, s), first)
+
+
+def test_a_nan_variance_changes_only_the_pixels_it_reaches(cone):
+    # With a NaN variance the clamp takes its medians by rank, elsewhere by a
+    # selection network: the same medians wherever the 3x3 has no NaN. Every
+    # third pixel a firefly (its standard error its value: clamped to a bound
+    # from the median, which becomes its variance).
+    rng = np.random.default_rng(6)
+    h, w = 40, 45
+    img, var, n, a, d = _scene(rng, h, w)
+    img[::3, ::3] *= 30
+    var[::3, ::3] = (img[::3, ::3] @ LUMA.astype(np.float32)) ** 2
+    s = FilterSettings(width=1, iterations=1, fit_last=False)
+    clean = cone(img, var, n, a, d, s)
+    assert np.mean(clean[3:-3:3, 3:-3:3] < 0.5 * img[3:-3:3, 3:-3:3]) > 0.5  # most fireflies were clamped
+    var = var.copy()
+    var[0, 0] = np.nan
+    got = cone(img, var, n, a, d, s)
+    reach = 1 + sum(1 + (1 << k) * s.width for k in range(s.passes(w, h)))  # clamp, then smoothing and taps per pass
+    assert np.array_equal(got[reach + 1:], clean[reach + 1:])
+    assert np.array_equal(got[:, reach + 1:], clean[:, reach + 1:])
+
+
 def test_constant_region_stays_exactly_constant(cone):
     h, w = 16, 16
     img = np.full((h, w, 3), (0.3, 0.5, 0.7), np.float32)

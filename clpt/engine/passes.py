@@ -429,17 +429,28 @@ class FilterPass:
         self.luma = cl.Kernel(program, "filter_luma")
         self.kernel = cl.Kernel(program, "filter_cone")
         self.counters = Counters()
-        self._kept = None  # (plane length, [colour, colour], guides): buffers kept for the next image of that size
+        self._kept = None  # (layout key, [colour, colour], guides, host staging): kept for the next image of that size
 
-    def _buffers(self, plane: int):
-        """The two colour buffers (6 planes) and the guides' (8), made once
-        per image size (making them cost more than the filter's passes)."""
-        if self._kept is None or self._kept[0] != plane:
+    def _buffers(self, lay: Planar):
+        """The two colour buffers (6 planes) and the guides' (8), with host
+        arrays to stage the uploads (4 colour planes, the guides) and the
+        readback (3 planes), made once per image layout (making them costs
+        more than the filter's passes) and zeroed. The margins are never
+        written again; within a call, every plane is uploaded or written by a
+        kernel (padding included) before it is read, so only the first
+        buffer's four planes are uploaded."""
+        key = (lay.width, lay.height, lay.pitch, lay.margin, lay.plane)
+        if self._kept is None or self._kept[0] != key:
             self._kept = None  # the old ones go before the new are made
-            ctx, mf, nb = self.dctx.context, cl.mem_flags, 4 * plane
-            self._kept = (plane, [cl.Buffer(ctx, mf.READ_WRITE, 6 * nb), cl.Buffer(ctx, mf.READ_WRITE, 6 * nb)],
-                          cl.Buffer(ctx, mf.READ_ONLY, 8 * nb))
-        return self._kept[1], self._kept[2]
+            ctx, q, mf, nb = self.dctx.context, self.dctx.queue, cl.mem_flags, 4 * lay.plane
+            c = [cl.Buffer(ctx, mf.READ_WRITE, 6 * nb), cl.Buffer(ctx, mf.READ_WRITE, 6 * nb)]
+            gb = cl.Buffer(ctx, mf.READ_ONLY, 8 * nb)
+            zeros = np.zeros(8 * lay.plane, np.float32)
+            for buf, n in ((c[0], 6), (c[1], 6), (gb, 8)):
+                cl.enqueue_copy(q, buf, zeros[:n * lay.plane])
+            host = (lay.pack([], extra=4), lay.pack([], extra=8), np.empty(3 * lay.plane, np.float32))
+            self._kept = (key, c, gb, host)
+        return self._kept[1], self._kept[2], self._kept[3]
 
     def __call__(self, color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
         """Filtered colour (H x W x 3 float32) from the guides (H x W arrays);
@@ -455,35 +466,34 @@ class FilterPass:
         radius = min(int(settings.width), max(w, h))
         lay = Planar(w, h, radius, 1 << (passes - 1))
         flag = np.zeros((h, w)) if emitter is None else (emitter > 0.5)
-        c0 = lay.pack([irr[..., 0], irr[..., 1], irr[..., 2], v], extra=2)  # planes 4, 5: filter_luma's
-        g0 = lay.pack([normal[..., 0], normal[..., 1], normal[..., 2], flag,
-                       albedo[..., 0], albedo[..., 1], albedo[..., 2], depth])
-        c, gb = self._buffers(lay.plane)
-        for buf, host in ((c[0], c0), (c[1], c0), (gb, g0)):  # both colour buffers: margins of zeros
-            cl.enqueue_copy(q, buf, host, is_blocking=False)
+        c, gb, (c0, g0, out) = self._buffers(lay)
+        lay.fill(c0, [irr[..., 0], irr[..., 1], irr[..., 2], v])
+        lay.fill(g0, [normal[..., 0], normal[..., 1], normal[..., 2], flag,
+                      albedo[..., 0], albedo[..., 1], albedo[..., 2], depth])
+        cl.enqueue_copy(q, c[0], c0, is_blocking=False)  # planes 0-3 (4, 5: filter_luma's)
+        cl.enqueue_copy(q, gb, g0, is_blocking=False)
         dims = (np.uint32(w), np.uint32(h), np.uint32(lay.pitch), np.uint32(lay.plane), np.uint32(lay.margin))
         src = 0
         local = FILTER_LOCAL_SIZE
-        psize = -(-(w * h) // local) * local  # filter_firefly and filter_luma: one item per pixel
-        if settings.firefly_k > 0:
-            self.counters.launched("filter_firefly", self.firefly(q, (psize,), (local,), c[0], *dims,
-                                                                  np.float32(settings.firefly_k),
-                                                                  np.float32(settings.confirm_k), c[1]))
-            src = 1
-        items = h * lay.pitch // 8
+        items = h * lay.pitch // 8  # every kernel: one item per 8 pixels of a row
         gsize = -(-items // local) * local
+        if settings.firefly_k > 0:
+            self.counters.launched("filter_firefly", self.firefly(q, (gsize,), (local,), c[0], *dims,
+                                                                  np.float32(settings.firefly_k),
+                                                                  np.float32(settings.confirm_k),
+                                                                  np.int32(np.isnan(v).any()), c[1]))
+            src = 1
         for it in range(passes):
             fit = bool(settings.fit_last) and it == passes - 1  # the last pass fits a plane
             sigma_l, floor = ((settings.fit_sigma_luminance, settings.fit_guide_floor) if fit
                               else (settings.sigma_luminance, settings.guide_floor))
-            self.counters.launched("filter_luma", self.luma(q, (psize,), (local,), c[src], *dims))
+            self.counters.launched("filter_luma", self.luma(q, (gsize,), (local,), c[src], *dims))
             self.counters.launched("filter_cone", self.kernel(
                 q, (gsize,), (local,), c[src], gb, *dims, np.int32(radius), np.int32(1 << it),
                 np.int32(settings.sigma_normal), np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
                 np.float32(sigma_l), np.float32(floor), np.int32(fit), c[1 - src]))
             src = 1 - src
-        out = np.empty(3 * lay.plane, np.float32)  # the colour planes only
-        cl.enqueue_copy(q, out, c[src])
+        cl.enqueue_copy(q, out, c[src])  # the colour planes only
         q.finish()
         self.counters.settle()
         return lay.unpack(out, 3) * alb

@@ -217,27 +217,35 @@ def side_by_side(path, images, scale=2):
     save_image(path, row)
 
 
-def _clock(f):
+def _clock(f, settle: float = 0.0):
+    """f(), its wall seconds, and the process's CPU seconds through `settle`
+    seconds of sleep after it (a render's process goes on using CPU for a
+    while after render() returns: it is the render's, not what runs next)."""
     t, c = time.perf_counter(), time.process_time()
     out = f()
-    return out, time.perf_counter() - t, time.process_time() - c
+    wall = time.perf_counter() - t
+    if settle:
+        time.sleep(settle)
+    return out, wall, time.process_time() - c
+
+
+SETTLE = 0.5  # seconds of sleep after each timed call, inside its CPU time (_clock)
 
 
 def measure_time(scene, *, size=512, rounds=2, device=None) -> dict:
     """Median wall and CPU seconds of a 16-spp render and of each denoiser on it."""
     r = Renderer(scene, device=device, aux=True)
-    r.render(1, width=size, height=size)  # the lazy device compile
-    small = r.render(1, width=64, height=64)
+    warm = r.render(1, width=size, height=size)  # the lazy device compile
     ms = {k: v for k, (v, mode) in methods(_oidn_available()).items() if v is not None and mode == "glass"}
-    for s in ms.values():  # warm every kernel and OIDN's device
-        apply_denoiser(r.states[0].filter, small.image, small.lum_var, small.sample_count, small.aux, s)
+    for s in ms.values():  # warm every kernel, OIDN's device and the cone filter's buffers for this size
+        apply_denoiser(r.states[0].filter, warm.image, warm.lum_var, warm.sample_count, warm.aux, s)
     times = {"render 16 spp": [], **{k: [] for k in ms}}
     for i in range(rounds):
-        res, w, c = _clock(lambda: r.render(16, width=size, height=size, seed=1 + i))
+        res, w, c = _clock(lambda: r.render(16, width=size, height=size, seed=1 + i), SETTLE)
         times["render 16 spp"].append((w, c))
         for k, s in ms.items():
             _, w, c = _clock(lambda: apply_denoiser(r.states[0].filter, res.image, res.lum_var, res.sample_count,
-                                                    res.aux, s))
+                                                    res.aux, s), SETTLE)
             times[k].append((w, c))
     return {k: {"wall_s": float(np.median([t[0] for t in v])), "cpu_s": float(np.median([t[1] for t in v])),
                 "wall_range": [float(min(t[0] for t in v)), float(max(t[0] for t in v))]}
