@@ -36,7 +36,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .constants import LUMA, LUMA_WEIGHTS
+from .constants import LUMA, LUMA_WEIGHTS, dot_rows
 from .errors import SceneError, SettingsError
 
 ALBEDO_FLOOR = 1e-3
@@ -125,7 +125,7 @@ def oidn_module():
 def demodulate(color, var, albedo):
     """Colour / albedo (where the albedo is not black), and its variance."""
     alb = np.where(albedo > ALBEDO_FLOOR, albedo, 1.0)
-    lum_alb = np.maximum(alb @ LUMA.astype(alb.dtype), ALBEDO_FLOOR)  # in the inputs' precision
+    lum_alb = np.maximum(dot_rows(alb, LUMA.astype(alb.dtype)), ALBEDO_FLOOR)  # in the inputs' precision
     return color / alb, var / lum_alb ** 2, alb
 
 
@@ -325,8 +325,8 @@ def kept_caustic_share(caustic, image, share: float):
         return np.ones(caustic.shape[:2], np.float32)
     if not caustic.any():  # no caustic (no photon map, or nothing specular): nothing to weigh
         return None
-    c = box3(caustic.astype(np.float32, copy=False) @ LUMA.astype(np.float32))
-    lum = box3(np.asarray(image, np.float32) @ LUMA.astype(np.float32))
+    c = box3(dot_rows(caustic.astype(np.float32, copy=False), LUMA.astype(np.float32)))
+    lum = box3(dot_rows(np.asarray(image, np.float32), LUMA.astype(np.float32)))
     s = c / np.maximum(lum, 1e-30)
     return np.clip((s - 0.5 * share) / share, 0.0, 1.0).astype(np.float32, copy=False)
 

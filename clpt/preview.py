@@ -18,7 +18,7 @@ import threading
 import numpy as np
 
 from .adaptive import relative_error
-from .constants import LUMA
+from .constants import LUMA, dot_rows
 
 
 class RenderUpdate:
@@ -79,7 +79,7 @@ class RenderUpdate:
 
     def relative_error(self) -> np.ndarray:
         """H x W standard error of each pixel's mean luminance over the mean (as adaptive sampling measures it)."""
-        return relative_error(self.image @ LUMA.astype(np.float32), self.lum_var, self.sample_count).astype(np.float32)
+        return relative_error(dot_rows(self.image, LUMA.astype(np.float32)), self.lum_var, self.sample_count).astype(np.float32)
 
     def display_image(self) -> np.ndarray:
         """The image a viewer should show: the filtered one when there is one."""

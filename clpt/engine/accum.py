@@ -21,6 +21,7 @@ import warnings
 
 import numpy as np
 
+from ..constants import dot_rows
 from ..result import RenderResult
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -108,7 +109,7 @@ class Accumulator:
         count = total[:, 3]
         safe = np.maximum(count, 1.0)
         mean = total[:, :3] / safe[:, None]
-        lum_mean = (mean @ LUMA) * lum_scale  # the kernels square scaled luminance
+        lum_mean = dot_rows(mean, LUMA) * lum_scale  # the kernels square scaled luminance
         var = np.maximum(total_sq / safe - lum_mean ** 2, 0.0) * (safe / np.maximum(safe - 1.0, 1.0)) / lum_scale ** 2
         return mean, var, count
 
@@ -150,7 +151,7 @@ class Accumulator:
             else:  # online: the photon part the kernels summed
                 n = np.maximum(count, 1.0)
                 c_mean = csum[:, :3] / n[:, None]
-                c_lum = (c_mean @ LUMA) * lum_scale
+                c_lum = dot_rows(c_mean, LUMA) * lum_scale
                 c_var = np.maximum(csum[:, 3] / n - c_lum ** 2, 0.0) * (n / np.maximum(n - 1.0, 1.0)) / lum_scale ** 2
                 aux["caustic"], aux["caustic_var"] = img(c_mean), c_var.reshape(height, width)
                 # The plane's w per sample, as it is: in the pilot's trial (RenderJob.moments), path

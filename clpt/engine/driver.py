@@ -26,6 +26,7 @@ import numpy as np
 from ..adaptive import allocate_error, allocate_paper
 from ..errors import WorkerFailure
 from ..preview import RenderUpdate
+from ..constants import dot_rows
 from .accum import LUMA, Accumulator
 from .checkpoint import write_checkpoint
 from .job import RenderJob, WorkItem
@@ -202,7 +203,7 @@ class Driver:
             sch.adaptive_over = True
             return
         shape = (job.height, job.width)
-        lum = (mean @ LUMA).reshape(shape)
+        lum = dot_rows(mean, LUMA).reshape(shape)
         if aset.scheme == "error":
             # A round spends at most an eighth of the budget, so later rounds
             # see what the earlier ones achieved.
