@@ -5,6 +5,8 @@ import numpy as np
 import pyopencl as cl
 import pytest
 
+from clpt.constants import DOT_ROWS, LUMA, dot_rows
+
 
 @pytest.mark.parametrize("accum_double", [True, False])
 def test_a_million_samples_sum_exactly_enough(probes, accum_double):
@@ -36,3 +38,19 @@ def test_a_million_samples_sum_exactly_enough(probes, accum_double):
     for _ in range(20000):  # the problem being solved, at 1/50 of the count
         naive += np.float32(0.1)
     assert abs(naive - 2000.0) / 2000.0 > 10 * 2e-7
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("rows", [1, 4095, 4096, 4097, 3 * 4096 + 5])
+def test_dot_rows_gives_one_products_numbers(dtype, rows):
+    """Luminance products go 4096 rows at a time (so the BLAS library keeps
+    to the calling thread); each row's number must be what one product
+    gives, bit for bit, whatever the shape."""
+    assert DOT_ROWS == 4096
+    rng = np.random.default_rng(rows)
+    a = (rng.random((rows, 3)) * np.exp(rng.normal(0.0, 5.0, (rows, 1)))).astype(dtype)
+    w = LUMA.astype(dtype)
+    assert np.array_equal(dot_rows(a, w), a @ w)
+    img = a[: rows - rows % 7].reshape(7, -1, 3) if rows >= 7 else a.reshape(1, rows, 3)
+    got = dot_rows(img, w)
+    assert got.shape == img.shape[:-1] and np.array_equal(got, img @ w)
