@@ -219,6 +219,10 @@ def build(dctx, source: str, options, use_cache: bool = True):
     # -w: compilers' remarks (PoCL's on wide-vector ABIs, printed to stderr at
     # its lazy device compile) are not the user's business; errors still show.
     options = list(options) + ["-w"]
+    if getattr(dctx, "is_cpu", False):
+        # CPU runtimes compile with clang, whose __builtin_prefetch becomes a prefetch instruction
+        # (kernels/scene.h scene_prefetch).
+        options.append("-DCLPT_PREFETCH=1")
     key = _key(source, options, dctx.identity())
     if os.environ.get("CLPT_DUMP_KERNELS"):
         _dump(source, options, key)
