@@ -26,6 +26,7 @@ import numpy as np
 
 from . import bvh as bvh_mod
 from . import coating, layout
+from .constants import dot_rows
 from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_DIRECTIONAL, KIND_ENV, KIND_MESH,
                      KIND_POINT, KIND_QUAD, KIND_SPHERE, KIND_SPOT, KIND_TRIANGLE, Rows)
 from .meshio import cross_rows
@@ -335,7 +336,7 @@ def alias_table(weights):
 
 def env_luminance(image: np.ndarray) -> np.ndarray:
     """Per-pixel luminance of an H x W x 3 linear RGB image (Mitsuba's weights), float64."""
-    return image.astype(np.float64) @ np.array([0.212671, 0.715160, 0.072169])
+    return dot_rows(image.astype(np.float64), np.array([0.212671, 0.715160, 0.072169]))
 
 
 def env_cell_weights(image: np.ndarray) -> np.ndarray:

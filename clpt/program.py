@@ -213,12 +213,22 @@ def _parallel_builds() -> bool:
     return os.environ.get("CLPT_BUILD_PROCESSES", "1") != "0" and (os.cpu_count() or 1) > 1
 
 
+def device_options(dctx) -> list:
+    """Build options that follow the device: on a CPU, CLPT_PREFETCH (the
+    CPU runtimes compile with clang, whose __builtin_prefetch becomes a
+    prefetch instruction: kernels/scene.h scene_prefetch). The environment
+    variable CLPT_PREFETCH=0 leaves it out; images are the same either way."""
+    if getattr(dctx, "is_cpu", False) and os.environ.get("CLPT_PREFETCH", "1") != "0":
+        return ["-DCLPT_PREFETCH=1"]
+    return []
+
+
 def build(dctx, source: str, options, use_cache: bool = True):
     """Build `source` for one DeviceContext; returns (cl.Program, BuildInfo)."""
     pocl_defaults(dctx)
     # -w: compilers' remarks (PoCL's on wide-vector ABIs, printed to stderr at
     # its lazy device compile) are not the user's business; errors still show.
-    options = list(options) + ["-w"]
+    options = list(options) + ["-w"] + device_options(dctx)
     key = _key(source, options, dctx.identity())
     if os.environ.get("CLPT_DUMP_KERNELS"):
         _dump(source, options, key)

@@ -373,6 +373,24 @@ inline void env_frame(const Scene *sc, uint r, real4 *c0, real4 *c1, real4 *c2)
     *c2 = hand * cross(a, b);
 }
 
+// The map's cell (*xf, *yf) that unit world directions d fall in, and the
+// fractions (*fx, *fy) within it, for the lanes in m (the frame's columns
+// c0..c2, the map w x h); *l: d in the map's frame. fmin and fmax keep a
+// NaN's lane in range; lanes outside m get cell (0, 0), whose line stays
+// cached, not a random texel of a large map.
+inline void env_cell_of(real4 c0, real4 c1, real4 c2, uint w, uint h, V3 d, vmask m, V3 *l, vreal *xf, vreal *yf,
+                        vreal *fx, vreal *fy)
+{
+    *l = v3(v3_dot4(d, c0), v3_dot4(d, c1), v3_dot4(d, c2));
+    vreal u = poly_atan2((*l).x, -(*l).z) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
+    vreal gx = (u - floor(u)) * (real)w;
+    vreal gy = poly_acos(fmin(fmax((*l).y, (vreal)R(-1)), (vreal)R(1))) * (R(M_1_PI) * (real)(h - 1u));
+    *xf = VSEL((vreal)R(0), fmax(fmin(floor(gx), (vreal)(real)(w - 1u)), (vreal)R(0)), m);
+    *yf = VSEL((vreal)R(0), fmax(fmin(floor(gy), (vreal)(real)(h - 2u)), (vreal)R(0)), m);
+    *fx = gx - *xf;
+    *fy = gy - *yf;
+}
+
 // The environment's radiance towards -d (d: a unit world direction leaving
 // the scene, unscaled) and, in *pdf_sa, the solid-angle pdf with which
 // env_sample draws d, for the lanes in m. A constant: Le 1, pdf 1 / (4 pi).
@@ -386,16 +404,10 @@ inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
         *pdf_sa = (vreal)R(0.25 * M_1_PI);
         return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
     }
-    V3 l = v3(v3_dot4(d, c0), v3_dot4(d, c1), v3_dot4(d, c2));
-    vreal u = poly_atan2(l.x, -l.z) * R(0.5 * M_1_PI) - R(0.5) / (real)w;
-    vreal gx = (u - floor(u)) * (real)w;
-    vreal gy = poly_acos(fmin(fmax(l.y, (vreal)R(-1)), (vreal)R(1))) * (R(M_1_PI) * (real)(h - 1u));
-    // The cells for all lanes at once (fmin and fmax keep a NaN's lane in range), then every lane's
-    // fetches, unrolled, their results masked below.
-    // Lanes outside m fetch cell (0, 0), one cached line, not a random texel of a large map.
-    vreal xf = VSEL((vreal)R(0), fmax(fmin(floor(gx), (vreal)(real)(w - 1u)), (vreal)R(0)), m);
-    vreal yf = VSEL((vreal)R(0), fmax(fmin(floor(gy), (vreal)(real)(h - 2u)), (vreal)R(0)), m);
-    vreal fx = gx - xf, fy = gy - yf;
+    // The cells for all lanes at once, then every lane's fetches, unrolled, their results masked below.
+    V3 l;
+    vreal xf, yf, fx, fy;
+    env_cell_of(c0, c1, c2, w, h, d, m, &l, &xf, &yf, &fx, &fy);
     V3 Le;
     vreal cell;
     env_lookup(sc, base, w, xf, yf, fx, fy, m, &Le, &cell);
@@ -464,6 +476,71 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
             l.x * c0.z + l.y * c1.z + l.z * c2.z);
     *pdf_sa = cell * ((real)(w * (h - 1u)) * R(0.5 * M_1_PI * M_1_PI)) / fmax(st, (vreal)REAL_EPS);
     return Le;
+}
+
+// Prefetches what env_sample will read for the lanes in m drawing (u1,
+// u2) (the same numbers): the row's alias slot, the cell's slot in it, and
+// the cell's two rows of texels as a kept slot has them. Called well before
+// next event estimation, so the lines come while the vertex is found.
+inline void env_sample_prefetch(const Scene *sc, vmask m, vreal u1, vreal u2)
+{
+#if CLPT_PREFETCH
+    uint r = ENV_LIGHT_REC;
+    uint w = (uint)scene_rec(sc, r + LIGHT_U).w, h = (uint)scene_rec(sc, r + LIGHT_V).w;
+    if (!VANY(m))
+        return;
+    uint base = (uint)scene_rec(sc, r + LIGHT_N).x, rows = base + w * h;
+    uint marg = rows + (w * (h - 1u) + ENVA_ENTRIES - 1u) / ENVA_ENTRIES;
+    vreal sx = u1 * (real)w, sy = u2 * (real)(h - 1u);
+    vreal jx = fmin(floor(sx), (vreal)(real)(w - 1u)), jy = fmin(floor(sy), (vreal)(real)(h - 2u));
+    vreal fys = sy - jy;
+#pragma unroll
+    for (int k = 0; k < CLPT_LANES; k++) {
+        if (!VLANE_M(m, k))
+            continue;
+        uint j = (uint)VLANE_R(jy, k);
+        real4 q = scene_rec(sc, marg + j / ENVA_ENTRIES);  // a small table: cached
+        bool own = VLANE_R(fys, k) < ((j & 1u) ? q.z : q.x);
+        uint y0 = own ? j : (uint)((j & 1u) ? q.w : q.y), x0 = (uint)VLANE_R(jx, k);
+        scene_prefetch(sc, rows + (w * y0 + x0) / ENVA_ENTRIES);
+        scene_prefetch(sc, base + w * y0 + x0);
+        scene_prefetch(sc, base + w * (y0 + 1u) + x0);
+    }
+#endif
+}
+
+// Whether prefetching the environment map's lines pays: a map of at least
+// ENV_PREFETCH_TEXELS texels, whose lines the caches do not keep.
+#define ENV_PREFETCH_TEXELS (1u << 18)
+inline bool env_prefetch_pays(const Scene *sc)
+{
+    uint r = ENV_LIGHT_REC;
+    return (uint)scene_rec(sc, r + LIGHT_U).w * (uint)scene_rec(sc, r + LIGHT_V).w >= ENV_PREFETCH_TEXELS;
+}
+
+// Prefetches the texels env_eval will read for the lanes in m if their
+// rays (unit directions d) leave the scene: called as the rays start, so
+// the lines come while they are traced.
+inline void env_eval_prefetch(const Scene *sc, V3 d, vmask m)
+{
+#if CLPT_PREFETCH
+    if (!VANY(m))
+        return;
+    real4 c0, c1, c2;
+    env_frame(sc, ENV_LIGHT_REC, &c0, &c1, &c2);
+    uint w = (uint)c0.w, h = (uint)c1.w, base = (uint)scene_rec(sc, ENV_LIGHT_REC + LIGHT_N).x;
+    V3 l;
+    vreal xf, yf, fx, fy;
+    env_cell_of(c0, c1, c2, w, h, d, m, &l, &xf, &yf, &fx, &fy);
+#pragma unroll
+    for (int k = 0; k < CLPT_LANES; k++) {
+        if (!VLANE_M(m, k))
+            continue;
+        uint t = base + w * (uint)VLANE_R(yf, k) + (uint)VLANE_R(xf, k);
+        scene_prefetch(sc, t);
+        scene_prefetch(sc, t + w);
+    }
+#endif
 }
 
 // What a ray leaving the scene along unit d sees of the environment (Le,

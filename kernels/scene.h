@@ -69,6 +69,14 @@ typedef struct {
 
 inline real4 scene_rec(const Scene *sc, uint i) { return sc->rec[i]; }
 
+// A hint that record i will be read soon: its cache line is fetched while
+// other work goes on (CPU builds; elsewhere nothing).
+#if CLPT_PREFETCH
+#define scene_prefetch(sc, i) __builtin_prefetch((sc)->rec + (i), 0, 3)
+#else
+#define scene_prefetch(sc, i) ((void)0)
+#endif
+
 // The scene a kernel reads: its records and the launch's SceneInfo.
 inline Scene scene_make(__global const real4 *records, SceneInfo info)
 {

@@ -96,6 +96,18 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
             n_camera += vpopcount(restart);
         }
 
+#if CLPT_HAS_ENV_LIGHT && CLPT_PREFETCH
+        // What the vertex will read of a large environment map, fetched while the ray is traced:
+        // next event estimation's texels, and those a ray that leaves the scene sees.
+        if (env_prefetch_pays(sc)) {
+#if CLPT_NEE
+            LightU lu = sample_light(&sp, ps.depth);
+            env_sample_prefetch(sc, active, lu.u1, lu.u2);
+#endif
+            env_eval_prefetch(sc, ps.d, active);
+        }
+#endif
+
         // --- closest hit ---------------------------------------------------------------------
         Vertex v = vertex_make(sc, &ps, scene_intersect_active(sc, ps.o, ps.d, active), active, L.rr_depth);
 #if CLPT_AUX

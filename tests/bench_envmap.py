@@ -12,9 +12,10 @@ in Mitsuba 3 LLVM in the same run (its own process; the first render,
 which compiles, left out): bench_lights.speed.
 
 --alternate times clpt and a persistent Mitsuba process round by round, per
-CPU second (tests/bench_mitsuba.py), on env_spheres and on the same scene
+CPU second (tests/bench_mitsuba.py), on env_spheres, on the same scene
 under a large map (tests/envmaps.py sky_map at --big-map's size, written
-to a temporary folder with a copy of the scene that reads it).
+to a temporary folder with a copy of the scene that reads it), and on that
+one under a roof (roof_scene).
 """
 
 from __future__ import annotations
@@ -41,6 +42,32 @@ def big_map_scene(folder: Path, w: int, h: int) -> Path:
     return xml
 
 
+ROOF = """    <shape type="rectangle">
+        <transform name="to_world">
+            <rotate x="1" angle="90"/>
+            <scale value="6"/>
+            <translate y="2.2"/>
+        </transform>
+        <bsdf type="diffuse">
+            <rgb name="reflectance" value="0.5, 0.5, 0.4501"/>
+        </bsdf>
+    </shape>
+"""
+
+
+def roof_scene(big: Path) -> Path:
+    """big_map_scene's scene under a 12 x 12 diffuse roof 2.2 above the
+    ground (facing down): few rays leave the scene. The roof has a BSDF of
+    its own (not the ground's by reference, which Mitsuba 3 would merge
+    with the ground into one mesh and then light the ground under it
+    about twice as brightly as the gap allows)."""
+    xml = big.with_name("env_spheres_roof.xml")
+    text = big.read_text()
+    at = text.index('    <shape type="sphere">')
+    xml.write_text(text[:at] + ROOF + text[at:])
+    return xml
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--device", default=None)
@@ -62,6 +89,7 @@ def main():
         if a.big_map:
             w, h = map(int, a.big_map.split("x"))
             scenes.append(big_map_scene(Path(tmp), w, h))
+            scenes.append(roof_scene(scenes[-1]))
         for xml in scenes:
             o = bench_mitsuba.bench(str(xml), device=a.device, rounds=a.rounds, spp=a.spp or 64,
                                     params={"res": str(a.res)},

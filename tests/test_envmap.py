@@ -274,6 +274,33 @@ def test_glossy_sphere_under_a_sharp_envmap_same_with_mis_and_bsdf_sampling(devi
 
 # --- the XML loader and the scene API ----------------------------------------------------------------
 
+def test_prefetching_a_large_map_leaves_the_image_unchanged(device_spec, dctx, monkeypatch):
+    """A map of 2^18 texels, which CPU builds prefetch (lights.h
+    env_sample_prefetch, env_eval_prefetch): the same image, bit for bit,
+    with CLPT_PREFETCH=0 (no prefetch compiled in), and the option is in
+    the CPU build's."""
+    from clpt.program import device_options
+    from envmaps import sky_map
+
+    img = sky_map(1024, 256)
+    cam = clpt.Camera(origin=(0, 0.6, 3), target=(0, 0.1, 0), fov=40, width=12, height=10)
+    scene = clpt.Scene(camera=cam, shapes=[
+        Sphere(center=(0, 0.1, 0), radius=0.6, material=Material.rough_conductor("Au", alpha=0.2)),
+        Quad(corner=(-3, -0.5, 3), edge_u=(6, 0, 0), edge_v=(0, 0, -6), material=Material(kd=(0.5,) * 3)),
+        EnvironmentLight(image=img, to_world=ROT)])
+    images = []
+    for flag in ("1", "0"):
+        monkeypatch.setenv("CLPT_PREFETCH", flag)
+        r = clpt.Renderer(scene, device=device_spec, photons=False)
+        images.append(r.render(spp=8, seed=3, max_depth=4).image)
+    assert np.isfinite(images[0]).all() and images[0].mean() > 0
+    assert np.array_equal(images[0], images[1])
+    monkeypatch.setenv("CLPT_PREFETCH", "1")
+    assert device_options(dctx) == (["-DCLPT_PREFETCH=1"] if dctx.is_cpu else [])
+    monkeypatch.setenv("CLPT_PREFETCH", "0")
+    assert device_options(dctx) == []
+
+
 def _xml(tmp_path, emitters, shapes='<shape type="rectangle"><bsdf type="diffuse"/></shape>'):
     p = tmp_path / "s.xml"
     p.write_text(f'<scene version="3.0.0">{emitters}{shapes}</scene>')
