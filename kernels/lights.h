@@ -509,13 +509,18 @@ inline void env_sample_prefetch(const Scene *sc, vmask m, vreal u1, vreal u2)
 #endif
 }
 
-// Whether prefetching the environment map's lines pays: a map of at least
+// Whether prefetching the environment map's lines pays: the scene has an
+// environment (a generic build's may not) with a map of at least
 // ENV_PREFETCH_TEXELS texels, whose lines the caches do not keep.
 #define ENV_PREFETCH_TEXELS (1u << 18)
 inline bool env_prefetch_pays(const Scene *sc)
 {
+    if (NUM_LIGHTS == 0)
+        return false;
     uint r = ENV_LIGHT_REC;
-    return (uint)scene_rec(sc, r + LIGHT_U).w * (uint)scene_rec(sc, r + LIGHT_V).w >= ENV_PREFETCH_TEXELS;
+    if ((int)scene_rec(sc, r + LIGHT_P_KIND).w != LIGHT_KIND_ENV)
+        return false;
+    return scene_rec(sc, r + LIGHT_U).w * scene_rec(sc, r + LIGHT_V).w >= (real)ENV_PREFETCH_TEXELS;
 }
 
 // Prefetches the texels env_eval will read for the lanes in m if their

@@ -274,11 +274,12 @@ def test_glossy_sphere_under_a_sharp_envmap_same_with_mis_and_bsdf_sampling(devi
 
 # --- the XML loader and the scene API ----------------------------------------------------------------
 
-def test_prefetching_a_large_map_leaves_the_image_unchanged(device_spec, dctx, monkeypatch):
+@pytest.mark.parametrize("kernel", ["specialized", "generic"])
+def test_prefetching_a_large_map_leaves_the_image_unchanged(device_spec, dctx, monkeypatch, kernel):
     """A map of 2^18 texels, which CPU builds prefetch (lights.h
     env_sample_prefetch, env_eval_prefetch): the same image, bit for bit,
-    with CLPT_PREFETCH=0 (no prefetch compiled in), and the option is in
-    the CPU build's."""
+    with CLPT_PREFETCH=0 (no prefetch compiled in), in a specialized build
+    and a generic one, and the option is in the CPU build's."""
     from clpt.program import device_options
     from envmaps import sky_map
 
@@ -291,7 +292,7 @@ def test_prefetching_a_large_map_leaves_the_image_unchanged(device_spec, dctx, m
     images = []
     for flag in ("1", "0"):
         monkeypatch.setenv("CLPT_PREFETCH", flag)
-        r = clpt.Renderer(scene, device=device_spec, photons=False)
+        r = clpt.Renderer(scene, device=device_spec, photons=False, kernel=kernel)
         images.append(r.render(spp=8, seed=3, max_depth=4).image)
     assert np.isfinite(images[0]).all() and images[0].mean() > 0
     assert np.array_equal(images[0], images[1])
