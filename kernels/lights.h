@@ -332,31 +332,27 @@ inline vreal infinite_dist(real4 c, real area, V3 x)
 #if CLPT_HAS_ENV_LIGHT
 #define ENV_LIGHT_REC (OFF_LIGHTS + LIGHT_STRIDE * (NUM_LIGHTS - 1u))
 
-// The map's radiance between texels (x0, y0) and (x0 + 1 (wrapping), y0 + 1),
-// bilinear at (fx, fy), as Mitsuba looks it up; *cell: the sampling
-// probability of cell (x0, y0) (its first texel's w).
-inline real4 env_texels(const Scene *sc, uint base, uint w, uint x0, uint y0, real fx, real fy, real *cell)
-{
-    uint x1 = x0 + 1u == w ? 0u : x0 + 1u;
-    uint r0 = base + w * y0, r1 = r0 + w;
-    real4 t00 = scene_rec(sc, r0 + x0), t10 = scene_rec(sc, r0 + x1);
-    real4 t01 = scene_rec(sc, r1 + x0), t11 = scene_rec(sc, r1 + x1);
-    *cell = t00.w;
-    real4 a = t00 * (R(1) - fx) + t10 * fx, b = t01 * (R(1) - fx) + t11 * fx;
-    return a * (R(1) - fy) + b * fy;
-}
-
-// env_texels for every lane (cells (x0, y0), fractions (fx, fy)), unrolled:
-// the radiance in *Le, and the cells' probabilities in *cell, 0 outside m.
+// The map's radiance for every lane between texels (x0, y0) and (x0 + 1
+// (wrapping), y0 + 1), bilinear at (fx, fy) as Mitsuba looks it up, in *Le;
+// *cell: the sampling probability of cell (x0, y0) (its first texel's w);
+// both 0 outside m. The records' indices and the four corners' weights for
+// all lanes at once, then the lanes' fetches, unrolled.
 CLPT_INLINE void env_lookup(const Scene *sc, uint base, uint w, vreal x0, vreal y0, vreal fx, vreal fy, vmask m,
                             V3 *Le, vreal *cell)
 {
+    vuint xa = VUINT(x0), xb = xa + 1u;
+    xb = xb == (vuint)w ? (vuint)0u : xb;
+    vuint a00 = (vuint)base + (vuint)w * VUINT(y0) + xa, a10 = a00 - xa + xb;
+    vreal w11 = fx * fy, w10 = fx - w11, w01 = fy - w11, w00 = (R(1) - fx) - w01;
     V3 L = v3_zero();
     vreal c = (vreal)R(0);
 #pragma unroll
     for (int k = 0; k < CLPT_LANES; k++) {
-        real4 t = env_texels(sc, base, w, (uint)VLANE_R(x0, k), (uint)VLANE_R(y0, k), VLANE_R(fx, k), VLANE_R(fy, k),
-                             &VLANE_R(c, k));
+        uint i00 = VLANE_U(a00, k), i10 = VLANE_U(a10, k);
+        real4 t00 = scene_rec(sc, i00), t10 = scene_rec(sc, i10);
+        real4 t01 = scene_rec(sc, i00 + w), t11 = scene_rec(sc, i10 + w);
+        real4 t = t00 * VLANE_R(w00, k) + t10 * VLANE_R(w10, k) + t01 * VLANE_R(w01, k) + t11 * VLANE_R(w11, k);
+        VLANE_R(c, k) = t00.w;
         VLANE_R(L.x, k) = t.x; VLANE_R(L.y, k) = t.y; VLANE_R(L.z, k) = t.z;
     }
     *cell = VSEL((vreal)R(0), c, m);
