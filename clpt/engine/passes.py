@@ -20,7 +20,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import pyopencl as cl
 
-from ..constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
+from ..constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, work_item_entries
 from ..denoise import FilterSettings, Planar, demodulate
 from ..errors import DeviceError
 from ..photons import (GRID_CELL_RADII, MAX_TABLE_BITS, PM_MERGE, PM_OFFLINE, PM_OWNED, PM_PREPASS, RADIX_BITS,
@@ -126,8 +126,9 @@ def local_size(dctx) -> int:
 
 
 def _groups(n: int, lanes: int, local: int) -> int:
-    """The global size of a launch over n lanes' work: whole work-groups."""
-    return -(-(-(-n // lanes)) // local) * local
+    """The global size of a launch over n pixels' or entries' work (a
+    work-item takes work_item_entries(lanes) of them): whole work-groups."""
+    return -(-(-(-n // work_item_entries(lanes))) // local) * local
 
 
 class TracePass:
