@@ -125,10 +125,10 @@ def local_size(dctx) -> int:
     return LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
 
 
-def _groups(n: int, lanes: int, local: int) -> int:
-    """The global size of a launch over n pixels' or entries' work (a
-    work-item takes work_item_entries(lanes) of them): whole work-groups."""
-    return -(-(-(-n // work_item_entries(lanes))) // local) * local
+def _groups(n: int, entries: int, local: int) -> int:
+    """The global size of a launch over n pixels' or entries' work, `entries`
+    a work-item: whole work-groups."""
+    return -(-(-(-n // entries)) // local) * local
 
 
 class TracePass:
@@ -141,6 +141,7 @@ class TracePass:
         self.kernel = cl.Kernel(program, "trace_paths")
         self.launch_buf = RecordBuffer(dctx, trace_record(features.double))
         self.local = local_size(dctx)
+        self.entries = work_item_entries(features.lanes)  # as the program was built with (kernels/film.h)
         self.counters = Counters()
         self.launched = False    # the first launch may include a lazy device compile
         self.record = None
@@ -148,11 +149,11 @@ class TracePass:
         self.stats_host = np.empty((0, 4), np.uint32)
 
     def buffer_bytes_for(self, n_pix: int) -> int:
-        return _groups(n_pix, self.features.lanes, self.local) * 16
+        return _groups(n_pix, self.entries, self.local) * 16
 
     def allocate(self, n_pix: int):
         """Buffers for launches over n_pix pixels (DeviceError if they do not fit)."""
-        self.global_size = _groups(n_pix, self.features.lanes, self.local)
+        self.global_size = _groups(n_pix, self.entries, self.local)
         ctx, rw = self.dctx.context, cl.mem_flags.READ_WRITE
         try:
             self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
@@ -185,7 +186,7 @@ class TracePass:
         if item.kind == "pixels":
             n_list = len(item.pixels)
             rec["sample_begin"], rec["n_samples"], rec["n_list"] = 0, 0, n_list
-            global_size = _groups(n_list, self.features.lanes, self.local)
+            global_size = _groups(n_list, self.entries, self.local)
             self._pixel_list(item, global_size)
         else:
             rec["sample_begin"], rec["n_samples"], rec["n_list"] = item.s0, item.n, 0
