@@ -318,7 +318,7 @@ class PhotonPass:
             args = PhotonPassArgs(scene_buf, self.launch.write(rec), *self.raw, self.counter)
             events.append(self._launch("trace_photons", self.k_trace, -(-n // lanes), *args.ordered()))
         stored = np.zeros(1, dtype=np.uint32)
-        cl.enqueue_copy(q, stored, self.counter)
+        cl.enqueue_copy(q, stored, self.counter, is_blocking=False)  # read once build_grid has finished the queue
         grid_events = self.build_grid(n, radius)
         self.n_stored = int(stored[0])
         self.n_emitted = n
