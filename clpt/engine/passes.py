@@ -256,6 +256,7 @@ class PhotonPass:
         self.inv_cell = 1.0
         self.sorted_keys = None
         self.held = None  # the key of the map built last (DeviceWorker: its iteration)
+        self._queued = (None, None, None, None)  # the last build's info until complete()
 
     def _alloc(self, n: int):
         ctx = self.dctx.context
@@ -297,11 +298,15 @@ class PhotonPass:
         self.counters.launched(name, ev)
         return ev
 
-    def build(self, scene_buf, counts, eps_abs, lanes: int, seed: int, settings: PhotonSettings, radius: float):
+    def build(self, scene_buf, counts, eps_abs, lanes: int, seed: int, settings: PhotonSettings, radius: float,
+              wait: bool = True):
         """Trace settings.count photons and build the grid for `radius`
         (counts: the packed scene's; eps_abs: the ray-origin offset's floor).
         Returns {"stored", "trace_seconds", "grid_seconds", "host_seconds"}
-        (device times from profiling events)."""
+        (device times from profiling events). With wait False the build is
+        only queued (host_seconds: the time that took): a launch queued after
+        it runs once it is done, with no return to the host in between, and
+        complete(info) fills in the rest once the queue has finished."""
         n = int(settings.count)
         if n != self.capacity:
             self._alloc(n)
@@ -318,13 +323,27 @@ class PhotonPass:
             args = PhotonPassArgs(scene_buf, self.launch.write(rec), *self.raw, self.counter)
             events.append(self._launch("trace_photons", self.k_trace, -(-n // lanes), *args.ordered()))
         stored = np.zeros(1, dtype=np.uint32)
-        cl.enqueue_copy(q, stored, self.counter, is_blocking=False)  # read once build_grid has finished the queue
-        grid_events = self.build_grid(n, radius)
-        self.n_stored = int(stored[0])
+        cl.enqueue_copy(q, stored, self.counter, is_blocking=False)  # read once the queue has finished
+        grid_events = self.build_grid(n, radius, wait=wait)
         self.n_emitted = n
-        self.counters.settle()
-        return {"stored": self.n_stored, "trace_seconds": _device_seconds(events),
-                "grid_seconds": _device_seconds(grid_events), "host_seconds": time.perf_counter() - t_host}
+        info = {"host_seconds": time.perf_counter() - t_host}
+        self._queued = (info, stored, events, grid_events)
+        if wait:
+            self.complete(info)
+        return info
+
+    def complete(self, info: dict):
+        """Fill in the info of the build queued last (build(wait=False)),
+        once the queue has finished: the photons stored, the device times."""
+        queued, stored, events, grid_events = self._queued
+        if queued is not info:
+            if "stored" in info:
+                return  # (completed already: a build that waited)
+            raise RuntimeError("a photon map's info is completed after the build that returned it, and no later")
+        self.n_stored = int(stored[0])
+        info.update(stored=self.n_stored, trace_seconds=_device_seconds(events),
+                    grid_seconds=_device_seconds(grid_events))
+        self._queued = (None, None, None, None)
 
     def load(self, pos, dirs, power, radius: float):
         """Use the given photons (arrays of n x 3) instead of traced ones, and
@@ -344,8 +363,9 @@ class PhotonPass:
         self.counters.settle()
         return {"stored": n, "grid_seconds": _device_seconds(events)}
 
-    def build_grid(self, n: int, radius: float):
-        """Sort the n photon slots by bucket and fill bucket_start; returns the events."""
+    def build_grid(self, n: int, radius: float, wait: bool = True):
+        """Sort the n photon slots by bucket and fill bucket_start; returns the
+        events (with wait, once the queue has finished)."""
         q = self.dctx.queue
         self.radius = radius
         self.inv_cell = 1.0 / (GRID_CELL_RADII * radius)
@@ -373,7 +393,8 @@ class PhotonPass:
             self.sorted_keys = self.keys[src]
             events.append(self._launch("photon_occupancy", self.k_occ, n, self.raw[0], np.uint32(n),
                                        self.real(self.inv_cell), np.uint32(self.occ_bits - 1), self.occ))
-        q.finish()
+        if wait:
+            q.finish()
         return events
 
     def stored_power(self) -> list[float]:
