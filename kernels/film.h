@@ -1,14 +1,15 @@
 // film.h: what trace_paths reads and writes per pixel, and nothing else does.
 //
 //   LaneJobs        which pixel each lane works on, from which sample, how
-//                   many samples and how deep (a row of pixels, or an
-//                   adaptive pass's list)
+//                   many samples and how deep (pixels of a row, or of an
+//                   adaptive pass's list), and the next pixel a lane takes
 //   Film            the pixel sums of the lanes' pixels: sums stay accurate
 //                   over 10^6 samples and more (below)
 //   VisibleSurface  the feature sums the denoisers read (CLPT_AUX): normal,
 //                   albedo, depth, directly seen emission, caustic part
-// Each is loaded from its buffers before the path loop, added to per sample
-// in sample order, and stored after it, one lane at a time.
+// Each is loaded from its buffers when a lane takes a pixel, added to per
+// sample in sample order, and stored when the lane has finished the pixel
+// (lane_next), one lane at a time.
 //
 // Sums: with fp64 (CLPT_ACCUM_DOUBLE) a pixel's sums are doubles. Devices
 // without fp64 keep Kahan-compensated float sums (sum and compensation), whose
@@ -20,44 +21,69 @@
 #define NO_PIXEL 0xFFFFFFFFu
 
 // --- the lanes' pixels -------------------------------------------------------------
+// A work-item takes WI_ENTRIES consecutive entries: pixels of the image
+// (row-major, from group_offset work-items on), all taking samples
+// [sample_begin, sample_begin + n_samples); or, when n_list > 0 (adaptive
+// sampling), entries of jobs, each (samples, max depth, first sample, pixel):
+// the host continues each pixel's sample sequence where it stands. With
+// lanes, each lane takes the next entry not yet taken as soon as it has
+// finished its own (lane_next), CLPT_LANE_PIXELS entries per lane on average
+// (clpt/constants.py): a lane whose paths ran short then takes more pixels
+// instead of idling until the slowest lane's last path ends. One lane takes
+// all of a pixel's samples, in order, so its sums are the same bits however
+// the entries fell to lanes.
+#if CLPT_LANES > 1
+#define WI_ENTRIES (CLPT_LANES * CLPT_LANE_PIXELS)
+#else
+#define WI_ENTRIES 1
+#endif
 typedef struct {
-    vuint pixel;     // row-major index (NO_PIXEL, or beyond the image: none)
+    vuint pixel;     // row-major index (NO_PIXEL: none)
     vuint s_begin;   // index of the pixel's first sample here
     vreal n;         // samples to take (0: none)
     vreal depth;     // most scattering events of a path
-    vmask ok;        // the lane has a pixel
+    uint next;       // the work-item's first entry no lane has taken
 } LaneJobs;
 
-// Work-item gid's lanes: CLPT_LANES consecutive pixels of the image (row-major,
-// from group_offset), all taking samples [sample_begin, sample_begin +
-// n_samples); or, when n_list > 0 (adaptive sampling), CLPT_LANES entries of
-// jobs, each (samples, max depth, first sample, pixel): the host continues
-// each pixel's sample sequence where it stands.
-inline LaneJobs lane_jobs(const TraceLaunch *L, __global const uint4 *jobs, uint gid)
+inline LaneJobs lane_jobs_none(void)
 {
     LaneJobs j;
-    uint n_pix = L->width * L->height;
-    if (L->n_list == 0) {
-        uint first = (L->group_offset + gid) * CLPT_LANES;
-        j.pixel = (vuint)first + VLANE_IDS;
-        j.ok = VREAL(VLANE_IDS) < (real)(first < n_pix ? min(n_pix - first, (uint)CLPT_LANES) : 0u);
-        j.s_begin = (vuint)L->sample_begin;
-        j.n = (vreal)(real)L->n_samples;
-        j.depth = (vreal)(real)L->max_depth;
-        return j;
-    }
-    j.pixel = j.s_begin = (vuint)0u;
+    j.pixel = (vuint)NO_PIXEL;
+    j.s_begin = (vuint)0u;
     j.n = j.depth = (vreal)R(0);
-    for (int l = 0; l < CLPT_LANES; l++) {
-        uint e = gid * CLPT_LANES + l;
-        uint4 job = e < L->n_list ? jobs[e] : (uint4)(0u, 0u, 0u, NO_PIXEL);
-        VLANE_U(j.pixel, l) = job.w;
-        VLANE_U(j.s_begin, l) = job.z;
-        VLANE_R(j.n, l) = (real)job.x;
-        VLANE_R(j.depth, l) = (real)job.y;
-    }
-    j.ok = j.n > R(0);
+    j.next = 0u;
     return j;
+}
+
+// Entry k of work-item gid: (samples, max depth, first sample, pixel); no
+// samples past the image or the list.
+inline uint4 lane_entry(const TraceLaunch *L, __global const uint4 *jobs, uint gid, uint k)
+{
+    if (L->n_list == 0) {
+        uint p = (L->group_offset + gid) * WI_ENTRIES + k;
+        return p < L->width * L->height ? (uint4)(L->n_samples, L->max_depth, L->sample_begin, p)
+                                        : (uint4)(0u, 0u, 0u, NO_PIXEL);
+    }
+    uint e = gid * WI_ENTRIES + k;
+    return e < L->n_list ? jobs[e] : (uint4)(0u, 0u, 0u, NO_PIXEL);
+}
+
+// Lane l takes the work-item's next entry with samples (none left: n = 0);
+// returns its pixel, or NO_PIXEL.
+inline uint lane_take(LaneJobs *j, int l, const TraceLaunch *L, __global const uint4 *jobs, uint gid)
+{
+    uint4 e = (uint4)(0u, 0u, 0u, NO_PIXEL);
+    while (j->next < WI_ENTRIES) {
+        e = lane_entry(L, jobs, gid, j->next++);
+        if (e.x > 0u && e.w < L->width * L->height)
+            break;
+        e = (uint4)(0u, 0u, 0u, NO_PIXEL);
+    }
+    VLANE_U(j->pixel, l) = e.w;
+    VLANE_U(j->s_begin, l) = e.z;
+    VLANE_R(j->n, l) = (real)e.x;
+    VLANE_R(j->depth, l) = (real)e.y;
+    return e.w;
 }
 
 // --- pixel sums ----------------------------------------------------------------------
@@ -121,26 +147,6 @@ inline void film_store_lane(Film *f, int l, __global pix_sum_t *ps, __global pix
 #endif
 }
 
-// The sums of the lanes' pixels (lanes without one start from zero).
-inline void film_load(Film *f, vuint pixel, uint n_pix, __global const pix_sum_t *ps, __global const pix_sq_t *pq)
-{
-    film_zero(f);
-    for (int l = 0; l < CLPT_LANES; l++) {
-        uint p = VLANE_U(pixel, l);
-        if (p < n_pix)
-            film_load_lane(f, l, ps, pq, p);
-    }
-}
-
-inline void film_store(Film *f, vuint pixel, uint n_pix, __global pix_sum_t *ps, __global pix_sq_t *pq)
-{
-    for (int l = 0; l < CLPT_LANES; l++) {
-        uint p = VLANE_U(pixel, l);
-        if (p < n_pix)
-            film_store_lane(f, l, ps, pq, p);
-    }
-}
-
 // Adds finished samples (lanes in `done`) to the pixel sums. A sample that is
 // not finite is counted and left out: it never reaches the sums. The squares
 // are of luminance times lum_scale (a power of two that brings the scene's
@@ -188,42 +194,36 @@ typedef struct {
 inline void v3_add_where(V3 *a, V3 b, vmask m) { *a = v3_sel(*a, v3_add(*a, b), m); }
 inline void vreal_add_where(vreal *a, vreal b, vmask m) { *a = VSEL(*a, *a + b, m); }
 
-inline void visible_load(VisibleSurface *v, vuint pixel, uint n_pix, __global const float4 *aux)
+inline void visible_zero(VisibleSurface *v)
 {
     v->normal = v->albedo = v->emission = v->caustic = v3_zero();
     v->count = v->depth = v->lights = v->caustic_sq = v->path_len = (vreal)R(0);
     v->found = v->chain = v->lit = v->count != v->count;
-    for (int l = 0; l < CLPT_LANES; l++) {
-        uint p = VLANE_U(pixel, l);
-        if (p >= n_pix)
-            continue;
-        float4 a = aux[p], b = aux[n_pix + p], c = aux[2 * n_pix + p], e = aux[3 * n_pix + p];
-        VLANE_R(v->normal.x, l) = a.x; VLANE_R(v->normal.y, l) = a.y; VLANE_R(v->normal.z, l) = a.z;
-        VLANE_R(v->count, l) = a.w;
-        VLANE_R(v->albedo.x, l) = b.x; VLANE_R(v->albedo.y, l) = b.y; VLANE_R(v->albedo.z, l) = b.z;
-        VLANE_R(v->depth, l) = b.w;
-        VLANE_R(v->emission.x, l) = c.x; VLANE_R(v->emission.y, l) = c.y; VLANE_R(v->emission.z, l) = c.z;
-        VLANE_R(v->lights, l) = c.w;
-        VLANE_R(v->caustic.x, l) = e.x; VLANE_R(v->caustic.y, l) = e.y; VLANE_R(v->caustic.z, l) = e.z;
-        VLANE_R(v->caustic_sq, l) = e.w;
-    }
 }
 
-inline void visible_store(VisibleSurface *v, vuint pixel, uint n_pix, __global float4 *aux)
+inline void visible_load_lane(VisibleSurface *v, int l, uint p, uint n_pix, __global const float4 *aux)
 {
-    for (int l = 0; l < CLPT_LANES; l++) {
-        uint p = VLANE_U(pixel, l);
-        if (p >= n_pix)
-            continue;
-        aux[p] = (float4)(VLANE_R(v->normal.x, l), VLANE_R(v->normal.y, l), VLANE_R(v->normal.z, l),
-                          VLANE_R(v->count, l));
-        aux[n_pix + p] = (float4)(VLANE_R(v->albedo.x, l), VLANE_R(v->albedo.y, l), VLANE_R(v->albedo.z, l),
-                                  VLANE_R(v->depth, l));
-        aux[2 * n_pix + p] = (float4)(VLANE_R(v->emission.x, l), VLANE_R(v->emission.y, l),
-                                      VLANE_R(v->emission.z, l), VLANE_R(v->lights, l));
-        aux[3 * n_pix + p] = (float4)(VLANE_R(v->caustic.x, l), VLANE_R(v->caustic.y, l), VLANE_R(v->caustic.z, l),
-                                      VLANE_R(v->caustic_sq, l));
-    }
+    float4 a = aux[p], b = aux[n_pix + p], c = aux[2 * n_pix + p], e = aux[3 * n_pix + p];
+    VLANE_R(v->normal.x, l) = a.x; VLANE_R(v->normal.y, l) = a.y; VLANE_R(v->normal.z, l) = a.z;
+    VLANE_R(v->count, l) = a.w;
+    VLANE_R(v->albedo.x, l) = b.x; VLANE_R(v->albedo.y, l) = b.y; VLANE_R(v->albedo.z, l) = b.z;
+    VLANE_R(v->depth, l) = b.w;
+    VLANE_R(v->emission.x, l) = c.x; VLANE_R(v->emission.y, l) = c.y; VLANE_R(v->emission.z, l) = c.z;
+    VLANE_R(v->lights, l) = c.w;
+    VLANE_R(v->caustic.x, l) = e.x; VLANE_R(v->caustic.y, l) = e.y; VLANE_R(v->caustic.z, l) = e.z;
+    VLANE_R(v->caustic_sq, l) = e.w;
+}
+
+inline void visible_store_lane(VisibleSurface *v, int l, uint p, uint n_pix, __global float4 *aux)
+{
+    aux[p] = (float4)(VLANE_R(v->normal.x, l), VLANE_R(v->normal.y, l), VLANE_R(v->normal.z, l),
+                      VLANE_R(v->count, l));
+    aux[n_pix + p] = (float4)(VLANE_R(v->albedo.x, l), VLANE_R(v->albedo.y, l), VLANE_R(v->albedo.z, l),
+                              VLANE_R(v->depth, l));
+    aux[2 * n_pix + p] = (float4)(VLANE_R(v->emission.x, l), VLANE_R(v->emission.y, l),
+                                  VLANE_R(v->emission.z, l), VLANE_R(v->lights, l));
+    aux[3 * n_pix + p] = (float4)(VLANE_R(v->caustic.x, l), VLANE_R(v->caustic.y, l), VLANE_R(v->caustic.z, l),
+                                  VLANE_R(v->caustic_sq, l));
 }
 
 // A new sample in the lanes of `start`.
@@ -303,3 +303,33 @@ inline void visible_end_sample(VisibleSurface *v, vmask done)
     vreal_add_where(&v->count, (vreal)R(1), none);
 }
 #endif
+
+// The lanes in `want` have finished their pixels: their sums go back to the
+// buffers (the features' unless aux_out is 0), and each takes the next entry
+// with samples and loads its pixel's sums. Returns the lanes that got one.
+inline vmask lane_next(LaneJobs *j, Film *f, VisibleSurface *vis, vmask want, const TraceLaunch *L, uint gid,
+                       __global const uint4 *jobs, __global pix_sum_t *ps, __global pix_sq_t *pq,
+                       __global float4 *aux, int aux_out)
+{
+    uint n_pix = L->width * L->height;
+    for (int l = 0; l < CLPT_LANES; l++) {
+        if (VLANE_M(want, l) == 0)
+            continue;
+        uint p = VLANE_U(j->pixel, l);
+        if (p < n_pix) {
+            film_store_lane(f, l, ps, pq, p);
+#if CLPT_AUX
+            if (aux_out)
+                visible_store_lane(vis, l, p, n_pix, aux);
+#endif
+        }
+        p = lane_take(j, l, L, jobs, gid);
+        if (p < n_pix) {
+            film_load_lane(f, l, ps, pq, p);
+#if CLPT_AUX
+            visible_load_lane(vis, l, p, n_pix, aux);
+#endif
+        }
+    }
+    return want && j->n > R(0);
+}

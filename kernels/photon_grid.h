@@ -68,7 +68,17 @@ typedef struct {
     __global const uint *occ;     // occupancy bits (grid.cl photon_occupancy)
     uint occ_mask;                // bits in the table - 1
     uint moments;                 // merges also estimate path tracing's second moment (CLPT_AUX; below)
+    real r2, inv_kr, norm;        // a gather's constants (photon_map_derive)
 } PhotonMap;
+
+// The constants every gather uses, from the radius and the cone filter:
+// computed once, not per gather.
+inline void photon_map_derive(PhotonMap *pm)
+{
+    pm->r2 = pm->radius * pm->radius;
+    pm->inv_kr = R(1) / (pm->cone_k * pm->radius);
+    pm->norm = (R(1) - R(2) / (R(3) * pm->cone_k)) * R(M_PI) * pm->r2;
+}
 
 // The photon map of a launch: its buffers and the launch record's settings.
 // The offline pre-pass gathers only a few times per pixel: subsampling noise
@@ -86,6 +96,7 @@ inline void photon_map_init(PhotonMap *pm, const PhotonLookup *pl, __global cons
     pm->mis_k = pl->mis_k;
     pm->occ = occ; pm->occ_mask = pl->occ_mask;
     pm->moments = pl->moments;
+    photon_map_derive(pm);
 }
 
 #if CLPT_LANES == 1
@@ -179,8 +190,7 @@ INLINE_VEC3 uint grid_row_range(const PhotonMap *pm, int3 cell, uint *s0, uint *
 INLINE_VEC3 real3 photon_gather_one(const PhotonMap *pm, real3 x, real3 n, real3 d, real3 kd, real3 ks, real shininess,
                                     real u, real p_d, real p_s, int mis, real max_bounces, real3 lw, real *m2)
 {
-    real r2 = pm->radius * pm->radius;
-    real inv_kr = R(1) / (pm->cone_k * pm->radius);
+    real r2 = pm->r2, inv_kr = pm->inv_kr;
     int3 base = grid_lower_corner(x, pm->inv_cell);
     real3 sum_d = (real3)(R(0)), sum_s = (real3)(R(0));
 #if CLPT_HAS_PHONG
@@ -268,7 +278,7 @@ done:;
 #if CLPT_HAS_PHONG
     f_sum += ks * ((shininess + R(2)) * R(0.5 * M_1_PI)) * sum_s;
 #endif
-    real norm = (R(1) - R(2) / (R(3) * pm->cone_k)) * R(M_PI) * r2;
+    real norm = pm->norm;
 #if CLPT_AUX
     if (pm->moments)
         *m2 /= norm * norm * cone_kappa(pm->cone_k);

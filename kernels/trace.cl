@@ -7,11 +7,12 @@
 // into launches or on the work-group size, so an image is bit-identical
 // however it was scheduled.
 //
-// Launch: one work-item per CLPT_LANES consecutive pixels (film.h lane_jobs),
-// or per CLPT_LANES entries of an adaptive pass's list; global size = groups
-// (or entries / CLPT_LANES), any local size. Each lane starts a new path as
-// soon as its previous one ends, so lanes stay busy while paths have
-// different lengths. Everything by value is in the launch record
+// Launch: one work-item per WI_ENTRIES (CLPT_LANES x CLPT_LANE_PIXELS with
+// lanes) consecutive pixels, or entries of an adaptive pass's list (film.h);
+// global size = groups (or entries / WI_ENTRIES), any local size. Each lane
+// starts a new path as soon as its previous one ends, and takes the
+// work-item's next pixel as soon as it has finished its own, so lanes stay
+// busy while paths have different lengths. Everything by value is in the launch record
 // (clpt/layout.py TraceLaunch, read once into private memory).
 //
 // Buffers:
@@ -61,21 +62,26 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
     photon_map_init(&pmd, pl, ph_pos, ph_dir, ph_pow, bucket_start, ph_occ);
 #endif
     uint gid = get_global_id(0);
-    uint n_pix = L.width * L.height;
 
-    // --- the lanes' pixels, and their sums ---------------------------------------------------
-    LaneJobs jobs = lane_jobs(&L, pix_jobs, gid);
-    vreal px = VREAL(jobs.pixel % L.width), py = VREAL(jobs.pixel / L.width);
+    // --- the lanes' pixels, and their sums (taken as lanes finish theirs) ----------------------
+#if CLPT_AUX
+    __global float4 *aux_buf = aux;
+#else
+    __global float4 *aux_buf = 0;
+#endif
+    int aux_out = !pl->stop_at_x;  // the offline pre-pass's samples are not the image's features
+    LaneJobs jobs = lane_jobs_none();
     Film film;
-    film_load(&film, jobs.pixel, n_pix, pix_sum, pix_sq);
+    film_zero(&film);
     VisibleSurface vis;
 #if CLPT_AUX
-    visible_load(&vis, jobs.pixel, n_pix, aux);
+    visible_zero(&vis);
 #endif
 
     uint nonfinite = 0, n_camera = 0, n_bounce = 0, n_shadow = 0;
-    vreal done_count = (vreal)R(0);  // samples finished per lane
-    vmask active = jobs.ok && jobs.n > R(0);
+    vreal done_count = (vreal)R(0);  // samples of its pixel a lane has finished
+    vmask active = lane_next(&jobs, &film, &vis, jobs.n == jobs.n, &L, gid, pix_jobs, pix_sum, pix_sq, aux_buf,
+                             aux_out);
     vmask restart = active;
     PathState ps = path_state_make(active);
 
@@ -84,6 +90,7 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
 
         // --- start new paths in lanes whose previous path ended ----------------------------
         if (VANY(restart)) {
+            vreal px = VREAL(jobs.pixel % L.width), py = VREAL(jobs.pixel / L.width);
 #if CLPT_PIXEL_FILTER
             CameraU cu = camera_filter_sample(&L.pixel_filter, sample_camera(&sp), px, py, L.width, L.height);
 #else
@@ -160,16 +167,19 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
 #endif
             done_count = VSEL(done_count, done_count + R(1), done);
             restart = done && done_count < jobs.n;
+            vmask ended = done && !restart;  // pixels finished: their lanes take the next ones
+            if (VANY(ended)) {
+                vmask more = lane_next(&jobs, &film, &vis, ended, &L, gid, pix_jobs, pix_sum, pix_sq, aux_buf,
+                                       aux_out);
+                done_count = VSEL(done_count, (vreal)R(0), more);
+                restart = restart || more;
+            }
             active = (active && !done) || restart;
         } else {
             restart = active && !active;
         }
     }
 
-    film_store(&film, jobs.pixel, n_pix, pix_sum, pix_sq);
-#if CLPT_AUX
-    if (!pl->stop_at_x)  // the offline pre-pass's samples are not the image's
-        visible_store(&vis, jobs.pixel, n_pix, aux);
-#endif
+    // (every lane's last pixel was stored when it ended: lane_next)
     stats[gid] = (uint4)(nonfinite, n_camera, n_bounce, n_shadow);
 }

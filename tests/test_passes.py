@@ -14,7 +14,8 @@ import pyopencl as cl
 import pytest
 
 import clpt
-from clpt import layout
+from clpt import constants, layout
+from clpt.constants import LANE_PIXELS, work_item_entries
 from clpt.engine.driver import run_item
 from clpt.engine.executors import LocalExecutor
 from clpt.engine.job import RenderJob, WorkItem
@@ -137,15 +138,46 @@ def test_trace_pass_records_for_ranges_and_pixel_lists(device_spec):
     rec, gsize = w.trace.item_record(job.seed, WorkItem("samples", 2, 5))
     assert (rec["sample_begin"], rec["n_samples"], rec["n_list"], rec["group_offset"]) == (2, 5, 0, 0)
     assert (rec["width"], rec["height"], rec["seed"]) == (20, 12, 3)
-    assert gsize % w.local == 0 and gsize * 4 >= 240
+    assert w.trace.entries == work_item_entries(4) == 4 * LANE_PIXELS  # pixels a work-item takes
+    assert gsize % w.local == 0 and gsize * w.trace.entries >= 240
     pixels = np.array([5, 6, 7, 100, 101])
     jobs = np.zeros((5, 4), np.uint32)
     jobs[:, 0] = 2
     rec, gsize = w.trace.item_record(job.seed, WorkItem("pixels", pixels=pixels, jobs=jobs))
-    assert (rec["n_list"], rec["n_samples"]) == (5, 0) and gsize == w.local  # 2 work-items of 4 lanes
+    assert (rec["n_list"], rec["n_samples"]) == (5, 0) and gsize == w.local  # one work-item's worth, whole groups
     got = np.empty((5, 4), np.uint32)
     cl.enqueue_copy(w.dctx.queue, got, w.trace.jobs_buf)
     assert (got[:, 3] == pixels).all() and (got[:, 0] == 2).all()
+
+
+@pytest.mark.parametrize("scene,kw", [
+    ("cornell_box", dict(spp=12, adaptive=clpt.AdaptiveSettings(min_spp=4, pass_spp=4), aux=True)),
+    ("cornell_box_caustics", dict(spp=16)),
+])
+def test_lanes_taking_pixels_in_turn_give_the_same_bits(device_spec, monkeypatch, scene, kw):
+    """A lane that has finished its pixel takes the work-item's next one
+    (kernels/film.h lane_next): the image, the sample counts, the features and
+    the ray counts are the same bits as with one pixel per lane, on an image
+    whose pixels do not fill the last work-item, in uniform and adaptive
+    passes and with photon merging."""
+    kw = dict(width=23, height=13, seed=5, max_depth=16, **kw)
+    aux = kw.pop("aux", False)
+    out = {}
+    for lp in (1, 3):
+        monkeypatch.setattr(constants, "LANE_PIXELS", lp)
+        r = clpt.Renderer(scene, device=device_spec, lanes=8, aux=aux)
+        res = r.render(**kw)
+        assert r.states[0].trace.entries == 8 * lp
+        out[lp] = res
+    a, b = out[1], out[3]
+    assert np.array_equal(a.image, b.image) and np.array_equal(a.sample_count, b.sample_count)
+    assert np.array_equal(a.lum_var, b.lum_var)
+    assert (a.stats.camera_rays, a.stats.bounce_rays, a.stats.shadow_rays) == \
+        (b.stats.camera_rays, b.stats.bounce_rays, b.stats.shadow_rays)
+    assert a.stats.camera_rays > 0
+    for k in (a.aux or {}):
+        assert np.array_equal(np.asarray(a.aux[k]), np.asarray(b.aux[k])), k
+    assert bool(a.aux) == aux
 
 
 def test_run_item_runs_one_item_on_the_first_live_worker():

@@ -171,24 +171,29 @@ class DeviceWorker:
             self.film.load(initial)
 
     # --- photon maps --------------------------------------------------------------------
-    def build_photons(self, seed: int, settings: PhotonSettings, radius: float, mode: int = 0) -> dict:
+    def build_photons(self, seed: int, settings: PhotonSettings, radius: float, mode: int = 0,
+                      wait: bool = True) -> dict:
         """Build a photon map of `settings` (in the packed scene's lengths) from
         `seed`: its info. (`mode`, what launches do with the map, does not
-        change the map.)"""
+        change the map.) wait False: only queued (PhotonPass.build)."""
         info = self.photon.build(self.scene_buf, self.packed.counts, self.eps_abs, self.features.lanes, seed,
-                                 settings, radius)
+                                 settings, radius, wait=wait)
         self.photon.held = None
-        return {**info, "radius": radius, "seed": seed}
+        info.update(radius=radius, seed=seed)
+        return info
 
-    def prepare_photons(self, iteration: int) -> dict | None:
-        """Build the photon map of `iteration` unless it is the one held; its info or None."""
+    def prepare_photons(self, iteration: int, wait: bool = True) -> dict | None:
+        """Build the photon map of `iteration` unless it is the one held; its
+        info or None. wait False: the build is only queued, and its info
+        completed by self.photon.complete once the queue has finished."""
         job = self.job
         if self.photon is None or job.photons is None or self.photon.held == iteration:
             return None
         seed, radius = photon_plan(job, iteration, self.packed.size, self.packed.length_scale)
-        info = self.build_photons(seed, kernel_photons(job.photons, self.packed.length_scale), radius)
+        info = self.build_photons(seed, kernel_photons(job.photons, self.packed.length_scale), radius, wait=wait)
         self.photon.held = iteration
-        return {"device": self.label, "iteration": iteration, **info}
+        info.update(device=self.label, iteration=iteration)
+        return info
 
     # --- work ---------------------------------------------------------------------------
     def _take_counters(self) -> tuple[dict, dict]:
@@ -210,7 +215,9 @@ class DeviceWorker:
     def run(self, item: WorkItem) -> RunResult:
         """Add an item's samples to the sums; or, for a "photons" item, build
         the photon map of its iteration and measure the power it stores."""
-        pm = self.prepare_photons(item.iteration)
+        # A sample range's map is only queued: its launch follows it in the
+        # queue without a return to the host in between (one wait per item).
+        pm = self.prepare_photons(item.iteration, wait=item.kind == "photons")
         if item.kind == "photons":
             if pm is None:
                 raise ValueError(f"{self.label}: the job has no photon map to build")
@@ -233,6 +240,8 @@ class DeviceWorker:
         if self.features.photons:
             self.photon.fill(args)
         secs, wall, first, stats = self.trace.run(rec, global_size, args)
+        if pm is not None:
+            self.photon.complete(pm)  # (the launch has finished, and the build before it)
         launches, seconds = self._take_counters()
         return RunResult(seconds=secs, wall=wall, first=first, stats=stats, photon_maps=[pm] if pm else [],
                          launches=launches, kernel_seconds=seconds)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import pyopencl as cl
 
-from ..constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU
+from ..constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, work_item_entries
 from ..denoise import FilterSettings, Planar, demodulate
 from ..errors import DeviceError
 from ..photons import (GRID_CELL_RADII, MAX_TABLE_BITS, PM_MERGE, PM_OFFLINE, PM_OWNED, PM_PREPASS, RADIX_BITS,
@@ -125,9 +125,10 @@ def local_size(dctx) -> int:
     return LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
 
 
-def _groups(n: int, lanes: int, local: int) -> int:
-    """The global size of a launch over n lanes' work: whole work-groups."""
-    return -(-(-(-n // lanes)) // local) * local
+def _groups(n: int, entries: int, local: int) -> int:
+    """The global size of a launch over n pixels' or entries' work, `entries`
+    a work-item: whole work-groups."""
+    return -(-(-(-n // entries)) // local) * local
 
 
 class TracePass:
@@ -140,6 +141,7 @@ class TracePass:
         self.kernel = cl.Kernel(program, "trace_paths")
         self.launch_buf = RecordBuffer(dctx, trace_record(features.double))
         self.local = local_size(dctx)
+        self.entries = work_item_entries(features.lanes)  # as the program was built with (kernels/film.h)
         self.counters = Counters()
         self.launched = False    # the first launch may include a lazy device compile
         self.record = None
@@ -147,11 +149,11 @@ class TracePass:
         self.stats_host = np.empty((0, 4), np.uint32)
 
     def buffer_bytes_for(self, n_pix: int) -> int:
-        return _groups(n_pix, self.features.lanes, self.local) * 16
+        return _groups(n_pix, self.entries, self.local) * 16
 
     def allocate(self, n_pix: int):
         """Buffers for launches over n_pix pixels (DeviceError if they do not fit)."""
-        self.global_size = _groups(n_pix, self.features.lanes, self.local)
+        self.global_size = _groups(n_pix, self.entries, self.local)
         ctx, rw = self.dctx.context, cl.mem_flags.READ_WRITE
         try:
             self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
@@ -184,7 +186,7 @@ class TracePass:
         if item.kind == "pixels":
             n_list = len(item.pixels)
             rec["sample_begin"], rec["n_samples"], rec["n_list"] = 0, 0, n_list
-            global_size = _groups(n_list, self.features.lanes, self.local)
+            global_size = _groups(n_list, self.entries, self.local)
             self._pixel_list(item, global_size)
         else:
             rec["sample_begin"], rec["n_samples"], rec["n_list"] = item.s0, item.n, 0
@@ -254,6 +256,7 @@ class PhotonPass:
         self.inv_cell = 1.0
         self.sorted_keys = None
         self.held = None  # the key of the map built last (DeviceWorker: its iteration)
+        self._queued = (None, None, None, None)  # the last build's info until complete()
 
     def _alloc(self, n: int):
         ctx = self.dctx.context
@@ -295,11 +298,15 @@ class PhotonPass:
         self.counters.launched(name, ev)
         return ev
 
-    def build(self, scene_buf, counts, eps_abs, lanes: int, seed: int, settings: PhotonSettings, radius: float):
+    def build(self, scene_buf, counts, eps_abs, lanes: int, seed: int, settings: PhotonSettings, radius: float,
+              wait: bool = True):
         """Trace settings.count photons and build the grid for `radius`
         (counts: the packed scene's; eps_abs: the ray-origin offset's floor).
         Returns {"stored", "trace_seconds", "grid_seconds", "host_seconds"}
-        (device times from profiling events)."""
+        (device times from profiling events). With wait False the build is
+        only queued (host_seconds: the time that took): a launch queued after
+        it runs once it is done, with no return to the host in between, and
+        complete(info) fills in the rest once the queue has finished."""
         n = int(settings.count)
         if n != self.capacity:
             self._alloc(n)
@@ -316,13 +323,27 @@ class PhotonPass:
             args = PhotonPassArgs(scene_buf, self.launch.write(rec), *self.raw, self.counter)
             events.append(self._launch("trace_photons", self.k_trace, -(-n // lanes), *args.ordered()))
         stored = np.zeros(1, dtype=np.uint32)
-        cl.enqueue_copy(q, stored, self.counter)
-        grid_events = self.build_grid(n, radius)
-        self.n_stored = int(stored[0])
+        cl.enqueue_copy(q, stored, self.counter, is_blocking=False)  # read once the queue has finished
+        grid_events = self.build_grid(n, radius, wait=wait)
         self.n_emitted = n
-        self.counters.settle()
-        return {"stored": self.n_stored, "trace_seconds": _device_seconds(events),
-                "grid_seconds": _device_seconds(grid_events), "host_seconds": time.perf_counter() - t_host}
+        info = {"host_seconds": time.perf_counter() - t_host}
+        self._queued = (info, stored, events, grid_events)
+        if wait:
+            self.complete(info)
+        return info
+
+    def complete(self, info: dict):
+        """Fill in the info of the build queued last (build(wait=False)),
+        once the queue has finished: the photons stored, the device times."""
+        queued, stored, events, grid_events = self._queued
+        if queued is not info:
+            if "stored" in info:
+                return  # (completed already: a build that waited)
+            raise RuntimeError("a photon map's info is completed after the build that returned it, and no later")
+        self.n_stored = int(stored[0])
+        info.update(stored=self.n_stored, trace_seconds=_device_seconds(events),
+                    grid_seconds=_device_seconds(grid_events))
+        self._queued = (None, None, None, None)
 
     def load(self, pos, dirs, power, radius: float):
         """Use the given photons (arrays of n x 3) instead of traced ones, and
@@ -342,8 +363,9 @@ class PhotonPass:
         self.counters.settle()
         return {"stored": n, "grid_seconds": _device_seconds(events)}
 
-    def build_grid(self, n: int, radius: float):
-        """Sort the n photon slots by bucket and fill bucket_start; returns the events."""
+    def build_grid(self, n: int, radius: float, wait: bool = True):
+        """Sort the n photon slots by bucket and fill bucket_start; returns the
+        events (with wait, once the queue has finished)."""
         q = self.dctx.queue
         self.radius = radius
         self.inv_cell = 1.0 / (GRID_CELL_RADII * radius)
@@ -371,7 +393,8 @@ class PhotonPass:
             self.sorted_keys = self.keys[src]
             events.append(self._launch("photon_occupancy", self.k_occ, n, self.raw[0], np.uint32(n),
                                        self.real(self.inv_cell), np.uint32(self.occ_bits - 1), self.occ))
-        q.finish()
+        if wait:
+            q.finish()
         return events
 
     def stored_power(self) -> list[float]:

@@ -246,6 +246,7 @@ __kernel void probe_gather(__global const float4 *ph_pos, __global const float4 
     pm.pos = ph_pos; pm.dir = ph_dir; pm.pow = ph_pow; pm.bucket_start = bucket_start;
     pm.mask = mask; pm.max_photons = max_photons; pm.budget = budget;
     pm.radius = radius; pm.inv_cell = inv_cell; pm.cone_k = cone_k; pm.mis_k = R(0);
+    photon_map_derive(&pm);
     __global const real *a = q + 10 * i;
     real3 x = (real3)(a[0], a[1], a[2]), n = (real3)(a[3], a[4], a[5]), d = (real3)(a[6], a[7], a[8]);
     real m2 = R(0);  // (no second moment: lw = 0)
