@@ -214,11 +214,17 @@ def _parallel_builds() -> bool:
 
 
 def device_options(dctx) -> list:
-    """Build options that follow the device: on a CPU, CLPT_PREFETCH (the
-    CPU runtimes compile with clang, whose __builtin_prefetch becomes a
-    prefetch instruction: kernels/scene.h scene_prefetch). The environment
-    variable CLPT_PREFETCH=0 leaves it out; images are the same either way."""
-    if getattr(dctx, "is_cpu", False) and os.environ.get("CLPT_PREFETCH", "1") != "0":
+    """Build options that follow the device: CLPT_PREFETCH on PoCL's CPU
+    devices and Intel's CPU runtime, which compile with clang, whose
+    __builtin_prefetch becomes a prefetch instruction (kernels/scene.h
+    scene_prefetch). Not elsewhere: Oclgrind, which reports every device
+    type, cannot run the intrinsic, and GPU compilers are not known to take
+    the builtin. The environment variable CLPT_PREFETCH=0 leaves it out;
+    images are the same either way."""
+    if os.environ.get("CLPT_PREFETCH", "1") == "0" or not getattr(dctx, "is_cpu", False):
+        return []
+    if getattr(dctx, "is_pocl", False) or ("intel" in dctx.platform.lower()
+                                            and dctx.device.type == cl.device_type.CPU):
         return ["-DCLPT_PREFETCH=1"]
     return []
 

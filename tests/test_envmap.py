@@ -297,9 +297,35 @@ def test_prefetching_a_large_map_leaves_the_image_unchanged(device_spec, dctx, m
     assert np.isfinite(images[0]).all() and images[0].mean() > 0
     assert np.array_equal(images[0], images[1])
     monkeypatch.setenv("CLPT_PREFETCH", "1")
-    assert device_options(dctx) == (["-DCLPT_PREFETCH=1"] if dctx.is_cpu else [])
+    if dctx.is_pocl or dctx.platform.lower().startswith("intel"):
+        assert device_options(dctx) == ["-DCLPT_PREFETCH=1"]
     monkeypatch.setenv("CLPT_PREFETCH", "0")
     assert device_options(dctx) == []
+
+
+def test_prefetch_is_built_only_for_clang_cpu_runtimes(monkeypatch):
+    """CLPT_PREFETCH goes to PoCL's and Intel's CPU devices, not to Oclgrind
+    (which reports every device type, CPU included, and cannot run the
+    intrinsic) nor to GPUs; CLPT_PREFETCH=0 turns it off."""
+    import types
+
+    import pyopencl as cl
+
+    from clpt.program import device_options
+
+    def fake(platform, kind, pocl=False):
+        return types.SimpleNamespace(platform=platform, is_pocl=pocl, is_cpu=bool(kind & cl.device_type.CPU),
+                                     device=types.SimpleNamespace(type=kind))
+    on = ["-DCLPT_PREFETCH=1"]
+    monkeypatch.delenv("CLPT_PREFETCH", raising=False)
+    assert device_options(fake("Portable Computing Language", cl.device_type.CPU, pocl=True)) == on
+    assert device_options(fake("Intel(R) OpenCL", cl.device_type.CPU)) == on
+    assert device_options(fake("Oclgrind", cl.device_type.ALL)) == []
+    assert device_options(fake("Intel(R) OpenCL Graphics", cl.device_type.GPU)) == []
+    assert device_options(fake("NVIDIA CUDA", cl.device_type.GPU)) == []
+    assert device_options(fake("Portable Computing Language", cl.device_type.GPU, pocl=True)) == []
+    monkeypatch.setenv("CLPT_PREFETCH", "0")
+    assert device_options(fake("Intel(R) OpenCL", cl.device_type.CPU)) == []
 
 
 def _xml(tmp_path, emitters, shapes='<shape type="rectangle"><bsdf type="diffuse"/></shape>'):
