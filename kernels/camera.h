@@ -96,10 +96,13 @@ CLPT_INLINE vreal filter_sample_offset(const FilterRec *f, int kind, vreal u, vr
         return clamp(filter_tent_inverse(mad(u, b - a, a), r), lo, hi);
     }
     if (kind == 2) {
+        // Lane by lane: a pixel by the film's edge takes its restricted range, the others exactly
+        // [0, 1], whatever pixels the work-item's other lanes hold (they take pixels in turn).
         vreal a = (vreal)R(0), b = (vreal)R(1);
-        if (VANY(lo > -r || hi < r)) {  // a pixel by the film's edge
-            a = filter_gaussian_cdf(lo * (R(1) / r));
-            b = filter_gaussian_cdf(hi * (R(1) / r));
+        vmask edge = lo > -r || hi < r;
+        if (VANY(edge)) {
+            a = VSEL(a, filter_gaussian_cdf(lo * (R(1) / r)), edge);
+            b = VSEL(b, filter_gaussian_cdf(hi * (R(1) / r)), edge);
         }
         return clamp(filter_gaussian_inverse(mad(u, b - a, a)) * r, lo, hi);
     }

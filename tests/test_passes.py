@@ -4,6 +4,7 @@ kernels' parameters, and the launch record every field of which the host
 sets; then, on the device, a worker's "photons" item (the photon pilot's
 job) and the tuning trial as a job of its own."""
 
+import dataclasses
 import math
 import re
 from pathlib import Path
@@ -150,16 +151,24 @@ def test_trace_pass_records_for_ranges_and_pixel_lists(device_spec):
     assert (got[:, 3] == pixels).all() and (got[:, 0] == 2).all()
 
 
+def _gaussian_box():
+    s = clpt.load_scene("cornell_box")
+    return dataclasses.replace(s, camera=dataclasses.replace(s.camera, pixel_filter=clpt.PixelFilter("gaussian")))
+
+
 @pytest.mark.parametrize("scene,kw", [
     ("cornell_box", dict(spp=12, adaptive=clpt.AdaptiveSettings(min_spp=4, pass_spp=4), aux=True)),
     ("cornell_box_caustics", dict(spp=16)),
+    (_gaussian_box, dict(spp=12)),
 ])
 def test_lanes_taking_pixels_in_turn_give_the_same_bits(device_spec, monkeypatch, scene, kw):
     """A lane that has finished its pixel takes the work-item's next one
     (kernels/film.h lane_next): the image, the sample counts, the features and
     the ray counts are the same bits as with one pixel per lane, on an image
     whose pixels do not fill the last work-item, in uniform and adaptive
-    passes and with photon merging."""
+    passes, with photon merging, and with a Gaussian pixel filter (whose
+    samples by the film's edge are drawn lane by lane: kernels/camera.h)."""
+    scene = scene() if callable(scene) else scene
     kw = dict(width=23, height=13, seed=5, max_depth=16, **kw)
     aux = kw.pop("aux", False)
     out = {}
