@@ -412,6 +412,23 @@ inline V3 env_eval(const Scene *sc, uint r, V3 d, vmask m, vreal *pdf_sa)
     return Le;
 }
 
+// The slot of the map's alias tables (at texel record base, w x h) that
+// (u1, u2) name for the lanes in m: the rows' cells' tables at *rows and the
+// rows' at *marg (ENV_ALIAS); the column *jx and row *jy drawn uniformly, and
+// the fractions (*fxs, *fys) they leave. Lanes outside m draw cell (0, 0):
+// their fetches share cached lines.
+inline void env_slot_of(uint base, uint w, uint h, vmask m, vreal u1, vreal u2, uint *rows, uint *marg, vreal *jx,
+                        vreal *jy, vreal *fxs, vreal *fys)
+{
+    *rows = base + w * h;
+    *marg = *rows + (w * (h - 1u) + ENVA_ENTRIES - 1u) / ENVA_ENTRIES;
+    vreal sx = u1 * (real)w, sy = u2 * (real)(h - 1u);
+    *jx = VSEL((vreal)R(0), fmin(floor(sx), (vreal)(real)(w - 1u)), m);
+    *jy = VSEL((vreal)R(0), fmin(floor(sy), (vreal)(real)(h - 2u)), m);
+    *fxs = fmin(sx - *jx, (vreal)(R(1) - REAL_EPS));
+    *fys = fmin(sy - *jy, (vreal)(R(1) - REAL_EPS));
+}
+
 // A direction d (unit, world) from the environment at r for the lanes in m:
 // a row of cells by the marginal's alias table (u2), a cell in it by the
 // row's (u1), in O(1), a uniform point in the cell (the fractions the alias
@@ -428,13 +445,9 @@ inline V3 env_sample(const Scene *sc, uint r, vmask m, vreal u1, vreal u2, V3 *d
         *pdf_sa = (vreal)R(0.25 * M_1_PI);
         return v3((vreal)R(1), (vreal)R(1), (vreal)R(1));
     }
-    uint rows = base + w * h;                                              // the rows' alias tables (ENV_ALIAS)
-    uint marg = rows + (w * (h - 1u) + ENVA_ENTRIES - 1u) / ENVA_ENTRIES;  // the marginal's
-    vreal sx = u1 * (real)w, sy = u2 * (real)(h - 1u);
-    // Lanes outside m draw cell (0, 0): their fetches share cached lines.
-    vreal jx = VSEL((vreal)R(0), fmin(floor(sx), (vreal)(real)(w - 1u)), m);
-    vreal jy = VSEL((vreal)R(0), fmin(floor(sy), (vreal)(real)(h - 2u)), m);
-    vreal fxs = fmin(sx - jx, (vreal)(R(1) - REAL_EPS)), fys = fmin(sy - jy, (vreal)(R(1) - REAL_EPS));
+    uint rows, marg;
+    vreal jx, jy, fxs, fys;
+    env_slot_of(base, w, h, m, u1, u2, &rows, &marg, &jx, &jy, &fxs, &fys);
     // Every lane (an idle one's numbers are in range too) in unrolled loops that only fetch: the row's
     // slot (keep probability, alias), the cell's slot in that row, the cell's texels; the choices and
     // the fractions they leave for all lanes at once. The results are masked below.
@@ -485,11 +498,9 @@ inline void env_sample_prefetch(const Scene *sc, vmask m, vreal u1, vreal u2)
     uint w = (uint)scene_rec(sc, r + LIGHT_U).w, h = (uint)scene_rec(sc, r + LIGHT_V).w;
     if (!VANY(m))
         return;
-    uint base = (uint)scene_rec(sc, r + LIGHT_N).x, rows = base + w * h;
-    uint marg = rows + (w * (h - 1u) + ENVA_ENTRIES - 1u) / ENVA_ENTRIES;
-    vreal sx = u1 * (real)w, sy = u2 * (real)(h - 1u);
-    vreal jx = fmin(floor(sx), (vreal)(real)(w - 1u)), jy = fmin(floor(sy), (vreal)(real)(h - 2u));
-    vreal fys = sy - jy;
+    uint base = (uint)scene_rec(sc, r + LIGHT_N).x, rows, marg;
+    vreal jx, jy, fxs, fys;
+    env_slot_of(base, w, h, m, u1, u2, &rows, &marg, &jx, &jy, &fxs, &fys);
 #pragma unroll
     for (int k = 0; k < CLPT_LANES; k++) {
         if (!VLANE_M(m, k))
