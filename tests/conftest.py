@@ -2,6 +2,7 @@
 default, pinned; set CLPT_TEST_DEVICE to a `--device` selection to test another), an isolated
 kernel build cache, and probe programs that expose kernel library functions."""
 
+import faulthandler
 import os
 import sys
 import tempfile
@@ -24,6 +25,31 @@ from clpt.features import Features  # noqa: E402
 from clpt import program  # noqa: E402
 
 TESTS = Path(__file__).resolve().parent
+
+# A test that hangs (a render whose samples ran away, say) ends the run with
+# every thread's traceback on the real stderr, instead of using up CI's time
+# in silence: no test here takes more than a minute or two.
+HANG_SECONDS = float(os.environ.get("CLPT_TEST_HANG_SECONDS", "900"))
+_stderr_copy = None
+
+
+def pytest_configure(config):
+    global _stderr_copy
+    if HANG_SECONDS > 0 and _stderr_copy is None:
+        _stderr_copy = os.dup(sys.stderr.fileno())  # (output capture is suspended here)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    if _stderr_copy is not None:
+        os.write(_stderr_copy, b"")  # (fails now, not at the deadline, if the copy is gone)
+        faulthandler.dump_traceback_later(HANG_SECONDS, exit=True, file=_stderr_copy)
+    try:
+        yield
+    finally:
+        if _stderr_copy is not None:
+            faulthandler.cancel_dump_traceback_later()
+
 sys.path.insert(0, str(TESTS))
 
 

@@ -193,3 +193,38 @@ def test_equal_cpu_time_runs_fill_their_budget(tmp_path, device_spec):
     for r in runs.values():
         assert 0.3 <= r["cpu_seconds"] <= 0.8, r
         assert r["spp"] > 1 and np.isfinite(r["relmse_image"]) and r["relmse_image"] > 0
+
+
+class _FakeClock:
+    """A process_time that advances only by what a fake render costs."""
+
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self):
+        return self.t
+
+
+@pytest.mark.parametrize("per, jitter", [(2e-6, 0.0), (2e-6, 3e-3), (0.0, 3e-3)])
+def test_cpu_cost_per_spp_is_never_lost_in_a_renders_jitter(monkeypatch, per, jitter):
+    """bench's equal-CPU-time calibration: on a small image, 32 more spp can
+    cost less than the jitter of a render's fixed cost; the spp it asks for
+    a budget must stay within that budget (it once asked for 5e8 spp of a
+    16x16 image: a run of hours) and, where the cost per spp can be told
+    apart, come near it."""
+    from clpt.tools import bench
+
+    clock = _FakeClock()
+    monkeypatch.setattr(bench.time, "process_time", clock)
+    rng = np.random.default_rng(3)
+    fixed = 0.01
+
+    def render(n):  # the fixed cost, up to `jitter` more, and per spp
+        clock.t += fixed + jitter * rng.random() + per * n
+
+    got_per, got_fixed = bench.cpu_cost_per_spp(render, 0.1, max_spp=1 << 16)
+    budget = 0.5
+    spp = int((budget - got_fixed) / got_per)
+    assert fixed + per * spp <= budget * 1.1, (got_per, got_fixed, spp)
+    if per > 0:
+        assert got_per == pytest.approx(per, rel=0.1) and got_fixed == pytest.approx(fixed, abs=jitter + 1e-3)

@@ -445,6 +445,34 @@ def equal_time_methods() -> dict:
     }
 
 
+def cpu_cost_per_spp(render, spread: float, rounds: int = 3, max_spp: int = 1 << 20) -> tuple[float, float]:
+    """(CPU seconds per spp, CPU seconds per render) of render(n), n spp,
+    from the least of `rounds` timed renders at 16 spp and at n1 spp, n1
+    grown from 48 fourfold until the two differ by at least `spread`
+    seconds. A render's fixed cost jitters on a machine shared with other
+    work: on a small image 32 more spp can cost less than that jitter, and
+    a difference of zero or below would ask for an unbounded spp (a bench
+    run once went on for hours so). Where no n1 up to max_spp tells them
+    apart, the whole cost of the larger render counts per spp: an upper
+    bound, so the budget is not overrun."""
+    def least(n):
+        best = math.inf
+        for _ in range(rounds):
+            c = time.process_time()
+            render(n)
+            best = min(best, time.process_time() - c)
+        return best
+
+    n0, n1 = 16, 48
+    c0 = least(n0)
+    c1 = least(n1)
+    while c1 - c0 < spread and n1 < max_spp:
+        n1 = min(4 * n1, max_spp)
+        c1 = least(n1)
+    per = (c1 - c0) / (n1 - n0) if c1 - c0 >= spread else max(c1, 1e-6) / n1
+    return per, max(c0 - n0 * per, 0.0)
+
+
 def caustic_equal_time(scene, *, device=None, width=128, height=128, seconds=(2.0, 4.0, 16.0), reference=None,
                        ref_spp=16384, max_depth=64, methods=None, cpu=False) -> dict:
     """relMSE against a path-traced reference (caustic_reference), in the
@@ -480,19 +508,13 @@ def caustic_equal_time(scene, *, device=None, width=128, height=128, seconds=(2.
     fixed = {}
     if cpu:
         # Each method's CPU seconds per spp and per render (its pilot, a build made on the first
-        # render: a twin's), from a warm-up render and timed ones of 16 and 48 spp, the least of
-        # three rounds each (one round's figure moved by 15% on a machine shared with other work).
+        # render: a twin's), from a warm-up render and timed ones (cpu_cost_per_spp).
         for name, ps in methods.items():
             r = pt if ps is None else pm
             r.render(1, width=width, height=height, seed=1, photons=ps, max_depth=max_depth)
-            cost = {16: math.inf, 48: math.inf}
-            for _ in range(3):
-                for n in (16, 48):
-                    c = time.process_time()
-                    r.render(n, width=width, height=height, seed=1, photons=ps, max_depth=max_depth)
-                    cost[n] = min(cost[n], time.process_time() - c)
-            per_spp[name] = max((cost[48] - cost[16]) / 32, 1e-9)
-            fixed[name] = max(cost[16] - 16 * per_spp[name], 0.0)
+            per_spp[name], fixed[name] = cpu_cost_per_spp(
+                lambda n: r.render(n, width=width, height=height, seed=1, photons=ps, max_depth=max_depth),
+                0.2 * min(seconds))
     for t in seconds:
         for name, ps in methods.items():
             r = pt if ps is None else pm
@@ -505,7 +527,8 @@ def caustic_equal_time(scene, *, device=None, width=128, height=128, seconds=(2.
                     # The calibration's cost per spp (of short renders) missed by more than 10%: merging's
                     # gathers, for one, cost less as its radius shrinks. Once more, with the spp scaled
                     # by what this render's own cost says.
-                    spp = max(1, int(spp * (t - fixed[name]) / max(used - fixed[name], 1e-9)))
+                    scale = (t - fixed[name]) / max(used - fixed[name], 1e-9)
+                    spp = max(1, int(spp * min(max(scale, 0.25), 4.0)))  # (a render lost to jitter asks for no more)
                     c = time.process_time()
                     res = r.render(spp, width=width, height=height, seed=7, photons=ps, max_depth=max_depth)
             else:
