@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -60,23 +61,31 @@ def test_a_device_failing_mid_render_leaves_its_work_to_the_other(device_spec):
     ph = clpt.PhotonSettings(count=20_000, progressive=False, pilot=False)  # one map: ranges of any size
     one = clpt.Renderer("cornell_box_caustics", device=dev).render(16, width=16, height=16, seed=9, photons=ph)
     r = clpt.Renderer("cornell_box_caustics", device=[dev, dev])
-    bad = r.states[1]
-    real_run, calls = bad.run, []
+    good, bad = r.states
+    real_run, good_run, calls = bad.run, good.run, []
+    failed = threading.Event()
 
     def failing(item):
         calls.append(item)
         if len(calls) > 2:
+            failed.set()
             raise clpt.DeviceError("device lost (CL_OUT_OF_RESOURCES)")
         return real_run(item)
 
-    bad.run = failing
+    def waiting(item):
+        # The other device's work waits for the failure: else, on a busy machine, it could take
+        # every range before the failing one had its third (and the test would test nothing).
+        failed.wait(timeout=60)
+        return good_run(item)
+
+    bad.run, good.run = failing, waiting
     with pytest.warns(UserWarning, match="device lost"):
         two = r.render(16, width=16, height=16, seed=9, pass_seconds=1e-9, photons=ph)
     assert len(calls) == 3 and two.stats.failures and "device lost" in two.stats.failures[0][1]
     assert (two.sample_count == 16).all()
     assert np.allclose(one.image, two.image, rtol=1e-5, atol=1e-6)
     # The next render uses both devices again.
-    bad.run = real_run
+    bad.run, good.run = real_run, good_run
     again = r.render(16, width=16, height=16, seed=9, photons=ph)
     assert not again.stats.failures and len({p[0] for p in again.stats.passes}) >= 1
 
@@ -86,7 +95,6 @@ def test_a_device_process_that_dies_leaves_its_work_to_the_others(device_spec):
     render finishes on the other with every sample, and the next render
     starts a fresh process."""
     import signal
-    import threading
 
     dev = clpt.device.select_devices(device_spec)[0]
     r = clpt.Renderer("cornell_box", device=[dev, dev])
