@@ -24,13 +24,28 @@ LOCAL_SIZE_GPU = 64
 # has more than one lane: a lane that has finished its pixel takes the
 # work-item's next one (kernels/film.h), so only the last pixels leave lanes
 # idle. One pixel per lane, a launch of 8 samples per pixel (a progressive
-# photon map's) kept 70% of the lanes busy on the caustics box.
+# photon map's) kept 70% of the lanes busy on the caustics box. At most
+# LANE_PIXELS: a launch too small to give every compute unit GROUPS_PER_UNIT
+# work-groups so takes fewer, down to one per lane (work_item_entries).
 LANE_PIXELS = 4
+GROUPS_PER_UNIT = 4
 
 
-def work_item_entries(lanes: int) -> int:
-    """Pixels or list entries one trace_paths work-item takes."""
-    return lanes * LANE_PIXELS if lanes > 1 else 1
+def work_item_entries(lanes: int, n: int | None = None, units: int = 1, local: int = 1) -> int:
+    """Pixels or list entries one trace_paths work-item takes (the launch
+    record's wi_entries): lanes x LANE_PIXELS, or, for a launch over n of them
+    on `units` compute units in work-groups of `local`, the most (a multiple
+    of the lanes, at least one per lane) that still leaves GROUPS_PER_UNIT
+    work-groups per unit. A work-group runs on one CPU thread, so with four
+    pixels per lane a 32x32 image was one work-group of 16 lanes' items: one
+    core busy. Images are the same bits whatever a work-item takes."""
+    if lanes <= 1:
+        return 1
+    most = lanes * LANE_PIXELS
+    if n is None:
+        return most
+    fit = n // max(1, GROUPS_PER_UNIT * units * local)
+    return max(lanes, min(most, fit // lanes * lanes))
 
 # Ray-origin offsets (kernels/scene.h offset_distance): OFFSET_REL times the
 # magnitudes the hit point's rounding error follows (the point's, the ray

@@ -21,22 +21,18 @@
 #define NO_PIXEL 0xFFFFFFFFu
 
 // --- the lanes' pixels -------------------------------------------------------------
-// A work-item takes WI_ENTRIES consecutive entries: pixels of the image
+// A work-item takes L->wi_entries consecutive entries: pixels of the image
 // (row-major, from group_offset work-items on), all taking samples
 // [sample_begin, sample_begin + n_samples); or, when n_list > 0 (adaptive
 // sampling), entries of jobs, each (samples, max depth, first sample, pixel):
 // the host continues each pixel's sample sequence where it stands. With
 // lanes, each lane takes the next entry not yet taken as soon as it has
-// finished its own (lane_next), CLPT_LANE_PIXELS entries per lane on average
-// (clpt/constants.py): a lane whose paths ran short then takes more pixels
-// instead of idling until the slowest lane's last path ends. One lane takes
-// all of a pixel's samples, in order, so its sums are the same bits however
-// the entries fell to lanes.
-#if CLPT_LANES > 1
-#define WI_ENTRIES (CLPT_LANES * CLPT_LANE_PIXELS)
-#else
-#define WI_ENTRIES 1
-#endif
+// finished its own (lane_next), up to CLPT_LANE_PIXELS entries per lane on
+// average (the host takes fewer where a launch would leave compute units
+// idle: clpt/constants.py work_item_entries); a lane whose paths ran short
+// then takes more pixels instead of idling until the slowest lane's last
+// path ends. One lane takes all of a pixel's samples, in order, so its sums
+// are the same bits however the entries fell to lanes and work-items.
 typedef struct {
     vuint pixel;     // row-major index (NO_PIXEL: none)
     vuint s_begin;   // index of the pixel's first sample here
@@ -60,11 +56,11 @@ inline LaneJobs lane_jobs_none(void)
 inline uint4 lane_entry(const TraceLaunch *L, __global const uint4 *jobs, uint gid, uint k)
 {
     if (L->n_list == 0) {
-        uint p = (L->group_offset + gid) * WI_ENTRIES + k;
+        uint p = (L->group_offset + gid) * L->wi_entries + k;
         return p < L->width * L->height ? (uint4)(L->n_samples, L->max_depth, L->sample_begin, p)
                                         : (uint4)(0u, 0u, 0u, NO_PIXEL);
     }
-    uint e = gid * WI_ENTRIES + k;
+    uint e = gid * L->wi_entries + k;
     return e < L->n_list ? jobs[e] : (uint4)(0u, 0u, 0u, NO_PIXEL);
 }
 
@@ -73,7 +69,7 @@ inline uint4 lane_entry(const TraceLaunch *L, __global const uint4 *jobs, uint g
 inline uint lane_take(LaneJobs *j, int l, const TraceLaunch *L, __global const uint4 *jobs, uint gid)
 {
     uint4 e = (uint4)(0u, 0u, 0u, NO_PIXEL);
-    while (j->next < WI_ENTRIES) {
+    while (j->next < L->wi_entries) {
         e = lane_entry(L, jobs, gid, j->next++);
         if (e.x > 0u && e.w < L->width * L->height)
             break;

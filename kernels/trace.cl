@@ -7,9 +7,10 @@
 // into launches or on the work-group size, so an image is bit-identical
 // however it was scheduled.
 //
-// Launch: one work-item per WI_ENTRIES (CLPT_LANES x CLPT_LANE_PIXELS with
-// lanes) consecutive pixels, or entries of an adaptive pass's list (film.h);
-// global size = groups (or entries / WI_ENTRIES), any local size. Each lane
+// Launch: one work-item per wi_entries (at most CLPT_LANES x CLPT_LANE_PIXELS
+// with lanes) consecutive pixels, or entries of an adaptive pass's list
+// (film.h); global size = pixels (or entries) / wi_entries, in whole groups
+// of any local size. Each lane
 // starts a new path as soon as its previous one ends, and takes the
 // work-item's next pixel as soon as it has finished its own, so lanes stay
 // busy while paths have different lengths. Everything by value is in the launch record

@@ -139,13 +139,16 @@ def test_trace_pass_records_for_ranges_and_pixel_lists(device_spec):
     rec, gsize = w.trace.item_record(job.seed, WorkItem("samples", 2, 5))
     assert (rec["sample_begin"], rec["n_samples"], rec["n_list"], rec["group_offset"]) == (2, 5, 0, 0)
     assert (rec["width"], rec["height"], rec["seed"]) == (20, 12, 3)
-    assert w.trace.entries == work_item_entries(4) == 4 * LANE_PIXELS  # pixels a work-item takes
-    assert gsize % w.local == 0 and gsize * w.trace.entries >= 240
+    assert w.trace.entries == work_item_entries(4) == 4 * LANE_PIXELS  # the most pixels a work-item takes
+    e = int(rec["wi_entries"])  # (240 pixels: one per lane, so that the groups spread over the units)
+    assert e == w.trace.entries_for(240) and 4 <= e <= w.trace.entries and e % 4 == 0
+    assert gsize % w.local == 0 and gsize * e >= 240 and (gsize - w.local) * e < 240
     pixels = np.array([5, 6, 7, 100, 101])
     jobs = np.zeros((5, 4), np.uint32)
     jobs[:, 0] = 2
     rec, gsize = w.trace.item_record(job.seed, WorkItem("pixels", pixels=pixels, jobs=jobs))
-    assert (rec["n_list"], rec["n_samples"]) == (5, 0) and gsize == w.local  # one work-item's worth, whole groups
+    assert (rec["n_list"], rec["n_samples"], rec["wi_entries"]) == (5, 0, 4)
+    assert gsize == w.local  # two work-items' worth, in a whole group
     got = np.empty((5, 4), np.uint32)
     cl.enqueue_copy(w.dctx.queue, got, w.trace.jobs_buf)
     assert (got[:, 3] == pixels).all() and (got[:, 0] == 2).all()
@@ -177,6 +180,7 @@ def test_lanes_taking_pixels_in_turn_give_the_same_bits(device_spec, monkeypatch
         r = clpt.Renderer(scene, device=device_spec, lanes=8, aux=aux)
         res = r.render(**kw)
         assert r.states[0].trace.entries == 8 * lp
+        assert r.states[0].trace.entries_for(1 << 20) == 8 * lp
         out[lp] = res
     a, b = out[1], out[3]
     assert np.array_equal(a.image, b.image) and np.array_equal(a.sample_count, b.sample_count)
@@ -187,6 +191,37 @@ def test_lanes_taking_pixels_in_turn_give_the_same_bits(device_spec, monkeypatch
     for k in (a.aux or {}):
         assert np.array_equal(np.asarray(a.aux[k]), np.asarray(b.aux[k])), k
     assert bool(a.aux) == aux
+
+
+@pytest.mark.parametrize("lanes, n, units, local, want", [
+    (1, 10**6, 2, 16, 1),          # one lane: one pixel
+    (16, 128 * 128, 2, 16, 64),    # 128 work-groups per unit even at four pixels a lane
+    (16, 64 * 64, 2, 16, 32),      # two pixels a lane: 8 work-groups, 4 per unit
+    (16, 32 * 32, 2, 16, 16),      # one pixel a lane (fewer would idle lanes): 4 work-groups
+    (16, 32 * 32, 64, 16, 16),     # a many-core CPU: never below one pixel per lane
+    (8, 1920 * 1080, 64, 16, 32),  # 64 units, a full HD image: four pixels a lane
+    (8, 512 * 512, 64, 16, 32),    # 512 x 512 on 64 units: four pixels a lane
+    (8, 256 * 256, 64, 16, 16),    # 256 x 256 on 64 units: two pixels a lane
+])
+def test_work_item_entries_keep_every_unit_busy(lanes, n, units, local, want):
+    e = work_item_entries(lanes, n, units, local)
+    assert e == want and e % lanes == 0 and lanes <= max(e, lanes) <= lanes * LANE_PIXELS
+    groups = -(-(-(-n // e)) // local)
+    assert groups >= constants.GROUPS_PER_UNIT * units or e == lanes
+
+
+def test_entries_per_work_item_leave_the_bits_alone(device_spec):
+    """An image whose launches take one pixel per lane (a small one) and
+    the same image with four per lane: the same bits."""
+    r = clpt.Renderer("cornell_box_caustics", device=device_spec, lanes=8)
+    t = r.states[0].trace
+    kw = dict(spp=6, width=40, height=24, seed=2, max_depth=12)
+    a = r.render(**kw)
+    assert t.wi_entries < t.entries  # (2 work-groups per unit at most on any CPU here)
+    t.entries_for = lambda n: t.entries
+    b = r.render(**kw)
+    assert t.wi_entries == t.entries
+    assert np.array_equal(a.image, b.image) and np.array_equal(a.lum_var, b.lum_var)
 
 
 def test_run_item_runs_one_item_on_the_first_live_worker():

@@ -113,7 +113,7 @@ for _record, _names in ((TraceArgs, TRACE_ARGS + AUX_ARGS + PHOTON_ARGS), (Photo
         raise TypeError(f"{_record.__name__}'s fields are not the kernel's parameters {', '.join(_names)}")
 
 # The TraceLaunch fields a launch sets for its item; start() sets the others.
-ITEM_FIELDS = ("seed", "sample_begin", "n_samples", "n_list", "photons")
+ITEM_FIELDS = ("seed", "sample_begin", "n_samples", "n_list", "wi_entries", "photons")
 IMAGE_FIELDS = ("scene", "camera", "lum_scale", "width", "height", "group_offset", "max_depth", "rr_depth",
                 "aux_specular", "hide_emitters", "pixel_filter")
 
@@ -141,19 +141,27 @@ class TracePass:
         self.kernel = cl.Kernel(program, "trace_paths")
         self.launch_buf = RecordBuffer(dctx, trace_record(features.double))
         self.local = local_size(dctx)
-        self.entries = work_item_entries(features.lanes)  # as the program was built with (kernels/film.h)
+        # Entries per work-item: at most lanes x LANE_PIXELS; fewer in launches too small to keep
+        # every compute unit busy (work_item_entries).
+        self.units = max(1, int(getattr(dctx.device, "max_compute_units", 1) or 1))
+        self.entries = work_item_entries(features.lanes)
         self.counters = Counters()
         self.launched = False    # the first launch may include a lazy device compile
         self.record = None
         self.stats_buf = self.jobs_buf = None
         self.stats_host = np.empty((0, 4), np.uint32)
 
+    def entries_for(self, n: int) -> int:
+        """Entries a work-item takes in a launch over n pixels or list entries."""
+        return work_item_entries(self.features.lanes, n, self.units, self.local)
+
     def buffer_bytes_for(self, n_pix: int) -> int:
-        return _groups(n_pix, self.entries, self.local) * 16
+        return _groups(n_pix, self.entries_for(n_pix), self.local) * 16
 
     def allocate(self, n_pix: int):
         """Buffers for launches over n_pix pixels (DeviceError if they do not fit)."""
-        self.global_size = _groups(n_pix, self.entries, self.local)
+        self.wi_entries = self.entries_for(n_pix)
+        self.global_size = _groups(n_pix, self.wi_entries, self.local)
         ctx, rw = self.dctx.context, cl.mem_flags.READ_WRITE
         try:
             self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
@@ -186,10 +194,12 @@ class TracePass:
         if item.kind == "pixels":
             n_list = len(item.pixels)
             rec["sample_begin"], rec["n_samples"], rec["n_list"] = 0, 0, n_list
-            global_size = _groups(n_list, self.entries, self.local)
+            rec["wi_entries"] = self.entries_for(n_list)
+            global_size = _groups(n_list, int(rec["wi_entries"]), self.local)
             self._pixel_list(item, global_size)
         else:
             rec["sample_begin"], rec["n_samples"], rec["n_list"] = item.s0, item.n, 0
+            rec["wi_entries"] = self.wi_entries
             global_size = self.global_size
         if lookup is not None:
             lookup(rec["photons"])
