@@ -127,7 +127,6 @@ def kernel_defines() -> str:
         f"#define CLPT_OFFSET_REL_FLOAT {OFFSET_REL['float']!r}",
         f"#define CLPT_OFFSET_REL_DOUBLE {OFFSET_REL['double']!r}",
         f"#define CLPT_GAUSSIAN_TABLE_BINS {GAUSSIAN_TABLE_BINS}",
-        f"#define CLPT_LANE_PIXELS {LANE_PIXELS}",
         f"#define CLPT_GAUSSIAN_HALF_MASS {GAUSSIAN_HALF_MASS!r}",
     ]
     lines.append("#define CLPT_GAUSSIAN_TABLE_S {" + ", ".join(repr(float(x)) for x in gaussian_filter_table())

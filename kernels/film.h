@@ -27,7 +27,7 @@
 // sampling), entries of jobs, each (samples, max depth, first sample, pixel):
 // the host continues each pixel's sample sequence where it stands. With
 // lanes, each lane takes the next entry not yet taken as soon as it has
-// finished its own (lane_next), up to CLPT_LANE_PIXELS entries per lane on
+// finished its own (lane_next), up to LANE_PIXELS entries per lane on
 // average (the host takes fewer where a launch would leave compute units
 // idle: clpt/constants.py work_item_entries); a lane whose paths ran short
 // then takes more pixels instead of idling until the slowest lane's last

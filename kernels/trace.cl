@@ -7,7 +7,7 @@
 // into launches or on the work-group size, so an image is bit-identical
 // however it was scheduled.
 //
-// Launch: one work-item per wi_entries (at most CLPT_LANES x CLPT_LANE_PIXELS
+// Launch: one work-item per wi_entries (at most CLPT_LANES x LANE_PIXELS
 // with lanes) consecutive pixels, or entries of an adaptive pass's list
 // (film.h); global size = pixels (or entries) / wi_entries, in whole groups
 // of any local size. Each lane

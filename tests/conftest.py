@@ -25,6 +25,7 @@ from clpt.features import Features  # noqa: E402
 from clpt import program  # noqa: E402
 
 TESTS = Path(__file__).resolve().parent
+sys.path.insert(0, str(TESTS))
 
 # A test that hangs (a render whose samples ran away, say) ends the run with
 # every thread's traceback on the real stderr, instead of using up CI's time
@@ -49,8 +50,6 @@ def pytest_runtest_protocol(item, nextitem):
     finally:
         if _stderr_copy is not None:
             faulthandler.cancel_dump_traceback_later()
-
-sys.path.insert(0, str(TESTS))
 
 
 @pytest.fixture(scope="session")

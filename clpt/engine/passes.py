@@ -145,6 +145,7 @@ class TracePass:
         # every compute unit busy (work_item_entries).
         self.units = max(1, int(getattr(dctx.device, "max_compute_units", 1) or 1))
         self.entries = work_item_entries(features.lanes)
+        self.wi_entries = self.entries  # this image's launches' (allocate)
         self.counters = Counters()
         self.launched = False    # the first launch may include a lazy device compile
         self.record = None
