@@ -131,11 +131,12 @@ def demodulate(color, var, albedo):
 
 class Planar:
     """Planar images as filter.cl lays them out: rows of `pitch` (the width
-    rounded up to 8) floats, each plane with `margin` zeros before and after."""
+    rounded up to 16: whole work-items of 8 or 16 pixels) floats, each plane
+    with `margin` zeros before and after."""
 
     def __init__(self, width: int, height: int, radius: int, max_step: int):
         self.width, self.height = width, height
-        self.pitch = -(-width // 8) * 8
+        self.pitch = -(-width // 16) * 16
         self.margin = radius * max_step + 16
         self.plane = self.pitch * height + 2 * self.margin
 

@@ -213,20 +213,30 @@ def _parallel_builds() -> bool:
     return os.environ.get("CLPT_BUILD_PROCESSES", "1") != "0" and (os.cpu_count() or 1) > 1
 
 
+def filter_pixels(dctx) -> int:
+    """Pixels per work-item of the cone filter's kernels (kernels/filter.cl
+    CLPT_FILTER_PIXELS): 16 on CPU devices, whose compilers run one float16
+    work-item faster than two float8 ones (the cone pass 1.3-1.8x on Intel's
+    runtime and PoCL), 8 elsewhere (a GPU's work-item would spill registers)."""
+    return 16 if getattr(dctx, "is_cpu", False) else 8
+
+
 def device_options(dctx) -> list:
-    """Build options that follow the device: CLPT_PREFETCH on PoCL's CPU
-    devices and Intel's CPU runtime, which compile with clang, whose
-    __builtin_prefetch becomes a prefetch instruction (kernels/scene.h
-    scene_prefetch). Not elsewhere: Oclgrind, which reports every device
-    type, cannot run the intrinsic, and GPU compilers are not known to take
-    the builtin. The environment variable CLPT_PREFETCH=0 leaves it out;
-    images are the same either way."""
+    """Build options that follow the device: the cone filter's pixels per
+    work-item where they are not the kernels' default of 8
+    (filter_pixels), and CLPT_PREFETCH on PoCL's CPU devices and Intel's CPU
+    runtime, which compile with clang, whose __builtin_prefetch becomes a
+    prefetch instruction (kernels/scene.h scene_prefetch). Not elsewhere:
+    Oclgrind, which reports every device type, cannot run the intrinsic, and
+    GPU compilers are not known to take the builtin. The environment
+    variable CLPT_PREFETCH=0 leaves it out; images are the same either way."""
+    out = [] if filter_pixels(dctx) == 8 else [f"-DCLPT_FILTER_PIXELS={filter_pixels(dctx)}"]
     if os.environ.get("CLPT_PREFETCH", "1") == "0" or not getattr(dctx, "is_cpu", False):
-        return []
+        return out
     if getattr(dctx, "is_pocl", False) or ("intel" in dctx.platform.lower()
                                             and dctx.device.type == cl.device_type.CPU):
-        return ["-DCLPT_PREFETCH=1"]
-    return []
+        out.append("-DCLPT_PREFETCH=1")
+    return out
 
 
 def build(dctx, source: str, options, use_cache: bool = True):

@@ -47,71 +47,96 @@
 // exactly constant; the variance written is the averaging's (nothing reads
 // the last pass's).
 //
-// Layout: planar images of `pitch` (the width rounded up to 8) columns, each
+// Layout: planar images of `pitch` (the width rounded up to 16) columns, each
 // plane `plane` floats long with `margin` floats before and after the pixels
 // (zeros, so that lanes outside the image read finite values):
 //   color: r, g, b, variance of the pixel mean, smoothed luminance and variance (filter_luma)
 //   guides: normal x, y, z (0 if none), emitter flag (0/1), albedo r, g, b, depth
-// All three kernels: one work-item per 8 pixels of a row, in float8 lanes
-// (global size height * pitch / 8); any local size. The lanes past the width
-// (the rows' padding) write zeros in filter_firefly and filter_luma, as the
-// host's upload would, and what the pass computes there in filter_cone; the
-// taps that read them have weight 0. The margins are never written.
+// All three kernels: one work-item per CLPT_FILTER_PIXELS (P: 8 or 16)
+// pixels of a row, in vectors of P lanes (global size height * pitch / P);
+// any local size. The host sets P by the device (clpt/program.py
+// filter_pixels): 16 on CPUs, where Intel's and PoCL's compilers run one
+// work-item's float16 faster than two work-items' float8 (the cone pass
+// 1.3-1.8x), 8 elsewhere (GPUs: a float16 per work-item would spill
+// registers). The same operations either way: the same bits. The lanes past
+// the width (the rows' padding) write zeros in filter_firefly and
+// filter_luma, as the host's upload would, and what the pass computes there
+// in filter_cone; the taps that read them have weight 0. The margins are
+// never written.
 
-inline float8 luma8(float8 r, float8 g, float8 b)
+#ifndef CLPT_FILTER_PIXELS
+#define CLPT_FILTER_PIXELS 8
+#endif
+#if CLPT_FILTER_PIXELS == 16
+typedef float16 floatP;
+typedef int16 intP;
+#define LOADP vload16
+#define STOREP vstore16
+#define PIXEL_IDS ((int16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#elif CLPT_FILTER_PIXELS == 8
+typedef float8 floatP;
+typedef int8 intP;
+#define LOADP vload8
+#define STOREP vstore8
+#define PIXEL_IDS ((intP)(0, 1, 2, 3, 4, 5, 6, 7))
+#else
+#error "CLPT_FILTER_PIXELS: 8 or 16"
+#endif
+
+inline floatP lumaP(floatP r, floatP g, floatP b)
 {
     return (float)CLPT_LUMA_R * r + (float)CLPT_LUMA_G * g + (float)CLPT_LUMA_B * b;
 }
 
-#define LD8(buf, k, off) vload8(0, (buf) + (k) * plane + (off))
+#define LDP(buf, k, off) LOADP(0, (buf) + (k) * plane + (off))
 
 __kernel void filter_firefly(__global const float *color_in, uint width, uint height, uint pitch, uint plane,
                              uint margin, float k, float k_confirm, int any_nan, __global float *color_out)
 {
     uint gid = get_global_id(0);
-    uint per_row = pitch / 8u;
+    uint per_row = pitch / (uint)CLPT_FILTER_PIXELS;
     if (gid >= per_row * height)
         return;
-    int y = (int)(gid / per_row), x0 = (int)(gid % per_row) * 8;
+    int y = (int)(gid / per_row), x0 = (int)(gid % per_row) * CLPT_FILTER_PIXELS;
     int ym = (int)height - 1;
-    int8 xs = (int8)(x0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    int8 inside = xs < (int)width;
+    intP xs = (intP)(x0) + PIXEL_IDS;
+    intP inside = xs < (int)width;
     int o = (int)margin + y * (int)pitch + x0;
     // Pixels outside the image count as +inf variance, n as 0 luminance (rows
     // outside read a clamped row's address, columns the padding or the margin).
-    float8 v[9];
-    int8 n = 0;
-    float8 lmax = -INFINITY;
+    floatP v[9];
+    intP n = 0;
+    floatP lmax = -INFINITY;
     for (int dy = -1; dy <= 1; dy++) {
         int qy = y + dy;
         int row_in = qy >= 0 && qy <= ym;
         int off = (int)margin + clamp(qy, 0, ym) * (int)pitch + x0;
         for (int dx = -1; dx <= 1; dx++) {
-            int8 qx = xs + dx;
-            int8 in = qx >= 0 && qx < (int)width && (int8)(row_in ? -1 : 0);
-            v[(dy + 1) * 3 + dx + 1] = select((float8)(INFINITY), LD8(color_in, 3, off + dx), in);
+            intP qx = xs + dx;
+            intP in = qx >= 0 && qx < (int)width && (intP)(row_in ? -1 : 0);
+            v[(dy + 1) * 3 + dx + 1] = select((floatP)(INFINITY), LDP(color_in, 3, off + dx), in);
             n -= in;  // in: -1 where true
             if (dx != 0 || dy != 0)
-                lmax = select(lmax, fmax(lmax, luma8(LD8(color_in, 0, off + dx), LD8(color_in, 1, off + dx),
-                                                     LD8(color_in, 2, off + dx))), in);
+                lmax = select(lmax, fmax(lmax, lumaP(LDP(color_in, 0, off + dx), LDP(color_in, 1, off + dx),
+                                                     LDP(color_in, 2, off + dx))), in);
         }
     }
     // The median of the n variances in the image: the one of rank n / 2 (ties
     // ranked by position; n / 2 <= 4 and the outside's +inf rank last).
-    float8 vmed = 0.0f;
-    int8 mid = n / 2;
+    floatP vmed = 0.0f;
+    intP mid = n / 2;
     if (any_nan) {  // by the ranks (min and max would drop a NaN; the host says where the image has one)
         for (int a = 0; a < 9; a++) {
-            int8 rank = 0;
+            intP rank = 0;
             for (int b = 0; b < 9; b++)
-                rank -= v[b] < v[a] || (b < a ? (v[b] == v[a]) : (int8)(0));
+                rank -= v[b] < v[a] || (b < a ? (v[b] == v[a]) : (intP)(0));
             vmed = select(vmed, v[a], rank == mid);
         }
     } else {
         // the 5 smallest in order, by a selection network (Batcher's odd-even
         // merge sort of 16, pruned to 9 inputs and to the outputs 0-4: 23
         // compare-exchanges, checked on all 2^9 inputs of 0s and 1s)
-#define CE(i, j) { float8 lo = fmin(v[i], v[j]); v[j] = fmax(v[i], v[j]); v[i] = lo; }
+#define CE(i, j) { floatP lo = fmin(v[i], v[j]); v[j] = fmax(v[i], v[j]); v[i] = lo; }
         CE(0, 1) CE(2, 3) CE(0, 2) CE(1, 3) CE(1, 2) CE(4, 5) CE(6, 7) CE(4, 6) CE(5, 7) CE(5, 6) CE(0, 4) CE(2, 6)
         CE(2, 4) CE(1, 5) CE(3, 7) CE(3, 5) CE(1, 2) CE(3, 4) CE(0, 8) CE(4, 8) CE(2, 4) CE(1, 2) CE(3, 4)
 #undef CE
@@ -119,21 +144,21 @@ __kernel void filter_firefly(__global const float *color_in, uint width, uint he
         for (int a = 1; a < 5; a++)
             vmed = select(vmed, v[a], mid == a);
     }
-    float8 r = LD8(color_in, 0, o), g = LD8(color_in, 1, o), b = LD8(color_in, 2, o), var = LD8(color_in, 3, o);
-    float8 bound = lmax + k * sqrt(vmed);
-    float8 lp = luma8(r, g, b);
+    floatP r = LDP(color_in, 0, o), g = LDP(color_in, 1, o), b = LDP(color_in, 2, o), var = LDP(color_in, 3, o);
+    floatP bound = lmax + k * sqrt(vmed);
+    floatP lp = lumaP(r, g, b);
     // Brightness the pixel's own samples confirm is kept: it is clamped only
     // where its excess over the bound is within k_confirm of its own standard errors
     // (a firefly's standard error is about its value; a highlight's, a lamp's
     // reflection's, a caustic's, seen by most of the pixel's samples, is not).
-    int8 clip = n > 1 && lp > bound && lp - k_confirm * sqrt(var) <= bound;
-    float8 s = fmax(bound, 0.0f) / lp;
+    intP clip = n > 1 && lp > bound && lp - k_confirm * sqrt(var) <= bound;
+    floatP s = fmax(bound, 0.0f) / lp;
     r = select(r, r * s, clip); g = select(g, g * s, clip); b = select(b, b * s, clip);
     var = select(var, vmed, clip);
-    vstore8(select((float8)(0.0f), r, inside), 0, color_out + o);
-    vstore8(select((float8)(0.0f), g, inside), 0, color_out + plane + o);
-    vstore8(select((float8)(0.0f), b, inside), 0, color_out + 2 * plane + o);
-    vstore8(select((float8)(0.0f), var, inside), 0, color_out + 3 * plane + o);
+    STOREP(select((floatP)(0.0f), r, inside), 0, color_out + o);
+    STOREP(select((floatP)(0.0f), g, inside), 0, color_out + plane + o);
+    STOREP(select((floatP)(0.0f), b, inside), 0, color_out + 2 * plane + o);
+    STOREP(select((floatP)(0.0f), var, inside), 0, color_out + 3 * plane + o);
 }
 
 // filter_luma: planes 4 and 5 of color, the luminance of planes 0-2 and the
@@ -142,41 +167,41 @@ __kernel void filter_firefly(__global const float *color_in, uint width, uint he
 __kernel void filter_luma(__global float *color, uint width, uint height, uint pitch, uint plane, uint margin)
 {
     uint gid = get_global_id(0);
-    uint per_row = pitch / 8u;
+    uint per_row = pitch / (uint)CLPT_FILTER_PIXELS;
     if (gid >= per_row * height)
         return;
-    int y = (int)(gid / per_row), x0 = (int)(gid % per_row) * 8;
-    int8 xs = (int8)(x0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    float8 s = 0.0f, sv = 0.0f, ws = 0.0f;
+    int y = (int)(gid / per_row), x0 = (int)(gid % per_row) * CLPT_FILTER_PIXELS;
+    intP xs = (intP)(x0) + PIXEL_IDS;
+    floatP s = 0.0f, sv = 0.0f, ws = 0.0f;
     for (int dy = -1; dy <= 1; dy++) {
         int qy = y + dy;
         if (qy < 0 || qy >= (int)height)
             continue;
         int off = (int)margin + qy * (int)pitch + x0;
         for (int dx = -1; dx <= 1; dx++) {
-            int8 qx = xs + dx;
-            int8 in = qx >= 0 && qx < (int)width;
+            intP qx = xs + dx;
+            intP in = qx >= 0 && qx < (int)width;
             float w = (float)((2 - abs(dx)) * (2 - abs(dy)));
-            float8 l = luma8(LD8(color, 0, off + dx), LD8(color, 1, off + dx), LD8(color, 2, off + dx));
+            floatP l = lumaP(LDP(color, 0, off + dx), LDP(color, 1, off + dx), LDP(color, 2, off + dx));
             s = select(s, s + w * l, in);
-            sv = select(sv, sv + w * LD8(color, 3, off + dx), in);
+            sv = select(sv, sv + w * LDP(color, 3, off + dx), in);
             ws = select(ws, ws + w, in);
         }
     }
     int o = (int)margin + y * (int)pitch + x0;
-    int8 inside = xs < (int)width;
-    vstore8(select((float8)(0.0f), s / ws, inside), 0, color + 4 * plane + o);
-    vstore8(select((float8)(0.0f), sv / ws, inside), 0, color + 5 * plane + o);
+    intP inside = xs < (int)width;
+    STOREP(select((floatP)(0.0f), s / ws, inside), 0, color + 4 * plane + o);
+    STOREP(select((floatP)(0.0f), sv / ws, inside), 0, color + 5 * plane + o);
 }
 
 
-// One work-item's 8 pixels; `fit` is a constant in each inlined copy (the
+// One work-item's P pixels; `fit` is a constant in each inlined copy (the
 // averaging passes keep fewer values live), and so is `r1`, set where the
 // radius is 1 (the default): the taps' loops then have constant trip counts
 // and unroll (a loop of run-time length in a kernel body ran several times
 // slower than the same work unrolled). The same operations in the same
 // order either way: the same bits.
-inline void cone8(__global const float *color_in, __global const float *guides, uint width, uint height,
+inline void coneP(__global const float *color_in, __global const float *guides, uint width, uint height,
                   uint pitch, uint plane, uint margin, int radius, int step, int n_pow, float sigma_depth,
                   float sigma_albedo, float sigma_lum, float guide_floor, const int fit, const int r1,
                   __global float *color_out)
@@ -184,30 +209,30 @@ inline void cone8(__global const float *color_in, __global const float *guides, 
     if (r1)
         radius = 1;
     uint gid = get_global_id(0);
-    uint per_row = pitch / 8u;
+    uint per_row = pitch / (uint)CLPT_FILTER_PIXELS;
     if (gid >= per_row * height)
         return;
-    int y = (int)(gid / per_row), x0 = (int)(gid % per_row) * 8;
+    int y = (int)(gid / per_row), x0 = (int)(gid % per_row) * CLPT_FILTER_PIXELS;
     int ym = (int)height - 1;
     int row0 = (int)margin + y * (int)pitch + x0;
-    int8 xs = (int8)(x0) + (int8)(0, 1, 2, 3, 4, 5, 6, 7);
-    float8 cr = LD8(color_in, 0, row0), cg = LD8(color_in, 1, row0), cb = LD8(color_in, 2, row0);
-    float8 cv = LD8(color_in, 3, row0);
-    float8 nx = LD8(guides, 0, row0), ny = LD8(guides, 1, row0), nz = LD8(guides, 2, row0);
-    float8 fl = LD8(guides, 3, row0);
-    float8 ar = LD8(guides, 4, row0), ag = LD8(guides, 5, row0), ab = LD8(guides, 6, row0);
-    float8 dz = LD8(guides, 7, row0);
-    int8 has_n = (nx * nx + ny * ny + nz * nz) > 0.0f;
-    float8 lp = LD8(color_in, 4, row0);
+    intP xs = (intP)(x0) + PIXEL_IDS;
+    floatP cr = LDP(color_in, 0, row0), cg = LDP(color_in, 1, row0), cb = LDP(color_in, 2, row0);
+    floatP cv = LDP(color_in, 3, row0);
+    floatP nx = LDP(guides, 0, row0), ny = LDP(guides, 1, row0), nz = LDP(guides, 2, row0);
+    floatP fl = LDP(guides, 3, row0);
+    floatP ar = LDP(guides, 4, row0), ag = LDP(guides, 5, row0), ab = LDP(guides, 6, row0);
+    floatP dz = LDP(guides, 7, row0);
+    intP has_n = (nx * nx + ny * ny + nz * nz) > 0.0f;
+    floatP lp = LDP(color_in, 4, row0);
     // p's noise: its variance smoothed over the 3x3 (filter_luma)
-    float8 inv_sl = 1.0f / (sigma_lum * sqrt(LD8(color_in, 5, row0)) + 1e-6f);
+    floatP inv_sl = 1.0f / (sigma_lum * sqrt(LDP(color_in, 5, row0)) + 1e-6f);
     float inv_sa = 1.0f / (sigma_albedo * sigma_albedo);
-    float8 inv_sd = 1.0f / (sigma_depth * fmax(dz, 1e-6f) * (float)step);
-    float8 accr = 0.0f, accg = 0.0f, accb = 0.0f;
-    float8 wsum = 1.0f, w2v = cv;  // the centre tap
+    floatP inv_sd = 1.0f / (sigma_depth * fmax(dz, 1e-6f) * (float)step);
+    floatP accr = 0.0f, accg = 0.0f, accb = 0.0f;
+    floatP wsum = 1.0f, w2v = cv;  // the centre tap
     // fit: the sums of w x, w y, w x^2, w y^2, w x y and of w x d, w y d per channel
-    float8 sx = 0.0f, sy = 0.0f, sxx = 0.0f, syy = 0.0f, sxy = 0.0f;
-    float8 fxr = 0.0f, fxg = 0.0f, fxb = 0.0f, fyr = 0.0f, fyg = 0.0f, fyb = 0.0f;
+    floatP sx = 0.0f, sy = 0.0f, sxx = 0.0f, syy = 0.0f, sxy = 0.0f;
+    floatP fxr = 0.0f, fxg = 0.0f, fxb = 0.0f, fyr = 0.0f, fyg = 0.0f, fyb = 0.0f;
     for (int dy = -radius; dy <= radius; dy++) {
         int qy = y + dy * step;
         if (qy < 0 || qy > ym)
@@ -220,11 +245,11 @@ inline void cone8(__global const float *color_in, __global const float *guides, 
             if (ws <= 0.0f)
                 continue;
             int off = (int)margin + qy * (int)pitch + x0 + dx * step;
-            int8 qx = xs + dx * step;
-            float8 mx = LD8(guides, 0, off), my = LD8(guides, 1, off), mz = LD8(guides, 2, off);
-            float8 fq = LD8(guides, 3, off);
-            int8 use = qx >= 0 && qx < (int)width && has_n == ((mx * mx + my * my + mz * mz) > 0.0f) && fl == fq;
-            float8 cn = fmax(nx * mx + ny * my + nz * mz, 0.0f), g = 1.0f;
+            intP qx = xs + dx * step;
+            floatP mx = LDP(guides, 0, off), my = LDP(guides, 1, off), mz = LDP(guides, 2, off);
+            floatP fq = LDP(guides, 3, off);
+            intP use = qx >= 0 && qx < (int)width && has_n == ((mx * mx + my * my + mz * mz) > 0.0f) && fl == fq;
+            floatP cn = fmax(nx * mx + ny * my + nz * mz, 0.0f), g = 1.0f;
             // cn^n_pow by squaring (1 <= n_pow < 128: seven bits; past the highest set
             // bit the squares go unused)
 #pragma unroll
@@ -233,22 +258,22 @@ inline void cone8(__global const float *color_in, __global const float *guides, 
                     g *= cn;
                 cn *= cn;
             }
-            g = select((float8)(1.0f), g, has_n);
-            float8 dar = ar - LD8(guides, 4, off), dag = ag - LD8(guides, 5, off), dab = ab - LD8(guides, 6, off);
-            float8 dd = fabs(dz - LD8(guides, 7, off));
+            g = select((floatP)(1.0f), g, has_n);
+            floatP dar = ar - LDP(guides, 4, off), dag = ag - LDP(guides, 5, off), dab = ab - LDP(guides, 6, off);
+            floatP dd = fabs(dz - LDP(guides, 7, off));
             g *= exp(-((dar * dar + dag * dag + dab * dab) * inv_sa + dd * inv_sd / r));
-            float8 qr = LD8(color_in, 0, off), qg = LD8(color_in, 1, off), qb = LD8(color_in, 2, off);
-            float8 qv = LD8(color_in, 3, off);
-            float8 lq = LD8(color_in, 4, off);
-            float8 w = ws * (g + guide_floor) * exp(-fabs(lp - lq) * inv_sl);
-            w = select((float8)(0.0f), w, use && w > 0.0f);
-            float8 dr = qr - cr, dg = qg - cg, db = qb - cb;
+            floatP qr = LDP(color_in, 0, off), qg = LDP(color_in, 1, off), qb = LDP(color_in, 2, off);
+            floatP qv = LDP(color_in, 3, off);
+            floatP lq = LDP(color_in, 4, off);
+            floatP w = ws * (g + guide_floor) * exp(-fabs(lp - lq) * inv_sl);
+            w = select((floatP)(0.0f), w, use && w > 0.0f);
+            floatP dr = qr - cr, dg = qg - cg, db = qb - cb;
             accr += w * dr; accg += w * dg; accb += w * db;
             wsum += w;
             w2v += w * w * qv;
             if (fit) {
                 float xt = (float)dx / (float)radius, yt = (float)dy / (float)radius;
-                float8 wx = w * xt, wy = w * yt;
+                floatP wx = w * xt, wy = w * yt;
                 sx += wx; sy += wy; sxx += wx * xt; syy += wy * yt; sxy += wx * yt;
                 fxr += wx * dr; fxg += wx * dg; fxb += wx * db;
                 fyr += wy * dr; fyg += wy * dg; fyb += wy * db;
@@ -257,19 +282,19 @@ inline void cone8(__global const float *color_in, __global const float *guides, 
     }
     if (fit) {
         // a: the first row of the normal matrix's cofactors against the sums, over its determinant
-        float8 lam = 1e-3f * wsum;
-        float8 axx = sxx + lam, ayy = syy + lam;
-        float8 m0 = axx * ayy - sxy * sxy, m1 = sxy * sy - sx * ayy, m2 = sx * sxy - axx * sy;
-        float8 inv = 1.0f / (wsum * m0 + sx * m1 + sy * m2);
-        vstore8(cr + (m0 * accr + m1 * fxr + m2 * fyr) * inv, 0, color_out + row0);
-        vstore8(cg + (m0 * accg + m1 * fxg + m2 * fyg) * inv, 0, color_out + plane + row0);
-        vstore8(cb + (m0 * accb + m1 * fxb + m2 * fyb) * inv, 0, color_out + 2 * plane + row0);
+        floatP lam = 1e-3f * wsum;
+        floatP axx = sxx + lam, ayy = syy + lam;
+        floatP m0 = axx * ayy - sxy * sxy, m1 = sxy * sy - sx * ayy, m2 = sx * sxy - axx * sy;
+        floatP inv = 1.0f / (wsum * m0 + sx * m1 + sy * m2);
+        STOREP(cr + (m0 * accr + m1 * fxr + m2 * fyr) * inv, 0, color_out + row0);
+        STOREP(cg + (m0 * accg + m1 * fxg + m2 * fyg) * inv, 0, color_out + plane + row0);
+        STOREP(cb + (m0 * accb + m1 * fxb + m2 * fyb) * inv, 0, color_out + 2 * plane + row0);
     } else {
-        vstore8(cr + accr / wsum, 0, color_out + row0);
-        vstore8(cg + accg / wsum, 0, color_out + plane + row0);
-        vstore8(cb + accb / wsum, 0, color_out + 2 * plane + row0);
+        STOREP(cr + accr / wsum, 0, color_out + row0);
+        STOREP(cg + accg / wsum, 0, color_out + plane + row0);
+        STOREP(cb + accb / wsum, 0, color_out + 2 * plane + row0);
     }
-    vstore8(w2v / (wsum * wsum), 0, color_out + 3 * plane + row0);
+    STOREP(w2v / (wsum * wsum), 0, color_out + 3 * plane + row0);
 }
 
 __kernel void filter_cone(__global const float *color_in, __global const float *guides, uint width, uint height,
@@ -277,17 +302,17 @@ __kernel void filter_cone(__global const float *color_in, __global const float *
                           float sigma_albedo, float sigma_lum, float guide_floor, int fit,
                           __global float *color_out)
 {
-#define CONE8(FIT, R1) cone8(color_in, guides, width, height, pitch, plane, margin, radius, step, n_pow, \
+#define CONEP(FIT, R1) coneP(color_in, guides, width, height, pitch, plane, margin, radius, step, n_pow, \
                              sigma_depth, sigma_albedo, sigma_lum, guide_floor, FIT, R1, color_out)
     if (radius == 1) {
         if (fit)
-            CONE8(1, 1);
+            CONEP(1, 1);
         else
-            CONE8(0, 1);
+            CONEP(0, 1);
     } else if (fit) {
-        CONE8(1, 0);
+        CONEP(1, 0);
     } else {
-        CONE8(0, 0);
+        CONEP(0, 0);
     }
-#undef CONE8
+#undef CONEP
 }

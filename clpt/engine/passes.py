@@ -25,7 +25,7 @@ from ..denoise import FilterSettings, Planar, demodulate
 from ..errors import DeviceError
 from ..photons import (GRID_CELL_RADII, MAX_TABLE_BITS, PM_MERGE, PM_OFFLINE, PM_OWNED, PM_PREPASS, RADIX_BITS,
                        PhotonSettings)
-from ..program import event_seconds
+from ..program import event_seconds, filter_pixels
 from .job import AUX_SPECULAR
 from .launch import (AUX_ARGS, PHOTON_ARGS, PHOTON_PASS_ARGS, TRACE_ARGS, RecordBuffer, fill_pixel_filter, fill_scene_info,
                      photon_record, trace_record)
@@ -457,12 +457,14 @@ class FilterPass:
     """The cone filter's kernels on one device (clpt/denoise.py: settings and
     the numpy twin; kernels/filter.cl)."""
 
-    def __init__(self, dctx, program):
+    def __init__(self, dctx, program, pixels: int | None = None):
         self.dctx = dctx
         self.firefly = cl.Kernel(program, "filter_firefly")
         self.luma = cl.Kernel(program, "filter_luma")
         self.kernel = cl.Kernel(program, "filter_cone")
         self.counters = Counters()
+        # a work-item's pixels, as the program was built (device_options; or as the caller built it)
+        self.pixels = filter_pixels(dctx) if pixels is None else pixels
         self._kept = None  # (layout key, [colour, colour], guides, host staging): kept for the next image of that size
 
     def _buffers(self, lay: Planar):
@@ -508,8 +510,8 @@ class FilterPass:
         cl.enqueue_copy(q, gb, g0, is_blocking=False)
         dims = (np.uint32(w), np.uint32(h), np.uint32(lay.pitch), np.uint32(lay.plane), np.uint32(lay.margin))
         src = 0
-        local = FILTER_LOCAL_SIZE
-        items = h * lay.pitch // 8  # every kernel: one item per 8 pixels of a row
+        local = FILTER_LOCAL_SIZE * 8 // self.pixels  # the same pixels per work-group whatever the width
+        items = h * lay.pitch // self.pixels  # every kernel: one item per `pixels` pixels of a row
         gsize = -(-items // local) * local
         if settings.firefly_k > 0:
             self.counters.launched("filter_firefly", self.firefly(q, (gsize,), (local,), c[0], *dims,
