@@ -1,9 +1,11 @@
-// filter.cl: the edge-aware cone filter, as three kernels.
+// filter.cl: the edge-aware cone filter, as five kernels.
 //
-// Both work on the demodulated image (colour divided by the first-hit albedo,
-// so texture and colour edges are not blurred; the host multiplies the albedo
-// back) without the parts the host keeps out of it: emission seen directly and
-// the photon map's caustics, which are added back sharp.
+// filter_load lays the host's images out as planes (below) and demodulates
+// the colour (divides it by the first-hit albedo, so texture and colour edges
+// are not blurred); filter_store multiplies the albedo back into the host's
+// layout. The passes between work on the demodulated image, without the parts
+// the host keeps out of it: emission seen directly and the photon map's
+// caustics, which are added back sharp.
 //
 // filter_firefly: a pixel brighter than every one of its 8 neighbours by more
 // than k standard errors (the noise: the median over the 3x3 of the variances
@@ -59,9 +61,8 @@
 // work-item's float16 faster than two work-items' float8 (the cone pass
 // 1.3-1.8x), 8 elsewhere (GPUs: a float16 per work-item would spill
 // registers). The same operations either way: the same bits. The lanes past
-// the width (the rows' padding) write zeros in filter_firefly and
-// filter_luma, as the host's upload would, and what the pass computes there
-// in filter_cone; the taps that read them have weight 0. The margins are
+// the width (the rows' padding) write zeros in filter_load, filter_firefly
+// and filter_luma, and what the pass computes there in filter_cone; the taps that read them have weight 0. The margins are
 // never written.
 
 #ifndef CLPT_FILTER_PIXELS
@@ -89,6 +90,66 @@ inline floatP lumaP(floatP r, floatP g, floatP b)
 }
 
 #define LDP(buf, k, off) LOADP(0, (buf) + (k) * plane + (off))
+
+// filter_load: one work-item per pixel of the planes (pitch x height). The
+// host's images are H x W, RGB interleaved: colour, the variance of each
+// pixel mean's luminance, normal, albedo, depth and the share of samples that
+// see an emitter (NULL: none do). Colour is divided by the albedo where it is
+// above `floor` (1 elsewhere), the variance by the square of that albedo's
+// luminance (at least `floor`); the guides take the albedo as it is, and the
+// emitter flag where most samples see one.
+__kernel void filter_load(__global const float *color, __global const float *var, __global const float *normal,
+                          __global const float *albedo, __global const float *depth, __global const float *emitter,
+                          uint width, uint height, uint pitch, uint plane, uint margin, float floor,
+                          __global float *color_out, __global float *guides)
+{
+#pragma OPENCL FP_CONTRACT OFF
+    // (no fused multiply-adds: the albedo's luminance as the host's dot product
+    // gives it, so that the image is the same bits as when the host demodulated)
+    uint x = get_global_id(0), y = get_global_id(1);
+    if (x >= pitch || y >= height)
+        return;
+    uint o = margin + y * pitch + x;
+    if (x >= width) {  // the row's padding
+        for (int k = 0; k < 4; k++)
+            color_out[k * plane + o] = 0.0f;
+        for (int k = 0; k < 8; k++)
+            guides[k * plane + o] = 0.0f;
+        return;
+    }
+    uint i = y * width + x;
+    float3 a = vload3(i, albedo);
+    float3 alb = select((float3)(1.0f), a, a > floor);
+    float la = fmax((float)CLPT_LUMA_R * alb.x + (float)CLPT_LUMA_G * alb.y + (float)CLPT_LUMA_B * alb.z, floor);
+    float3 c = vload3(i, color) / alb;
+    float3 n = vload3(i, normal);
+    color_out[o] = c.x;
+    color_out[plane + o] = c.y;
+    color_out[2 * plane + o] = c.z;
+    color_out[3 * plane + o] = var[i] / (la * la);
+    guides[o] = n.x;
+    guides[plane + o] = n.y;
+    guides[2 * plane + o] = n.z;
+    guides[3 * plane + o] = emitter && emitter[i] > 0.5f ? 1.0f : 0.0f;
+    guides[4 * plane + o] = a.x;
+    guides[5 * plane + o] = a.y;
+    guides[6 * plane + o] = a.z;
+    guides[7 * plane + o] = depth[i];
+}
+
+// filter_store: one work-item per pixel of the image (width x height): the
+// colour planes times the albedo (as filter_load divided it), RGB interleaved.
+__kernel void filter_store(__global const float *color_in, __global const float *guides, uint width, uint height,
+                           uint pitch, uint plane, uint margin, float floor, __global float *out)
+{
+    uint x = get_global_id(0), y = get_global_id(1);
+    if (x >= width || y >= height)
+        return;
+    uint o = margin + y * pitch + x, gid = y * width + x;
+    float3 a = (float3)(guides[4 * plane + o], guides[5 * plane + o], guides[6 * plane + o]);
+    float3 alb = select((float3)(1.0f), a, a > floor);
+    vstore3((float3)(color_in[o], color_in[plane + o], color_in[2 * plane + o]) * alb, gid, out);
+}
 
 __kernel void filter_firefly(__global const float *color_in, uint width, uint height, uint pitch, uint plane,
                              uint margin, float k, float k_confirm, int any_nan, __global float *color_out)

@@ -21,7 +21,7 @@ import numpy as np
 import pyopencl as cl
 
 from ..constants import LOCAL_SIZE_CPU, LOCAL_SIZE_GPU, work_item_entries
-from ..denoise import FilterSettings, Planar, demodulate
+from ..denoise import ALBEDO_FLOOR, FilterSettings, Planar
 from ..errors import DeviceError
 from ..photons import (GRID_CELL_RADII, MAX_TABLE_BITS, PM_MERGE, PM_OFFLINE, PM_OWNED, PM_PREPASS, RADIX_BITS,
                        PhotonSettings)
@@ -457,36 +457,41 @@ class FilterPass:
     """The cone filter's kernels on one device (clpt/denoise.py: settings and
     the numpy twin; kernels/filter.cl)."""
 
+    # the host's images filter_load reads, and their floats per pixel
+    INPUTS = (("color", 3), ("var", 1), ("normal", 3), ("albedo", 3), ("depth", 1), ("emitter", 1))
+
     def __init__(self, dctx, program, pixels: int | None = None):
         self.dctx = dctx
+        self.load = cl.Kernel(program, "filter_load")
+        self.store = cl.Kernel(program, "filter_store")
         self.firefly = cl.Kernel(program, "filter_firefly")
         self.luma = cl.Kernel(program, "filter_luma")
         self.kernel = cl.Kernel(program, "filter_cone")
         self.counters = Counters()
         # a work-item's pixels, as the program was built (device_options; or as the caller built it)
         self.pixels = filter_pixels(dctx) if pixels is None else pixels
-        self._kept = None  # (layout key, [colour, colour], guides, host staging): kept for the next image of that size
+        self._kept = None  # (layout key, [colour, colour], guides, inputs, output): kept for the next image of that size
 
     def _buffers(self, lay: Planar):
-        """The two colour buffers (6 planes) and the guides' (8), with host
-        arrays to stage the uploads (4 colour planes, the guides) and the
-        readback (3 planes), made once per image layout (making them costs
-        more than the filter's passes) and zeroed. The margins are never
-        written again; within a call, every plane is uploaded or written by a
-        kernel (padding included) before it is read, so only the first
-        buffer's four planes are uploaded."""
+        """The two colour buffers (6 planes) and the guides' (8), the host
+        images' (INPUTS) and the output's, made once per image layout (making
+        them costs more than the filter's passes). The planes' margins are
+        zeroed here and never written again; within a call, every plane is
+        written by a kernel (padding included) before it is read."""
         key = (lay.width, lay.height, lay.pitch, lay.margin, lay.plane)
         if self._kept is None or self._kept[0] != key:
             self._kept = None  # the old ones go before the new are made
             ctx, q, mf, nb = self.dctx.context, self.dctx.queue, cl.mem_flags, 4 * lay.plane
             c = [cl.Buffer(ctx, mf.READ_WRITE, 6 * nb), cl.Buffer(ctx, mf.READ_WRITE, 6 * nb)]
-            gb = cl.Buffer(ctx, mf.READ_ONLY, 8 * nb)
+            gb = cl.Buffer(ctx, mf.READ_WRITE, 8 * nb)
             zeros = np.zeros(8 * lay.plane, np.float32)
             for buf, n in ((c[0], 6), (c[1], 6), (gb, 8)):
                 cl.enqueue_copy(q, buf, zeros[:n * lay.plane])
-            host = (lay.pack([], extra=4), lay.pack([], extra=8), np.empty(3 * lay.plane, np.float32))
-            self._kept = (key, c, gb, host)
-        return self._kept[1], self._kept[2], self._kept[3]
+            pixels = lay.width * lay.height
+            inputs = {k: cl.Buffer(ctx, mf.READ_ONLY, 4 * n * pixels) for k, n in self.INPUTS}
+            out = cl.Buffer(ctx, mf.WRITE_ONLY, 4 * 3 * pixels)
+            self._kept = (key, c, gb, inputs, out)
+        return self._kept[1:]
 
     def __call__(self, color, var, normal, albedo, depth, settings: FilterSettings, emitter=None):
         """Filtered colour (H x W x 3 float32) from the guides (H x W arrays);
@@ -495,41 +500,51 @@ class FilterPass:
         h, w = color.shape[:2]
         if settings.width == 0:
             return color.astype(np.float32).copy()
-        f32 = np.float32
-        irr, v, alb = demodulate(np.asarray(color, f32), np.asarray(var, f32), np.asarray(albedo, f32))
         q = self.dctx.queue
         passes = settings.passes(w, h)
         radius = min(int(settings.width), max(w, h))
         lay = Planar(w, h, radius, 1 << (passes - 1))
-        flag = np.zeros((h, w)) if emitter is None else (emitter > 0.5)
-        c, gb, (c0, g0, out) = self._buffers(lay)
-        lay.fill(c0, [irr[..., 0], irr[..., 1], irr[..., 2], v])
-        lay.fill(g0, [normal[..., 0], normal[..., 1], normal[..., 2], flag,
-                      albedo[..., 0], albedo[..., 1], albedo[..., 2], depth])
-        cl.enqueue_copy(q, c[0], c0, is_blocking=False)  # planes 0-3 (4, 5: filter_luma's)
-        cl.enqueue_copy(q, gb, g0, is_blocking=False)
+        c, gb, inputs, out = self._buffers(lay)
+        host = {"color": color, "var": var, "normal": normal, "albedo": albedo, "depth": depth, "emitter": emitter}
+        for k, _ in self.INPUTS:
+            if host[k] is not None:
+                cl.enqueue_copy(q, inputs[k], np.ascontiguousarray(host[k], np.float32), is_blocking=False)
         dims = (np.uint32(w), np.uint32(h), np.uint32(lay.pitch), np.uint32(lay.plane), np.uint32(lay.margin))
+        floor = np.float32(ALBEDO_FLOOR)
+
+        def grid(items, local):
+            return (-(-items // local) * local,), (local,)
+
+        def plane_grid(columns):  # one work-item per pixel, rows of FILTER_LOCAL_SIZE
+            return (-(-columns // FILTER_LOCAL_SIZE) * FILTER_LOCAL_SIZE, h), (FILTER_LOCAL_SIZE, 1)
+
+        self.counters.launched("filter_load", self.load(
+            q, *plane_grid(lay.pitch), inputs["color"], inputs["var"], inputs["normal"],
+            inputs["albedo"], inputs["depth"], None if emitter is None else inputs["emitter"], *dims, floor, c[0], gb))
         src = 0
-        local = FILTER_LOCAL_SIZE * 8 // self.pixels  # the same pixels per work-group whatever the width
-        items = h * lay.pitch // self.pixels  # every kernel: one item per `pixels` pixels of a row
-        gsize = -(-items // local) * local
+        # the passes: one item per `pixels` pixels of a row, the same pixels per work-group whatever their number
+        gsize, local = grid(h * lay.pitch // self.pixels, FILTER_LOCAL_SIZE * 8 // self.pixels)
         if settings.firefly_k > 0:
-            self.counters.launched("filter_firefly", self.firefly(q, (gsize,), (local,), c[0], *dims,
+            # NaN variances (the host's) take the median's slow path
+            any_nan = np.int32(np.isnan(np.asarray(var, np.float32)).any())
+            self.counters.launched("filter_firefly", self.firefly(q, gsize, local, c[0], *dims,
                                                                   np.float32(settings.firefly_k),
-                                                                  np.float32(settings.confirm_k),
-                                                                  np.int32(np.isnan(v).any()), c[1]))
+                                                                  np.float32(settings.confirm_k), any_nan, c[1]))
             src = 1
         for it in range(passes):
             fit = bool(settings.fit_last) and it == passes - 1  # the last pass fits a plane
-            sigma_l, floor = ((settings.fit_sigma_luminance, settings.fit_guide_floor) if fit
-                              else (settings.sigma_luminance, settings.guide_floor))
-            self.counters.launched("filter_luma", self.luma(q, (gsize,), (local,), c[src], *dims))
+            sigma_l, floor_g = ((settings.fit_sigma_luminance, settings.fit_guide_floor) if fit
+                                else (settings.sigma_luminance, settings.guide_floor))
+            self.counters.launched("filter_luma", self.luma(q, gsize, local, c[src], *dims))
             self.counters.launched("filter_cone", self.kernel(
-                q, (gsize,), (local,), c[src], gb, *dims, np.int32(radius), np.int32(1 << it),
+                q, gsize, local, c[src], gb, *dims, np.int32(radius), np.int32(1 << it),
                 np.int32(settings.sigma_normal), np.float32(settings.sigma_depth), np.float32(settings.sigma_albedo),
-                np.float32(sigma_l), np.float32(floor), np.int32(fit), c[1 - src]))
+                np.float32(sigma_l), np.float32(floor_g), np.int32(fit), c[1 - src]))
             src = 1 - src
-        cl.enqueue_copy(q, out, c[src])  # the colour planes only
+        self.counters.launched("filter_store", self.store(q, *plane_grid(w), c[src], gb, *dims,
+                                                          floor, out))
+        result = np.empty((h, w, 3), np.float32)
+        cl.enqueue_copy(q, result, out)
         q.finish()
         self.counters.settle()
-        return lay.unpack(out, 3) * alb
+        return result
