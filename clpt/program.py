@@ -221,22 +221,25 @@ def filter_pixels(dctx) -> int:
     return 16 if getattr(dctx, "is_cpu", False) else 8
 
 
+def filter_options(dctx) -> list:
+    """The build option that sets filter_pixels where it is not the kernels' default of 8."""
+    return [] if filter_pixels(dctx) == 8 else [f"-DCLPT_FILTER_PIXELS={filter_pixels(dctx)}"]
+
+
 def device_options(dctx) -> list:
-    """Build options that follow the device: the cone filter's pixels per
-    work-item where they are not the kernels' default of 8
-    (filter_pixels), and CLPT_PREFETCH on PoCL's CPU devices and Intel's CPU
-    runtime, which compile with clang, whose __builtin_prefetch becomes a
-    prefetch instruction (kernels/scene.h scene_prefetch). Not elsewhere:
-    Oclgrind, which reports every device type, cannot run the intrinsic, and
-    GPU compilers are not known to take the builtin. The environment
-    variable CLPT_PREFETCH=0 leaves it out; images are the same either way."""
-    out = [] if filter_pixels(dctx) == 8 else [f"-DCLPT_FILTER_PIXELS={filter_pixels(dctx)}"]
+    """Build options that follow the device: CLPT_PREFETCH on PoCL's CPU
+    devices and Intel's CPU runtime, which compile with clang, whose
+    __builtin_prefetch becomes a prefetch instruction (kernels/scene.h
+    scene_prefetch). Not elsewhere: Oclgrind, which reports every device
+    type, cannot run the intrinsic, and GPU compilers are not known to take
+    the builtin. The environment variable CLPT_PREFETCH=0 leaves it out;
+    images are the same either way."""
     if os.environ.get("CLPT_PREFETCH", "1") == "0" or not getattr(dctx, "is_cpu", False):
-        return out
+        return []
     if getattr(dctx, "is_pocl", False) or ("intel" in dctx.platform.lower()
                                             and dctx.device.type == cl.device_type.CPU):
-        out.append("-DCLPT_PREFETCH=1")
-    return out
+        return ["-DCLPT_PREFETCH=1"]
+    return []
 
 
 def build(dctx, source: str, options, use_cache: bool = True):
@@ -244,7 +247,7 @@ def build(dctx, source: str, options, use_cache: bool = True):
     pocl_defaults(dctx)
     # -w: compilers' remarks (PoCL's on wide-vector ABIs, printed to stderr at
     # its lazy device compile) are not the user's business; errors still show.
-    options = list(options) + ["-w"] + device_options(dctx)
+    options = list(options) + ["-w"] + device_options(dctx) + filter_options(dctx)
     key = _key(source, options, dctx.identity())
     if os.environ.get("CLPT_DUMP_KERNELS"):
         _dump(source, options, key)

@@ -80,6 +80,21 @@ def test_eight_or_sixteen_pixels_per_work_item_give_the_same_bits(dctx):
             assert not np.array_equal(out[0], img)  # it filtered
 
 
+def test_cpus_build_the_filter_sixteen_pixels_a_work_item():
+    """CPU devices (Oclgrind too: it reports every type) get
+    -DCLPT_FILTER_PIXELS=16 and FilterPass launches 16 pixels a work-item;
+    GPUs keep the kernels' 8 and no option."""
+    import types
+
+    def fake(kind):
+        return types.SimpleNamespace(is_cpu=bool(kind & cl.device_type.CPU))
+    assert program.filter_pixels(fake(cl.device_type.CPU)) == 16
+    assert program.filter_options(fake(cl.device_type.CPU)) == ["-DCLPT_FILTER_PIXELS=16"]
+    assert program.filter_pixels(fake(cl.device_type.ALL)) == 16
+    assert program.filter_pixels(fake(cl.device_type.GPU)) == 8
+    assert program.filter_options(fake(cl.device_type.GPU)) == []
+
+
 def _scene(rng, h, w):
     img, var = noisy(rng, h, w)
     img[rng.random((h, w)) < 0.02] *= 30  # fireflies
