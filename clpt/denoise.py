@@ -140,27 +140,6 @@ class Planar:
         self.margin = radius * max_step + 16
         self.plane = self.pitch * height + 2 * self.margin
 
-    def pack(self, planes, extra: int = 0) -> np.ndarray:
-        """The planes laid out, then `extra` planes of zeros."""
-        out = np.zeros((len(planes) + extra, self.plane), np.float32)
-        body = out[:len(planes), self.margin:self.margin + self.pitch * self.height].reshape(len(planes), self.height,
-                                                                                   self.pitch)
-        for k, p in enumerate(planes):
-            body[k, :, :self.width] = p
-        return out
-
-    def fill(self, out: np.ndarray, planes) -> None:
-        """The planes' pixels written into a packed array (pack's), in place;
-        margins and padding are left as they are."""
-        body = out[:len(planes), self.margin:self.margin + self.pitch * self.height].reshape(len(planes), self.height,
-                                                                                   self.pitch)
-        for k, p in enumerate(planes):
-            body[k, :, :self.width] = p
-
-    def unpack(self, flat: np.ndarray, planes: int) -> np.ndarray:
-        body = flat.reshape(planes, self.plane)[:, self.margin:self.margin + self.pitch * self.height]
-        return np.moveaxis(body.reshape(planes, self.height, self.pitch)[:, :, :self.width], 0, -1)
-
 
 def _lum(a):
     wr, wg, wb = LUMA_WEIGHTS

@@ -54,16 +54,17 @@
 // (zeros, so that lanes outside the image read finite values):
 //   color: r, g, b, variance of the pixel mean, smoothed luminance and variance (filter_luma)
 //   guides: normal x, y, z (0 if none), emitter flag (0/1), albedo r, g, b, depth
-// All three kernels: one work-item per CLPT_FILTER_PIXELS (P: 8 or 16)
-// pixels of a row, in vectors of P lanes (global size height * pitch / P);
-// any local size. The host sets P by the device (clpt/program.py
-// filter_pixels): 16 on CPUs, where Intel's and PoCL's compilers run one
-// work-item's float16 faster than two work-items' float8 (the cone pass
-// 1.3-1.8x), 8 elsewhere (GPUs: a float16 per work-item would spill
-// registers). The same operations either way: the same bits. The lanes past
-// the width (the rows' padding) write zeros in filter_load, filter_firefly
-// and filter_luma, and what the pass computes there in filter_cone; the taps that read them have weight 0. The margins are
-// never written.
+// The passes' three kernels (filter_firefly, filter_luma, filter_cone): one
+// work-item per CLPT_FILTER_PIXELS (P: 8 or 16) pixels of a row, in vectors
+// of P lanes (global size height * pitch / P); any local size. The host sets
+// P by the device (clpt/program.py filter_pixels): 16 on CPUs, where Intel's
+// and PoCL's compilers run one work-item's float16 faster than two
+// work-items' float8 (the cone pass 1.3-1.8x), 8 elsewhere (GPUs: a float16
+// per work-item would spill registers). The same operations either way: the
+// same bits. The lanes past the width (the rows' padding) are zeros as
+// filter_load, filter_firefly and filter_luma write them, and what the pass
+// computes there in filter_cone; the taps that read them have weight 0. The
+// margins are never written.
 
 #ifndef CLPT_FILTER_PIXELS
 #define CLPT_FILTER_PIXELS 8

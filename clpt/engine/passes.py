@@ -526,7 +526,7 @@ class FilterPass:
         gsize, local = grid(h * lay.pitch // self.pixels, FILTER_LOCAL_SIZE * 8 // self.pixels)
         if settings.firefly_k > 0:
             # NaN variances (the host's) take the median's slow path
-            any_nan = np.int32(np.isnan(np.asarray(var, np.float32)).any())
+            any_nan = np.int32(np.isnan(var).any())
             self.counters.launched("filter_firefly", self.firefly(q, gsize, local, c[0], *dims,
                                                                   np.float32(settings.firefly_k),
                                                                   np.float32(settings.confirm_k), any_nan, c[1]))
