@@ -83,6 +83,24 @@ def relative_error(mean_lum: np.ndarray, lum_var: np.ndarray, count: np.ndarray)
     return se / np.sqrt(mean_lum * mean_lum + ERROR_FLOOR * ERROR_FLOOR)
 
 
+def allocation_ceiling(mean_lum, lum_var) -> float:
+    """The most any allocation of the same number of samples can lower the
+    summed relative variance sum_i v_i / (n_i (m_i^2 + ERROR_FLOOR^2)) below
+    uniform sampling's, given each pixel's per-sample luminance variance v_i
+    and mean m_i (e.g. from a uniform render and a reference): with s_i =
+    sqrt(v_i / (m_i^2 + ERROR_FLOOR^2)), uniform gives P sum s_i^2 / N and
+    the best counts (n_i proportional to s_i) give (sum s_i)^2 / N, so the
+    ceiling is P sum s_i^2 / (sum s_i)^2 (1 when every pixel is alike). It
+    assumes samples of equal cost and independent pixel errors, so it bounds
+    what allocate_error can gain on luminance relMSE: no estimate of the
+    s_i from a few samples, and no extra cost per adaptive sample, does
+    better."""
+    s = np.sqrt(np.maximum(np.asarray(lum_var, np.float64), 0.0)
+                / (np.asarray(mean_lum, np.float64) ** 2 + ERROR_FLOOR * ERROR_FLOOR)).ravel()
+    total = float(s.sum())
+    return float(s.size * (s * s).sum() / (total * total)) if total > 0 else 1.0
+
+
 def allocate_error(mean_lum, lum_var, count, settings: AdaptiveSettings, budget_left: int):
     """Samples per pixel for the next pass (error scheme), at most budget_left in all.
 

@@ -14,7 +14,11 @@ CPU seconds used over --cpu-seconds, as for an error falling as 1/time). The
 scene's photon settings apply (the pilot chooses merging or path tracing).
 Prints per run the CPU seconds, spp, relMSE (RGB, eps 1e-2, as clpt compare)
 and the luminance relMSE with the reference's own noise taken out, then the
-means and the ratios uniform / adaptive (above 1: adaptive is better).
+means and the ratios uniform / adaptive (above 1: adaptive is better), and
+the ceiling of that ratio for luminance relMSE: what the best allocation of
+the uniform render's samples would gain, from its per-pixel variances
+(clpt.adaptive.allocation_ceiling; samples of equal cost, pixel errors
+independent, so the photon maps' shared noise is not in it).
 The reference is read from --ref, or path traced with --ref-spp and saved
 there. Run it from another tree with PYTHONPATH=that/tree to measure that
 tree's clpt.
@@ -48,7 +52,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
 
-    from clpt.adaptive import AdaptiveSettings
+    from clpt.adaptive import AdaptiveSettings, allocation_ceiling
+    from clpt.constants import LUMA
     from clpt.loading import load_scene
     from clpt.render import Renderer
     from clpt.tools import metrics
@@ -87,6 +92,8 @@ def main(argv=None) -> int:
                    "relmse_at_T": metrics.relmse(img, ref) * used / T,
                    "relmse_luma_denoised_at_T": metrics.relmse_luma(img, ref, ref.noise_map) * used / T,
                    "choice": (res.stats.photon_pilot or {}).get("choice"),
+                   # The most any allocation of these samples could gain (luminance, pixel noise alone):
+                   "ceiling": allocation_ceiling(ref @ LUMA, res.lum_var) if name == "uniform" else None,
                    "rounds": res.stats.adaptive_rounds}
             runs.append(row)
             if not a.json:
@@ -101,11 +108,16 @@ def main(argv=None) -> int:
     gain = {k: summary["uniform"][k] / summary["adaptive"][k] for k in
             ("relmse", "relmse_luma_denoised", "relmse_at_T", "relmse_luma_denoised_at_T")}
     if a.json:
-        print(json.dumps({"runs": runs, "summary": summary, "gain": gain}, indent=1))
+        print(json.dumps({"runs": runs, "summary": summary, "gain": gain,
+                          "ceiling": float(np.mean([x["ceiling"] for x in runs if x["ceiling"] is not None]))},
+                         indent=1))
         return 0
     for name, s in summary.items():
         print(f"{name:9s} mean: {s['cpu_seconds']:6.2f} CPU s {s['spp']:8.1f} spp  relMSE {s['relmse']:.3e}"
               f"  luma relMSE - ref noise {s['relmse_luma_denoised']:.3e}")
+    ceilings = [x["ceiling"] for x in runs if x["ceiling"] is not None]
+    print(f"the best allocation of uniform's samples would lower the luminance relMSE {np.mean(ceilings):.3f}x "
+          f"(clpt.adaptive.allocation_ceiling: equal cost per sample, independent pixel errors)")
     print(f"lanes {r.features.lanes}; uniform / adaptive: relMSE {gain['relmse']:.3f}x, luma relMSE - ref noise "
           f"{gain['relmse_luma_denoised']:.3f}x; scaled to {T:g} CPU s (error x CPU s / {T:g}): relMSE "
           f"{gain['relmse_at_T']:.3f}x, luma relMSE - ref noise {gain['relmse_luma_denoised_at_T']:.3f}x")

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 import clpt
-from clpt.adaptive import AdaptiveSettings, allocate_error, allocate_paper, discrepant, relative_error
+from clpt.adaptive import (ERROR_FLOOR, AdaptiveSettings, allocate_error, allocate_paper, allocation_ceiling, discrepant,
+                           relative_error)
 
 from stats import assert_mean_within
 
@@ -28,6 +29,31 @@ def test_error_allocation_follows_the_error_and_the_budget():
     # Dark pixels are measured against relMSE's floor (0.1 in luminance), bright ones against their mean.
     assert relative_error(np.array([0.0]), np.array([1e-4]), np.array([1.0]))[0] == pytest.approx(0.1)
     assert relative_error(np.array([2.0]), np.array([4e-2]), np.array([4.0]))[0] == pytest.approx(0.05, rel=2e-3)
+
+
+def test_allocation_ceiling_is_the_best_allocations_gain():
+    """The ceiling is uniform's summed relative variance over that of the
+    counts proportional to s_i; random other counts of the same total never
+    beat it; alike pixels give 1."""
+    rng = np.random.default_rng(2)
+    mean = rng.uniform(0.0, 2.0, (16, 16))
+    var = rng.lognormal(-3.0, 1.5, (16, 16))
+    w = var / (mean * mean + ERROR_FLOOR ** 2)  # each pixel's relative variance per sample
+    N = 1000.0 * w.size
+
+    def summed(n):
+        return float((w / n).sum())
+
+    s = np.sqrt(w)
+    best = summed(N * s / s.sum())
+    ceiling = allocation_ceiling(mean, var)
+    assert ceiling == pytest.approx(summed(np.full(w.shape, N / w.size)) / best, rel=1e-12)
+    assert ceiling > 1.5  # (these pixels differ a lot)
+    for _ in range(50):
+        other = rng.uniform(0.1, 1.0, w.shape)
+        assert summed(N * other / other.sum()) >= best
+    assert allocation_ceiling(np.ones((4, 4)), np.full((4, 4), 0.3)) == pytest.approx(1.0, rel=1e-12)
+    assert allocation_ceiling(np.ones((4, 4)), np.zeros((4, 4))) == 1.0
 
 
 def test_paper_scheme_finds_pixels_that_disagree_with_their_neighbours():

@@ -178,6 +178,23 @@ def test_denoise_bench_regions_find_the_balls_the_caustic_and_the_lamps_reflecti
         assert e["relmse"] == 0 and e["energy"] == pytest.approx(1.0), k
 
 
+def test_bench_photons_warns_when_the_references_noise_hides_the_error():
+    from clpt.tools.bench import REFERENCE_NOISE_SHARE, reference_noise_warning
+
+    def et(noise, errors):
+        return {"reference_noise_luma": {"caustic": noise, "image": noise / 10},
+                "runs": [{"method": m, "seconds": 60.0, "relmse_caustic": e, "relmse_caustic_luma": e - noise}
+                         for m, e in errors.items()]}
+
+    assert reference_noise_warning(et(1e-5, {"path tracing": 1e-3, "merging": 1e-4})) is None  # 10%
+    warn = reference_noise_warning(et(4e-4, {"path tracing": 1.8e-3, "merging": 5e-4}))
+    assert warn is not None and "80%" in warn and "merging at 60.0 s" in warn
+    edge = 1e-3 * REFERENCE_NOISE_SHARE
+    assert reference_noise_warning(et(edge, {"path tracing": 1e-3})) is None
+    assert reference_noise_warning(et(edge * 1.01, {"path tracing": 1e-3})) is not None
+    assert reference_noise_warning({"runs": []}) is None  # no noise map: nothing to say
+
+
 def test_equal_cpu_time_runs_fill_their_budget(tmp_path, device_spec):
     """bench-photons --cpu-time: each method's render uses its CPU budget
     (within the 10% the bench allows before it renders again rescaled, plus
@@ -193,6 +210,8 @@ def test_equal_cpu_time_runs_fill_their_budget(tmp_path, device_spec):
     for r in runs.values():
         assert 0.3 <= r["cpu_seconds"] <= 0.8, r
         assert r["spp"] > 1 and np.isfinite(r["relmse_image"]) and r["relmse_image"] > 0
+    # A 64-spp reference's caustic is mostly its own noise: the bench says so.
+    assert "more samples (--ref-spp)" in out["reference_noise_warning"]
 
 
 class _FakeClock:
