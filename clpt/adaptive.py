@@ -95,8 +95,7 @@ def allocation_ceiling(mean_lum, lum_var) -> float:
     what allocate_error can gain on luminance relMSE: no estimate of the
     s_i from a few samples, and no extra cost per adaptive sample, does
     better."""
-    s = np.sqrt(np.maximum(np.asarray(lum_var, np.float64), 0.0)
-                / (np.asarray(mean_lum, np.float64) ** 2 + ERROR_FLOOR * ERROR_FLOOR)).ravel()
+    s = relative_error(np.asarray(mean_lum, np.float64), np.asarray(lum_var, np.float64), 1.0).ravel()
     total = float(s.sum())
     return float(s.size * (s * s).sum() / (total * total)) if total > 0 else 1.0
 
