@@ -9,9 +9,10 @@ Two schemes:
 
 - "error" (the default): a pixel's relative error is the standard error of
   its mean luminance over the mean (over sqrt(mean^2 + 0.1^2), as relMSE
-  weighs dark pixels),
-  taken as the largest in its 3x3 neighbourhood so that a pixel whose few
-  samples happened to agree is not stopped too early. Pixels above the
+  weighs dark pixels), weighed per colour channel as RGB relMSE weighs it
+  (colour_weight), and blended with its 3x3 neighbourhood's (the root of
+  the mean of its own square and the neighbourhood's mean square) so that a
+  pixel whose few samples happened to agree is not stopped too early. Pixels above the
   noise threshold get samples in proportion to how far above it they are,
   until every pixel is below it, or the sample budget or time runs out.
 - "paper" (the paper's section 6): after the minimum, each pixel is compared
@@ -70,17 +71,41 @@ class AdaptiveSettings:
         return self
 
 
-def _neighbourhood_max(a: np.ndarray) -> np.ndarray:
-    p = np.pad(a, 1, mode="edge")
+def _neighbourhood_blend(a: np.ndarray) -> np.ndarray:
+    """sqrt((a^2 + the 3x3 mean of a^2) / 2), edges repeated. The largest of
+    the 3x3 (what allocate_error took before) spread each noisy pixel's error
+    over its eight neighbours: on the caustics box it gave the best
+    allocation's counts 7-9% less of its gain over uniform sampling."""
+    sq = a * a
+    p = np.pad(sq, 1, mode="edge")
     h, w = a.shape
-    return np.max([p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)], axis=0)
+    box = np.sum([p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)], axis=0) / 9.0
+    return np.sqrt(0.5 * (sq + box))
 
 
-def relative_error(mean_lum: np.ndarray, lum_var: np.ndarray, count: np.ndarray) -> np.ndarray:
+def colour_weight(mean_rgb: np.ndarray, mean_lum: np.ndarray) -> np.ndarray:
+    """What a unit of a pixel's luminance variance weighs in RGB relMSE, the
+    mean over channels of var_c / (m_c^2 + ERROR_FLOOR^2), each channel's
+    noise taken as the luminance's scaled by the channel's share of the mean
+    (var_c = var (m_c / Y)^2): the kernels keep only the luminance's squares.
+    A grey pixel weighs 1 / (Y^2 + ERROR_FLOOR^2), as relative_error has it
+    without colours; a saturated one otherwise (a red (0.6, 0.02, 0.02)
+    about half as much: its noise is in its red channel, its green and blue
+    all but noiseless)."""
+    m2 = mean_rgb * mean_rgb
+    y2 = np.maximum(mean_lum * mean_lum, 1e-30)[..., None]
+    return (m2 / y2 / (m2 + ERROR_FLOOR * ERROR_FLOOR)).mean(axis=-1)
+
+
+def relative_error(mean_lum: np.ndarray, lum_var: np.ndarray, count: np.ndarray, mean_rgb=None) -> np.ndarray:
     """Standard error of each pixel's mean luminance, relative to the mean
-    (to sqrt(mean^2 + ERROR_FLOOR^2): relMSE's weighting of dark pixels)."""
-    se = np.sqrt(np.maximum(lum_var, 0.0) / np.maximum(count, 1.0))
-    return se / np.sqrt(mean_lum * mean_lum + ERROR_FLOOR * ERROR_FLOOR)
+    (to sqrt(mean^2 + ERROR_FLOOR^2): relMSE's weighting of dark pixels);
+    with mean_rgb (the pixels' mean colours, a last axis of 3), as RGB relMSE
+    weighs it (colour_weight)."""
+    v = np.maximum(lum_var, 0.0) / np.maximum(count, 1.0)
+    if mean_rgb is not None:
+        return np.sqrt(v * colour_weight(np.asarray(mean_rgb, np.float64), mean_lum))
+    return np.sqrt(v) / np.sqrt(mean_lum * mean_lum + ERROR_FLOOR * ERROR_FLOOR)
 
 
 def allocation_ceiling(mean_lum, lum_var) -> float:
@@ -100,8 +125,9 @@ def allocation_ceiling(mean_lum, lum_var) -> float:
     return float(s.size * (s * s).sum() / (total * total)) if total > 0 else 1.0
 
 
-def allocate_error(mean_lum, lum_var, count, settings: AdaptiveSettings, budget_left: int):
-    """Samples per pixel for the next pass (error scheme), at most budget_left in all.
+def allocate_error(mean_lum, lum_var, count, settings: AdaptiveSettings, budget_left: int, mean_rgb=None):
+    """Samples per pixel for the next pass (error scheme), at most budget_left in all;
+    the errors weighed by colour where mean_rgb is given (relative_error).
 
     A pixel above the threshold wants n ((e / t)^2 - 1) more samples (what
     would bring it to the threshold if its error falls as 1/sqrt(n)). When the
@@ -111,8 +137,8 @@ def allocate_error(mean_lum, lum_var, count, settings: AdaptiveSettings, budget_
     samples even when no pixel can reach the threshold; no pixel gets more than max(pass_spp, its count) in one pass
     (at most doubling its samples, so the passes are few and long enough to
     keep the device busy, yet each sees what the last achieved)."""
-    own = relative_error(mean_lum, lum_var, count)
-    err = _neighbourhood_max(own)
+    own = relative_error(mean_lum, lum_var, count, mean_rgb)
+    err = _neighbourhood_blend(own)
     need = err > settings.threshold
     want = np.where(need, np.maximum(np.ceil(count * ((err / settings.threshold) ** 2 - 1.0)), 1.0), 0.0)
     total = want.sum()

@@ -213,7 +213,8 @@ class Driver:
                 # with it instead of running past the limit.
                 rate = used / max(self.elapsed(), 1e-9)
                 round_budget = min(round_budget, max(n_pix, int(rate * (self.time_limit - self.elapsed()) / 2)))
-            n, _ = allocate_error(lum, var.reshape(shape), count.reshape(shape), aset, round_budget)
+            n, _ = allocate_error(lum, var.reshape(shape), count.reshape(shape), aset, round_budget,
+                                  mean_rgb=mean.reshape(shape + (3,)))
             depth = np.full(shape, job.max_depth)
         else:
             se = np.sqrt(var / np.maximum(count, 1.0)).reshape(shape)
