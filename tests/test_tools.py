@@ -129,6 +129,31 @@ def test_relmse_luma_takes_the_references_noise_out():
     assert relmse_luma(img, truth) == pytest.approx(relmse(img, truth), rel=1e-12)  # grey: luminance = channels
 
 
+def test_relmse_rgb_denoised_takes_a_coloured_references_noise_out():
+    """A reference whose noise is its colour times one random factor per
+    pixel (each channel's variance the luminance's times (r_c / Y)^2): the
+    RGB relMSE less that noise is the error against the truth, within its
+    standard error; without the noise taken out it is several times more."""
+    from clpt.constants import LUMA
+    from clpt.tools.metrics import relmse, relmse_rgb_denoised
+
+    rng = np.random.default_rng(8)
+    truth = rng.uniform(0.02, 1.0, (64, 64, 3)) * rng.uniform(0.2, 1.0, (64, 64, 1))
+    rel = 0.08  # the reference's relative noise: ref = truth (1 + N(0, rel^2))
+    ref = truth * (1.0 + rng.normal(0.0, rel, (64, 64, 1)))
+    img = truth * (1.0 + rng.normal(0.0, 0.02, (64, 64, 1)))
+    exact = relmse(img, truth)
+    assert relmse(img, ref) > 5 * exact
+    lum_var = ((truth @ LUMA) * rel) ** 2  # the reference's luminance mean's variance
+    corrected = relmse_rgb_denoised(img, ref, lum_var)
+    # Per pixel and channel, (e_i - e_r)^2 - var_r has mean var_i and standard deviation
+    # sqrt(2) (var_i + var_r) (Gaussian errors); the channels of a pixel move together.
+    w = (truth * truth) / (truth * truth + 1e-2)
+    per_pixel = (np.sqrt(2.0) * (0.02 ** 2 + rel ** 2) * w).mean(axis=-1)
+    se = np.sqrt((per_pixel ** 2).sum()) / per_pixel.size
+    assert abs(corrected - exact) < 4 * se
+
+
 def test_reference_renders_saves_and_reads_back(tmp_path, device_spec):
     from clpt.image import read_metadata
     from clpt.scene import SettingsError
