@@ -226,12 +226,17 @@ class Driver:
             sch.adaptive_over = True
             return
         if aset.scheme == "error":
-            # The pixels with the most samples first (in image order among equals): a
-            # work-item's lanes then get alike counts (less idling, fewer samples added to
-            # fill them) and the longest work-items start first, so a launch does not end
-            # on one of them alone. (In image order, adaptive samples cost 20-35% more CPU
-            # time than uniform ones on the caustics box; sorted, 15-20%.)
-            pixels = pixels[np.argsort(-n.ravel()[pixels], kind="stable")]
+            # The pixels with the most samples first, by octaves of their counts and in
+            # image order within one: a work-item's lanes then get alike counts (less
+            # idling, fewer samples added to fill them) and the longest work-items start
+            # first, so a launch does not end on one of them alone; yet its lanes trace
+            # neighbouring pixels, whose paths run alike. (In image order, adaptive
+            # samples cost 20-35% more CPU time than uniform ones on the caustics box;
+            # sorted by count, 15-20%, then 10-14% on this machine; by octaves, 3-5%
+            # less than by count. Uniform counts in a random order cost 7% more than
+            # in image order.)
+            octave = np.floor(np.log2(n.ravel()[pixels])).astype(np.int64)
+            pixels = pixels[np.argsort(-octave, kind="stable")]
         jobs = np.zeros((len(pixels), 4), dtype=np.uint32)
         jobs[:, 0] = n.ravel()[pixels]
         jobs[:, 1] = np.minimum(depth.ravel()[pixels], 2**31)
