@@ -83,18 +83,25 @@ def _neighbourhood_blend(a: np.ndarray) -> np.ndarray:
     return np.sqrt(0.5 * (sq + box))
 
 
+def channel_variance(mean_rgb: np.ndarray, mean_lum: np.ndarray, lum_var) -> np.ndarray:
+    """Each channel's variance (a last axis of 3) where only the luminance's is
+    known, as the luminance's scaled by the channel's share of the mean:
+    lum_var (m_c / Y)^2. Exact where a pixel's samples are its colour times
+    one random factor; colour_weight and metrics.relmse_rgb_denoised assume it."""
+    y2 = np.maximum(mean_lum * mean_lum, 1e-30)[..., None]
+    return np.asarray(lum_var, np.float64)[..., None] * (mean_rgb * mean_rgb / y2)
+
+
 def colour_weight(mean_rgb: np.ndarray, mean_lum: np.ndarray) -> np.ndarray:
     """What a unit of a pixel's luminance variance weighs in RGB relMSE, the
     mean over channels of var_c / (m_c^2 + ERROR_FLOOR^2), each channel's
     noise taken as the luminance's scaled by the channel's share of the mean
-    (var_c = var (m_c / Y)^2): the kernels keep only the luminance's squares.
+    (channel_variance): the kernels keep only the luminance's squares.
     A grey pixel weighs 1 / (Y^2 + ERROR_FLOOR^2), as relative_error has it
     without colours; a saturated one otherwise (a red (0.6, 0.02, 0.02)
     about half as much: its noise is in its red channel, its green and blue
     all but noiseless)."""
-    m2 = mean_rgb * mean_rgb
-    y2 = np.maximum(mean_lum * mean_lum, 1e-30)[..., None]
-    return (m2 / y2 / (m2 + ERROR_FLOOR * ERROR_FLOOR)).mean(axis=-1)
+    return (channel_variance(mean_rgb, mean_lum, 1.0) / (mean_rgb * mean_rgb + ERROR_FLOOR * ERROR_FLOOR)).mean(axis=-1)
 
 
 def relative_error(mean_lum: np.ndarray, lum_var: np.ndarray, count: np.ndarray, mean_rgb=None) -> np.ndarray:

@@ -36,12 +36,18 @@ import warnings
 import numpy as np
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def scene_parser(doc: str) -> argparse.ArgumentParser:
+    """The adaptive benches' arguments: a scene, a device and the image size."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     ap.add_argument("scene")
     ap.add_argument("--device", default="intel")
     ap.add_argument("--width", type=int, default=128)
     ap.add_argument("--height", type=int, default=128)
+    return ap
+
+
+def main(argv=None) -> int:
+    ap = scene_parser(__doc__)
     ap.add_argument("--max-depth", type=int, default=None)
     ap.add_argument("--cpu-seconds", type=float, default=6.0)
     ap.add_argument("--seeds", default="1,2,3")
@@ -86,17 +92,15 @@ def main(argv=None) -> int:
                     break
                 spp = max(1, int(spp * T / max(used, 1e-9)))
             img = res.image.astype(np.float64)
+            errors = {"relmse": metrics.relmse(img, ref),
+                      "relmse_denoised": (metrics.relmse_rgb_denoised(img, ref, ref.noise_map)
+                                          if ref.noise_map is not None else float("nan")),
+                      "relmse_luma_denoised": metrics.relmse_luma(img, ref, ref.noise_map)}
             row = {"method": name, "seed": seed, "cpu_seconds": used, "spp": float(res.sample_count.mean()),
-                   "relmse": metrics.relmse(img, ref),
-                   "relmse_luma_denoised": metrics.relmse_luma(img, ref, ref.noise_map),
-                   "relmse_denoised": (metrics.relmse_rgb_denoised(img, ref, ref.noise_map)
-                                       if ref.noise_map is not None else float("nan")),
+                   **errors,
                    # As if the render had taken exactly T CPU seconds (error ~ 1 / time):
                    # what is left of the calibration's miss.
-                   "relmse_at_T": metrics.relmse(img, ref) * used / T,
-                   "relmse_luma_denoised_at_T": metrics.relmse_luma(img, ref, ref.noise_map) * used / T,
-                   "relmse_denoised_at_T": (metrics.relmse_rgb_denoised(img, ref, ref.noise_map) * used / T
-                                            if ref.noise_map is not None else float("nan")),
+                   **{k + "_at_T": v * used / T for k, v in errors.items()},
                    "choice": (res.stats.photon_pilot or {}).get("choice"),
                    # The most any allocation of these samples could gain (luminance, pixel noise alone):
                    "ceiling": allocation_ceiling(ref @ LUMA, res.lum_var) if name == "uniform" else None,

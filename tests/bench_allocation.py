@@ -20,18 +20,14 @@ measures at equal CPU time).
 
 from __future__ import annotations
 
-import argparse
 import warnings
 
 import numpy as np
+from bench_adaptive_merge import scene_parser
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("scene")
-    ap.add_argument("--device", default="intel")
-    ap.add_argument("--width", type=int, default=128)
-    ap.add_argument("--height", type=int, default=128)
+    ap = scene_parser(__doc__)
     ap.add_argument("--renders", type=int, default=16)
     ap.add_argument("--spp-each", type=int, default=64)
     ap.add_argument("--adaptive-spp", default="256,1024")

@@ -10,8 +10,8 @@ sampling, the filter, the speed/accuracy trade-off).
   path-traced reference it can be as large as a good estimator's error.
 - relmse_rgb_denoised: relmse less the reference's own noise per channel,
   taken as its luminance noise times (r_c / Y)^2 (the kernels keep only the
-  luminance's squares; clpt.adaptive.colour_weight makes the same
-  assumption).
+  luminance's squares; clpt.adaptive.channel_variance, which the adaptive
+  allocation's colour_weight uses too).
 - ssim: structural similarity of the luminance (Wang et al. 2004, Gaussian
   window sigma 1.5), on the tone-mapped (clamped sRGB) images, so it judges
   what a viewer sees.
@@ -40,10 +40,11 @@ def relmse(img, ref, eps: float = 1e-2) -> float:
 def relmse_rgb_denoised(img, ref, ref_lum_var, eps: float = 1e-2) -> float:
     """RGB relMSE against ref (H x W x 3) less the reference's own noise,
     each channel's taken as ref_lum_var (per pixel: the variance of the
-    reference's luminance mean) times (r_c / Y)^2."""
+    reference's luminance mean) times (r_c / Y)^2 (adaptive.channel_variance)."""
+    from ..adaptive import channel_variance
+
     img, ref = np.asarray(img, np.float64), np.asarray(ref, np.float64)
-    y2 = np.maximum((ref @ LUMA) ** 2, 1e-30)[..., None]
-    noise = np.asarray(ref_lum_var, np.float64)[..., None] * (ref * ref / y2)
+    noise = channel_variance(ref, ref @ LUMA, ref_lum_var)
     return float((((img - ref) ** 2 - noise) / (ref * ref + eps)).mean())
 
 
