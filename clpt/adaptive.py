@@ -165,12 +165,25 @@ def allocate_error(mean_lum, lum_var, count, settings: AdaptiveSettings, budget_
     # What flooring left over goes one sample each to the worst pixels (own error breaks ties).
     rest = int(min(budget_left, np.ceil(want).sum()) - share.sum())
     if rest > 0:
-        order = np.lexsort((-own.ravel(), -err.ravel()))
-        order = order[want.ravel()[order] > share.ravel()[order]][:rest]
         flat = share.ravel()
-        flat[order] += 1
+        flat[_worst(np.flatnonzero(want.ravel() > flat), err.ravel(), own.ravel(), rest)] += 1
         share = flat.reshape(want.shape)
     return share, err
+
+
+def _worst(cand: np.ndarray, err: np.ndarray, own: np.ndarray, k: int) -> np.ndarray:
+    """The k of the pixels cand (ascending) with the largest err, ties broken
+    by the larger own error, then by the lower index: the first k of a
+    stable sort by (-err, -own), found by partitioning (a full lexsort of
+    the image took 3.3 ms of a round's 11 at 128x128)."""
+    if k >= len(cand):
+        return cand
+    e = err[cand]
+    kth = np.partition(e, len(e) - k)[len(e) - k]  # the k-th largest
+    sure = cand[e > kth]
+    ties = cand[e == kth]
+    ties = ties[np.argsort(-own[ties], kind="stable")][:k - len(sure)]
+    return np.concatenate([sure, ties])
 
 
 def discrepant(mean_lum: np.ndarray, disagreement: float, std_err: np.ndarray | None = None) -> np.ndarray:

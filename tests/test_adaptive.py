@@ -7,6 +7,7 @@ import pytest
 import clpt
 from clpt.adaptive import (ERROR_FLOOR, AdaptiveSettings, allocate_error, allocate_paper, allocation_ceiling,
                            colour_weight, discrepant, relative_error)
+from clpt.adaptive import _worst
 from clpt.constants import LUMA
 
 from stats import assert_mean_within
@@ -36,6 +37,23 @@ def test_error_allocation_follows_the_error_and_the_budget():
     box = (own[1:4, 1:4] ** 2).mean()
     assert err[2, 2] == pytest.approx(np.sqrt(0.5 * (own[2, 2] ** 2 + box)), rel=1e-12)
     assert own[2, 2] < err[2, 2] < 0.5 * err[2, 3]
+
+
+def test_the_left_over_samples_go_to_the_worst_pixels_as_a_full_sort_orders_them():
+    # _worst partitions instead of sorting the image: the same pixels as the
+    # first k candidates of a stable sort by (-err, -own), ties (many, with
+    # integer errors) included.
+    rng = np.random.default_rng(7)
+    for trial in range(400):
+        n = int(rng.integers(1, 200))
+        err = rng.integers(0, 4, n).astype(float) if trial % 2 else rng.random(n)
+        own = rng.integers(0, 3, n).astype(float)
+        cand = np.flatnonzero(rng.random(n) < 0.7)
+        k = int(rng.integers(1, n + 2))
+        order = np.lexsort((-own, -err))
+        expect = order[np.isin(order, cand)][:k]
+        got = _worst(cand, err, own, k)
+        assert len(got) == len(expect) and set(got.tolist()) == set(expect.tolist())
 
 
 def test_colour_weight_is_what_rgb_relmse_makes_of_the_luminance_noise():
