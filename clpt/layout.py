@@ -67,23 +67,6 @@ class Record:
         """[(field, numpy dtype, offset)], size, alignment."""
         return _record_layout(self, double)
 
-    def _compute_layout(self, double: bool):
-        off, align, out = 0, 1, []
-        for fname, ftype in self.fields:
-            if isinstance(ftype, Record):
-                dt, a = ftype.dtype(double), ftype.alignment(double)
-            else:
-                base, n = _parse(ftype)
-                np_t = np.dtype(_SCALARS[base][1 if double else 0])
-                slots = 4 if n == 3 else n
-                dt = np.dtype((np_t, (slots,))) if slots > 1 else np_t
-                a = np_t.itemsize * slots  # OpenCL vectors align to their size, scalars to theirs
-            off = -(-off // a) * a
-            out.append((fname, dt, off))
-            off += dt.itemsize
-            align = max(align, a)
-        return out, -(-off // align) * align, align
-
     def dtype(self, double: bool = False) -> np.dtype:
         return _record_dtype(self, double)
 
@@ -113,7 +96,21 @@ class Record:
 # the host's time between two launches).
 @functools.lru_cache(maxsize=None)
 def _record_layout(rec: Record, double: bool):
-    return rec._compute_layout(double)
+    off, align, out = 0, 1, []
+    for fname, ftype in rec.fields:
+        if isinstance(ftype, Record):
+            dt, a = ftype.dtype(double), ftype.alignment(double)
+        else:
+            base, n = _parse(ftype)
+            np_t = np.dtype(_SCALARS[base][1 if double else 0])
+            slots = 4 if n == 3 else n
+            dt = np.dtype((np_t, (slots,))) if slots > 1 else np_t
+            a = np_t.itemsize * slots  # OpenCL vectors align to their size, scalars to theirs
+        off = -(-off // a) * a
+        out.append((fname, dt, off))
+        off += dt.itemsize
+        align = max(align, a)
+    return out, -(-off // align) * align, align
 
 
 @functools.lru_cache(maxsize=None)

@@ -276,7 +276,7 @@ class Driver:
             first = -(-job.uniform_spp // job.spp_per_map) + sch.maps
             k = int(max(1, min(round(int(jobs[:, 0].sum()) / (n_pix * job.spp_per_map)), int(jobs[:, 0].max()))))
             n = jobs[:, 0].astype(np.int64)
-            depth, begin = jobs[:, 1].copy(), jobs[:, 2].astype(np.int64)
+            depth, begin = jobs[:, 1], jobs[:, 2].astype(np.int64)
             bounds = n[None, :] * np.arange(k + 1)[:, None] // k  # map j: samples [bounds[j], bounds[j + 1])
             for j in range(k):
                 lo, count_j = bounds[j], bounds[j + 1] - bounds[j]
