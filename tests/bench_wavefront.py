@@ -3,6 +3,7 @@ would have to win: the intersection stage on its own.
 
     python tests/bench_wavefront.py [SCENE] [--device intel] [--lanes 1,8,16] [--rounds 5]
         [--depth 3] [--spp 4] [--json OUT] [--mitsuba-python /work/main/.venv/bin/python]
+        [--working-set 512]
 
 SCENE as tests/bench_mitsuba.py takes it: `gallery` (the default; the
 real-complexity hall of tests/realscene.py), `bunny`, `cornell_box` or a
@@ -33,6 +34,13 @@ against trace_paths' whole device time per sample at that lane width. The
 ratio bounds what a wavefront split could gain: if intersection alone costs
 a share s of the megakernel's sample, the split can at best run 1/s times
 as fast, before paying for its buffers.
+
+With --working-set K, each lane width's bounce and shadow queues are timed
+twice more at the same length: K of their rays, each repeated in a run
+(caches and branch predictors warm), and the same K rays shuffled (the
+memory they touch small enough to stay in the caches, the branches as
+unpredictable as in the real queue). The real queue against the shuffled
+one is the cost of the BVH's memory not being in the caches.
 
 With --mitsuba-python (a Python with Mitsuba 3; '' to leave it out, the
 default), the same queues (the last lane width's) go to Mitsuba's
@@ -260,6 +268,7 @@ def main():
     ap.add_argument("--depth", type=int, default=3, help="bounce generations after the camera rays")
     ap.add_argument("--spp", type=int, default=4, help="the megakernel's samples per pixel a round")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--working-set", type=int, default=0, help="K rays repeated and shuffled (0: not timed)")
     ap.add_argument("--mitsuba-python", default="", help="a Python with Mitsuba 3, to time Embree on the same rays")
     a = ap.parse_args()
     path, params = bm.resolve(a.scene, {})
@@ -296,6 +305,18 @@ def main():
         for kind in ("camera", "bounce", "shadow"):
             print(f"    {kind:6} {q[kind + '_launch']['rays']:8d} rays: {q[kind + '_launch']['mrays_per_s']:6.2f} "
                   f"Mrays/s in launch order, {q[kind + '_sorted']['mrays_per_s']:6.2f} sorted")
+        if a.working_set:
+            for kind in ("bounce", "shadow"):
+                o, d, tmax = queues[kind]
+                pick = rng.choice(len(o), a.working_set, replace=False)
+                rep = np.repeat(pick, len(o) // a.working_set)
+                ws = {}
+                for label, idx in (("repeated", rep), ("shuffled", rng.permutation(rep))):
+                    sec = time_queue(stage, o[idx], d[idx], None if tmax is None else tmax[idx], a.rounds)
+                    ws[label] = len(idx) / sec / 1e6
+                row["queues"][f"{kind}_working_set"] = ws
+                print(f"    {kind:6} {a.working_set} rays, each repeated: {ws['repeated']:6.2f} Mrays/s, "
+                      f"shuffled: {ws['shuffled']:6.2f} (all rays: {q[kind + '_launch']['mrays_per_s']:.2f})")
         print(f"    intersection at trace_paths' ray mix: {row['intersect_ms_per_spp_launch']:7.1f} ms/spp "
               f"({row['share_launch']:.2f} of trace_paths), sorted {row['intersect_ms_per_spp_sorted']:7.1f} "
               f"({row['share_sorted']:.2f})")
