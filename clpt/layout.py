@@ -289,6 +289,9 @@ KIND_ENV, KIND_DIRECTIONAL = 6, 7
 # Primitive kinds in PLANAR.wv_kind.w (a smooth triangle has its normals' record index there instead).
 ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE = -1, -2, -3
 ITEM_EMPTY = -4  # an empty slot of a BVH leaf block
+# A plain loop's quad or flat triangle that no shadow ray can cross (clpt/pack.py _mark_shadowless): the
+# shadow query skips it (kernels/scene.h walk_planar); closest hits treat it as ITEM_QUAD or ITEM_FLAT_TRIANGLE.
+ITEM_QUAD_NO_SHADOW, ITEM_TRIANGLE_NO_SHADOW = -5, -6
 
 # --- launch records ----------------------------------------------------------------------------
 # The scene's section sizes, in the order the sections are packed (clpt/pack.py).
@@ -344,6 +347,8 @@ def c_source() -> str:
               f"#define KIND_ENV {KIND_ENV}", f"#define KIND_DIRECTIONAL {KIND_DIRECTIONAL}",
               f"#define ITEM_FLAT_TRIANGLE {ITEM_FLAT_TRIANGLE}", f"#define ITEM_QUAD {ITEM_QUAD}",
               f"#define ITEM_SPHERE {ITEM_SPHERE}", f"#define ITEM_EMPTY {ITEM_EMPTY}",
+              f"#define ITEM_QUAD_NO_SHADOW {ITEM_QUAD_NO_SHADOW}",
+              f"#define ITEM_TRIANGLE_NO_SHADOW {ITEM_TRIANGLE_NO_SHADOW}",
               f"#define BVHL_WIDTH {BVH_LEAF_WIDTH}", f"#define COAT_TABLE_ROWS {COAT_TABLE_ROWS}",
               f"#define ENVA_ENTRIES {ENV_ALIAS_ENTRIES}"]
     parts += [f"#define {k} {v}" for k, v in (("TEX_BITMAP", TEX_BITMAP), ("TEX_CHECKERBOARD", TEX_CHECKERBOARD),

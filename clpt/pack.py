@@ -26,8 +26,9 @@ import numpy as np
 
 from . import bvh as bvh_mod
 from . import coating, layout
-from .constants import dot_rows
-from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_SPHERE, KIND_DIRECTIONAL, KIND_ENV, KIND_MESH,
+from .constants import OFFSET_FLOOR, OFFSET_REL, dot_rows
+from .layout import (COUNT_NAMES, ITEM_FLAT_TRIANGLE, ITEM_QUAD, ITEM_QUAD_NO_SHADOW, ITEM_SPHERE,
+                     ITEM_TRIANGLE_NO_SHADOW, KIND_DIRECTIONAL, KIND_ENV, KIND_MESH,
                      KIND_POINT, KIND_QUAD, KIND_SPHERE, KIND_SPOT, KIND_TRIANGLE, Rows)
 from .meshio import cross_rows
 from .scene import (DEFAULT_UV, EMISSION_SLOT, TEXTURE_SLOTS, Camera, EnvironmentLight, Material, Scene,
@@ -685,6 +686,57 @@ def _big_primitives(lo, hi, exclude):
     return big
 
 
+def _scene_points(scene: Scene) -> np.ndarray:
+    """Points whose convex hull holds every point a path can reach or start
+    from: the shapes' vertices, the corners of spheres' boxes, point and spot
+    lights' positions, and the camera."""
+    pts = [np.array([scene.camera.origin], dtype=np.float64)]
+    for s in scene.shapes:
+        p = np.asarray(s.points(), dtype=np.float64).reshape(-1, 3)
+        if isinstance(s, Sphere) and len(p):  # its box's two corners: all eight
+            lo, hi = p.min(0), p.max(0)
+            p = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]]
+                          for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+        pts.append(p)
+    return np.concatenate(pts)
+
+
+def _mark_shadowless(recs: np.ndarray, kind: float, no_shadow: float, pts: np.ndarray) -> int:
+    """Gives the PLANAR records of the given kind that no shadow ray can cross
+    the kind no_shadow, in place; returns how many. Such a primitive has every
+    one of pts (_scene_points) on one side of its plane, or in it: shadow
+    rays run between points of their convex hull (a surface point, offset a
+    little off its surface on the side it was reached from, and a point on a
+    light), which lies in that closed half-space, so they never cross the
+    plane (a room's walls, the camera inside or in front). A point counts as
+    in the plane within 1e-9 of its and the primitive's coordinates'
+    magnitudes (float64 rounding). The points off the plane must also lie
+    farther from it than any ray origin's offset can move a point
+    (kernels/scene.h offset_distance, bounded by the largest coordinate):
+    a ground sphere of radius 1e6 gives the points on it offsets of several
+    units, which can carry a shadow ray's origin across a ceiling 0.01 above
+    a lamp."""
+    cand = np.flatnonzero(recs["wv_kind"][:, 3] == kind) if len(recs) else np.zeros(0, dtype=np.int64)
+    if not len(cand) or not len(pts):
+        return 0
+    n = recs["n_light"][cand, :3]
+    n = n / np.linalg.norm(n, axis=1, keepdims=True)
+    mag = np.abs(pts).max(1)
+    # offset_distance's bound: (|p| + err) * OFFSET_REL + floor, err = |origin| + the primitive's magnitude.
+    reach = 3 * float(mag.max()) * OFFSET_REL["float"] + OFFSET_FLOOR["float"]
+    marked = 0
+    for k in range(0, len(cand), 64):  # (points x primitives) in blocks
+        c, nk = cand[k:k + 64], n[k:k + 64]
+        corner = recs["corner_mat"][c, :3]
+        s = pts @ nk.T - np.sum(corner * nk, axis=1)[None, :]
+        tol = 1e-9 * (mag[:, None] + np.abs(corner).max(1)[None, :])
+        near = (np.abs(s) > tol) & (np.abs(s) < reach)  # off the plane, within an offset of it
+        one_side = ((s >= -tol).all(0) | (s <= tol).all(0)) & ~near.any(0)
+        recs["wv_kind"][c[one_side], 3] = no_shadow
+        marked += int(one_side.sum())
+    return marked
+
+
 def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh") -> PackedScene:
     """bvh: "auto" (a BVH from BVH_MIN_PRIMS bounded primitives), True/"on"
     (always), False/"off" (never: plain loops)."""
@@ -765,6 +817,12 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
         quads = quads[np.isin(quads["wu_prim"][:, 3], big_ids)]
         tris = tris[np.isin(tris["wu_prim"][:, 3], big_ids)]
         items, lo, hi = items[~big], lo[~big], hi[~big]
+    # The plain loops' walls that no shadow ray can cross, skipped by shadow rays. Not with lights at
+    # infinity (a shadow ray towards one leaves the hull) or infinite planes (no hull).
+    if not b.infinite and not len(planes) and (len(quads) or len(tris)):
+        pts = _scene_points(scene)
+        _mark_shadowless(quads, ITEM_QUAD, ITEM_QUAD_NO_SHADOW, pts)
+        _mark_shadowless(tris, ITEM_FLAT_TRIANGLE, ITEM_TRIANGLE_NO_SHADOW, pts)
     light_recs = layout.LIGHT.zeros(len(lights))  # filled below, once the mesh lights' triangles are placed
     sections = [mat_recs, sphere_plain, quads, tris, planes, light_recs, caustics]
     head = sum(len(Rows.rows(x)) for x in sections)

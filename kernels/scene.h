@@ -262,6 +262,8 @@ CLPT_INLINE void walk_planar(const Scene *sc, uint off, uint count, int tri, V3 
         uint r = off + PLANAR_STRIDE * i;
         real4 p = scene_rec(sc, r + PLANAR_CORNER_MAT), n = scene_rec(sc, r + PLANAR_N_LIGHT);
         real4 wu = scene_rec(sc, r + PLANAR_WU_PRIM), wv = scene_rec(sc, r + PLANAR_WV_KIND);
+        if (any && wv.w <= (real)ITEM_QUAD_NO_SHADOW)
+            continue;  // a wall no shadow ray can cross (clpt/pack.py _mark_shadowless)
         vreal a, b;
         vreal t = intersect_planar_recs(p, n, wu, wv, o, d, tri, &a, &b);
         if (any)
