@@ -737,9 +737,12 @@ def _mark_shadowless(recs: np.ndarray, kind: float, no_shadow: float, pts: np.nd
     return marked
 
 
-def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh") -> PackedScene:
+def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh",
+               shadowless: bool = True) -> PackedScene:
     """bvh: "auto" (a BVH from BVH_MIN_PRIMS bounded primitives), True/"on"
-    (always), False/"off" (never: plain loops)."""
+    (always), False/"off" (never: plain loops). shadowless: mark the walls no
+    shadow ray of a path can cross (_mark_shadowless); False for queries of
+    arbitrary segments (the tests' probes), which may cross them."""
     scene.check()
     scale = length_scale(scene.extent())
     if scale != 1.0:
@@ -819,7 +822,7 @@ def pack_scene(scene: Scene, bvh: str | None = "auto", bvh_method: str = "lbvh")
         items, lo, hi = items[~big], lo[~big], hi[~big]
     # The plain loops' walls that no shadow ray can cross, skipped by shadow rays. Not with lights at
     # infinity (a shadow ray towards one leaves the hull) or infinite planes (no hull).
-    if not b.infinite and not len(planes) and (len(quads) or len(tris)):
+    if shadowless and not b.infinite and not len(planes) and (len(quads) or len(tris)):
         pts = _scene_points(scene)
         _mark_shadowless(quads, ITEM_QUAD, ITEM_QUAD_NO_SHADOW, pts)
         _mark_shadowless(tris, ITEM_FLAT_TRIANGLE, ITEM_TRIANGLE_NO_SHADOW, pts)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import clpt
-from clpt import layout, pack
+from clpt import layout
 from clpt.pack import pack_scene
 
 
@@ -58,14 +58,13 @@ def test_marking_needs_every_point_on_one_side():
 
 
 @pytest.mark.parametrize("lanes", [1, 8])
-def test_shadow_rays_inside_the_hull_are_blocked_as_before(probes, monkeypatch, lanes):
+def test_shadow_rays_inside_the_hull_are_blocked_as_before(probes, lanes):
     """Segments between random points of the box's surfaces and of its lamp:
     the same blocked lanes with the marked walls skipped as with every wall
     tested, and some of them blocked by what stands inside."""
     scene = clpt.load_scene("cornell_box")
     marked = pack_scene(scene)
-    monkeypatch.setattr(pack, "_mark_shadowless", lambda *a: 0)
-    plain = pack_scene(scene)
+    plain = pack_scene(scene, shadowless=False)
     assert (_kinds(plain) == layout.ITEM_QUAD_NO_SHADOW).sum() == 0
     rng = np.random.default_rng(11)
     quads = []
