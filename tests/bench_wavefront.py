@@ -119,23 +119,19 @@ def mitsuba_queues(python, path, params, queues, rounds):
         return json.loads(res.stdout.strip().splitlines()[-1])
 
 
-def camera_rays(cam, rng):
-    """One jittered pinhole ray a pixel (row-major), as (origin, direction) arrays."""
+def camera_rays(cam, rng, scale=1.0):
+    """One jittered pinhole ray a pixel (row-major), as (origin, direction)
+    arrays, through clpt's own camera frame (clpt/pack.py camera_frame)."""
+    from clpt.pack import camera_frame
+
     w, h = cam.width, cam.height
-    o = np.asarray(cam.origin, dtype=np.float64)
-    f = np.asarray(cam.target, dtype=np.float64) - o
-    f /= np.linalg.norm(f)
-    r = np.cross(f, np.asarray(cam.up, dtype=np.float64))
-    r /= np.linalg.norm(r)
-    u = np.cross(r, f)
-    axis = {"x": w, "y": h, "smaller": min(w, h), "larger": max(w, h)}[cam.fov_axis]
-    half = np.tan(np.radians(cam.fov) / 2) / axis  # half-width of a pixel at distance 1, times 2
+    fr = camera_frame(cam, w, h, scale)
     y, x = np.mgrid[0:h, 0:w]
-    sx = (x.ravel() + rng.random(w * h) - w / 2) * 2 * half
-    sy = (h / 2 - y.ravel() - rng.random(w * h)) * 2 * half
-    d = f[None] + sx[:, None] * r[None] + sy[:, None] * u[None]
+    sx = x.ravel() + rng.random(w * h)
+    sy = y.ravel() + rng.random(w * h)
+    d = fr.corner[None] + sx[:, None] * fr.dx[None] + sy[:, None] * fr.dy[None]
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    return np.broadcast_to(o, d.shape).copy(), d
+    return np.broadcast_to(fr.origin, d.shape).copy(), d
 
 
 def cosine_about(n, rng):
@@ -179,6 +175,7 @@ class Stage:
         src = program.stitch([str(HERE / "kernels" / "wavefront.cl")])
         self.prog, _ = program.build(dctx, src, feats.options())
         self.real = np.float64 if feats.double else np.float32
+        self.scale = renderer.packed.length_scale
         mf = cl.mem_flags
         recs = np.ascontiguousarray(renderer.packed.records, dtype=self.real)
         self.rec = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
@@ -210,7 +207,7 @@ class Stage:
 
 def make_queues(stage, cam, depth, rng, eps):
     """The ray queues of `depth` bounces: lists of (o, d, tmax) per kind."""
-    o, d = camera_rays(cam, rng)
+    o, d = camera_rays(cam, rng, stage.scale)
     queues = {"camera": [(o, d, None)], "bounce": [], "shadow": []}
     for gen in range(depth + 1):
         (t, nx, ny, nz, _), _ = stage.run("wf_closest", [*o.T, *d.T], 5)
