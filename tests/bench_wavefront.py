@@ -172,7 +172,7 @@ class Stage:
         dctx = renderer.devices[0]
         self.dctx, self.lanes = dctx, lanes
         feats = dataclasses.replace(renderer.features, lanes=lanes)
-        src = program.stitch([str(HERE / "kernels" / "wavefront.cl")])
+        src = program.stitch([str(HERE / "kernels" / f) for f in ("lane_io.cl", "wavefront.cl")])
         self.prog, _ = program.build(dctx, src, feats.options())
         self.real = np.float64 if feats.double else np.float32
         self.scale = renderer.packed.length_scale
@@ -181,7 +181,7 @@ class Stage:
         self.rec = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=recs)
         info = np.ascontiguousarray(scene_info(renderer.packed.counts, 0.0, feats.double))
         self.info = cl.Buffer(dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=info)
-        self.kernels = {k: getattr(self.prog, k) for k in ("wf_closest", "wf_occluded", "wf_light")}
+        self.kernels = {k: getattr(self.prog, k) for k in ("wf_closest", "wf_occluded", "probe_light_sample")}
 
     def run(self, name, inputs, n_out):
         """Launch kernel `name` over len(inputs[0]) items; (outputs, device seconds)."""
@@ -218,7 +218,7 @@ def make_queues(stage, cam, depth, rng, eps):
         n = np.where((np.sum(n * d, axis=1) > 0)[:, None], -n, n)  # facing the ray
         p = o + t[:, None] * d + eps * n
         u = rng.random((3, len(p)))
-        (wx, wy, wz, dist, valid), _ = stage.run("wf_light", [*p.T, *u], 5)
+        (wx, wy, wz, dist, _, _, valid), _ = stage.run("probe_light_sample", [*p.T, *u], 7)
         w = np.stack([wx, wy, wz], 1).astype(np.float64)
         ok = (valid > 0) & (np.sum(w * n, axis=1) > 0)
         queues["shadow"].append((p[ok], w[ok], dist[ok].astype(np.float64) * (1 - 1e-4)))

@@ -83,7 +83,8 @@ class Probe:
         from clpt.layout import launch_records
         fields = " ".join(f"PROBE_SIZE({r.name})" + "".join(f" PROBE_FIELD({r.name}, {f})" for f, _ in r.fields)
                           for r in launch_records())
-        src = program.stitch(["photons.cl", "grid.cl", "filter.cl", str(TESTS / "kernels" / "probes.cl")],
+        src = program.stitch(["photons.cl", "grid.cl", "filter.cl", str(TESTS / "kernels" / "lane_io.cl"),
+                              str(TESTS / "kernels" / "probes.cl")],
                              {"<probe record fields>": f"#define PROBE_RECORD_FIELDS {fields}\n"},
                              after=program.LIBRARY_FILES[-1])
         self.program, _ = program.build(dctx, src, feats.options())
