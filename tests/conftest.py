@@ -2,8 +2,10 @@
 default, pinned; set CLPT_TEST_DEVICE to a `--device` selection to test another), an isolated
 kernel build cache, and probe programs that expose kernel library functions."""
 
+import atexit
 import faulthandler
 import os
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -12,7 +14,11 @@ import numpy as np
 import pytest
 
 # An isolated build cache: tests must not depend on (or fill) the user's.
-os.environ.setdefault("CLPT_CACHE_DIR", tempfile.mkdtemp(prefix="clpt-test-cache-"))
+# One made here is removed when the session's process ends (a session's
+# builds take about 120 MB; left behind, every run of the suite kept them).
+if "CLPT_CACHE_DIR" not in os.environ:
+    os.environ["CLPT_CACHE_DIR"] = tempfile.mkdtemp(prefix="clpt-test-cache-")
+    atexit.register(shutil.rmtree, os.environ["CLPT_CACHE_DIR"], ignore_errors=True)
 # Defaults from device queries only: a runtime whose best lane width is
 # measured (clpt/tune.py) would otherwise measure for every new kind of scene.
 # tests/test_tune.py measures on purpose.

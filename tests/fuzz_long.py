@@ -17,10 +17,12 @@ memory is watched, so a blow-up does too.
 """
 
 import argparse
+import atexit
 import collections
 import json
 import os
 import resource
+import shutil
 import signal
 import sys
 import tempfile
@@ -28,7 +30,9 @@ import time
 import traceback
 from pathlib import Path
 
-os.environ.setdefault("CLPT_CACHE_DIR", tempfile.mkdtemp(prefix="clpt-fuzz-cache-"))
+if "CLPT_CACHE_DIR" not in os.environ:  # a build cache of its own, removed at exit
+    os.environ["CLPT_CACHE_DIR"] = tempfile.mkdtemp(prefix="clpt-fuzz-cache-")
+    atexit.register(shutil.rmtree, os.environ["CLPT_CACHE_DIR"], ignore_errors=True)
 os.environ.setdefault("CLPT_TUNE", "query")
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
