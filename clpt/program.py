@@ -6,7 +6,10 @@ cached, dumped (``CLPT_DUMP_KERNELS=dir``) and named in build errors; there
 are no include paths. Built program binaries are cached on disk, keyed by the
 stitched source, the sorted build options and the device/driver identity:
 ``$CLPT_CACHE_DIR``, else ``$XDG_CACHE_HOME/clpt``, else ``~/.cache/clpt``.
-``clpt cache --clear`` empties it (and the tuned settings beside it).
+``clpt cache --clear`` empties it (and the tuned settings beside it). Its
+binaries are bounded: after each new one is written, the least recently used
+(a cache hit renews a binary's time) are removed while they total more than
+``$CLPT_CACHE_MB`` (MiB, default 1024; a binary is 0.1-1 MB).
 pyopencl's own binary cache is not used: it would make a build that misses
 ours (after ``clpt cache --clear``, or a cold build in ``clpt bench``) warm.
 
@@ -56,7 +59,7 @@ from pathlib import Path
 import pyopencl as cl
 
 from .constants import kernel_defines
-from .errors import KernelBuildError
+from .errors import KernelBuildError, SettingsError
 from .layout import c_source
 from .resources import cache_dir, kernel_dir
 
@@ -74,6 +77,46 @@ def clear_cache() -> int:
     for sub in ("kernels", "tune", "devices"):
         shutil.rmtree(cache_dir() / sub, ignore_errors=True)
     return n
+
+
+def cache_limit_bytes() -> int:
+    """The kernel binaries' bound ($CLPT_CACHE_MB, default 1024 MB)."""
+    raw = os.environ.get("CLPT_CACHE_MB", "1024")
+    try:
+        mb = float(raw)
+    except ValueError:
+        raise SettingsError(f"CLPT_CACHE_MB must be a number of megabytes, not {raw!r}") from None
+    if not mb >= 0 or mb == float("inf"):
+        raise SettingsError(f"CLPT_CACHE_MB must be a finite number of megabytes >= 0, not {raw!r}")
+    return int(mb * 2 ** 20)
+
+
+def prune_cache(folder: Path, keep: Path | None = None, limit: int | None = None) -> int:
+    """Remove the least recently used binaries in `folder` (by modification
+    time, which a cache hit renews) while they total more than `limit` bytes
+    (cache_limit_bytes()); `keep` (the binary just written) stays. Files that
+    vanish meanwhile (another process pruning) are skipped. Returns how many
+    were removed."""
+    limit = cache_limit_bytes() if limit is None else limit
+    entries = []
+    with contextlib.suppress(OSError):
+        for e in os.scandir(folder):
+            if e.name.endswith(".bin"):
+                with contextlib.suppress(OSError):
+                    st = e.stat()
+                    entries.append((st.st_mtime, st.st_size, e.path))
+    total = sum(size for _, size, _ in entries)
+    removed = 0
+    for _, size, name in sorted(entries):
+        if total <= limit:
+            break
+        if keep is not None and Path(name) == keep:
+            continue
+        with contextlib.suppress(OSError):
+            os.unlink(name)
+            removed += 1
+        total -= size
+    return removed
 
 
 def stitch(entry_files, generated: dict[str, str] | None = None, after: str = "simd.h") -> str:
@@ -249,15 +292,16 @@ def build(dctx, source: str, options, use_cache: bool = True):
     # its lazy device compile) are not the user's business; errors still show.
     options = list(options) + ["-w"] + device_options(dctx) + filter_options(dctx)
     key = _key(source, options, dctx.identity())
+    limit = cache_limit_bytes() if use_cache else None  # (a bad CLPT_CACHE_MB is said before compiling)
     if os.environ.get("CLPT_DUMP_KERNELS"):
         _dump(source, options, key)
     path = cache_dir() / "kernels" / f"{key}.bin"
     t0 = time.perf_counter()
     with (contextlib.nullcontext() if builds_at_once(dctx) else _one_build):
-        return _build(dctx, source, options, key, path, use_cache, t0)
+        return _build(dctx, source, options, key, path, use_cache, t0, limit)
 
 
-def _build(dctx, source, options, key, path, use_cache, t0):
+def _build(dctx, source, options, key, path, use_cache, t0, limit=None):
     """build()'s work, from the cache or the source (under _one_build where that is held)."""
     with warnings.catch_warnings():
         # Compiler remarks (e.g. PoCL's notes on wide vector ABIs) are not the user's business.
@@ -265,6 +309,8 @@ def _build(dctx, source, options, key, path, use_cache, t0):
         if use_cache and path.is_file():
             try:
                 prg = cl.Program(dctx.context, [dctx.device], [path.read_bytes()]).build(options=options)
+                with contextlib.suppress(OSError):
+                    os.utime(path)  # recently used (the bound below removes the least recently used first)
                 return prg, BuildInfo(time.perf_counter() - t0, True, key, options)
             except (cl.Error, OSError):
                 path.unlink(missing_ok=True)  # stale or damaged entry: rebuild below
@@ -296,6 +342,7 @@ def _build(dctx, source, options, key, path, use_cache, t0):
                 tmp = path.with_suffix(f".{os.getpid()}.tmp")
                 tmp.write_bytes(binaries[0])
                 os.replace(tmp, path)  # atomic: concurrent renders never read half a file
+                prune_cache(path.parent, keep=path, limit=limit)
         except (cl.Error, OSError):
             pass  # a cache that cannot be written only costs the next build
     # (On PoCL, fetching the binary is where the kernels compile: it is counted.)

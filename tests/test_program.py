@@ -1,6 +1,7 @@
 """Kernel builds (clpt/program.py): PoCL's one compile per kernel, and
 overlapping PoCL builds that go to child processes."""
 
+import os
 import threading
 
 import numpy as np
@@ -162,3 +163,40 @@ def test_a_caustic_scene_builds_its_programs_in_turn_where_builds_cannot_overlap
     r = clpt.Renderer("cornell_box_caustics", device=device_spec, use_cache=False, lanes=4)
     assert r.states[0].pmap is not None  # two programs: the path pass and the photon pass
     assert seen.most == 1 and seen.threads == {threading.get_ident()}
+
+
+def test_the_cache_keeps_the_recently_used_binaries_within_its_bound(dctx, tmp_path, monkeypatch):
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    srcs = [SRC + f"\n// variant {i}\n" for i in range(3)]
+    program.build(dctx, srcs[0], [])
+    bins = sorted(tmp_path.glob("kernels/*.bin"))
+    assert len(bins) == 1
+    size = bins[0].stat().st_size
+    # Room for two binaries: the third build removes the least recently used.
+    monkeypatch.setenv("CLPT_CACHE_MB", str(2.5 * size / 2 ** 20))
+    program.build(dctx, srcs[1], [])
+    first, second = bins[0], (set(tmp_path.glob("kernels/*.bin")) - {bins[0]}).pop()
+    os.utime(first, (1e9, 1e9))
+    os.utime(second, (1e9 + 1, 1e9 + 1))  # (used after the first)
+    assert program.build(dctx, srcs[0], [])[1].cache_hit  # a hit renews the first: now the second is oldest
+    assert first.stat().st_mtime > 1e9 + 1
+    program.build(dctx, srcs[2], [])
+    left = set(tmp_path.glob("kernels/*.bin"))
+    assert first in left and second not in left and len(left) == 2
+    assert program.build(dctx, srcs[0], [])[1].cache_hit
+    assert not program.build(dctx, srcs[1], [])[1].cache_hit  # removed, so built again
+    # The binary just written always stays, even with no room at all.
+    monkeypatch.setenv("CLPT_CACHE_MB", "0")
+    program.build(dctx, srcs[2] + " ", [])
+    assert len(list(tmp_path.glob("kernels/*.bin"))) == 1
+
+
+@pytest.mark.parametrize("bad", ["lots", "-1", "nan", "inf"])
+def test_a_bad_cache_bound_is_one_line_before_any_build(dctx, tmp_path, monkeypatch, bad):
+    monkeypatch.setenv("CLPT_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("CLPT_CACHE_MB", bad)
+    with pytest.raises(program.SettingsError, match="CLPT_CACHE_MB") as e:
+        program.build(dctx, SRC, [])
+    assert "\n" not in str(e.value)
+    assert not list(tmp_path.glob("kernels/*"))
+    assert program.build(dctx, SRC, [], use_cache=False)[0] is not None  # no cache: no bound to read

@@ -11,7 +11,7 @@ def add_parser(sub):
 
 
 def run(a) -> int:
-    from ..program import cache_dir, clear_cache
+    from ..program import cache_dir, cache_limit_bytes, clear_cache
 
     if a.clear:
         print(f"removed {clear_cache()} cached kernel builds, the tuned settings and the device checks "
@@ -19,5 +19,6 @@ def run(a) -> int:
     else:
         d = cache_dir() / "kernels"
         files = list(d.glob("*.bin")) if d.is_dir() else []
-        print(f"{cache_dir()}: {len(files)} cached kernel builds, {sum(f.stat().st_size for f in files) / 1e6:.1f} MB")
+        print(f"{cache_dir()}: {len(files)} cached kernel builds, {sum(f.stat().st_size for f in files) / 1e6:.1f} MB "
+              f"(at most {cache_limit_bytes() / 2 ** 20:.0f} MiB, CLPT_CACHE_MB: the least recently used go first)")
     return 0
