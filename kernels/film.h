@@ -278,6 +278,18 @@ inline vmask visible_add_vertex(VisibleSurface *v, vmask hit, vreal t, const Mat
     return before_x;
 }
 
+// Emission Le that the lanes in `sees` reached through the Fresnel
+// reflection of the camera's first vertex on glass (path_glass_split): seen
+// through glass, so kept out of the filtering; the lanes in `lit` met an
+// emitter there, counted once a sample as visible_add_vertex counts them.
+inline void visible_add_split(VisibleSurface *v, V3 Le, vmask sees, vmask lit)
+{
+    v3_add_where(&v->emission, Le, sees);
+    vmask seen = lit && !v->lit;
+    vreal_add_where(&v->lights, (vreal)R(1), seen);
+    v->lit = v->lit || seen;
+}
+
 // The photon map's part c of this sample (lanes in m, if finite): rgb and
 // its squared luminance times lum_scale^2.
 inline void visible_add_caustic(VisibleSurface *v, V3 c, vmask m, real lum_scale)

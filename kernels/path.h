@@ -68,6 +68,7 @@ typedef struct {
     vreal chain_k;   // at the last non-delta vertex: mis_k cos / pdf_bsdf of the direction taken
                      // (0 where no merge happened there); times pf at the light: p_m / p_pt
     vreal nd_count;  // vertices with a non-delta part met so far (merges at the first merge_vertices)
+    vmask skip_le;   // the emission this ray meets was taken whole at its vertex (path_glass_split)
 } PathState;
 
 // A vertex: the surface a path's ray hit.
@@ -81,6 +82,7 @@ typedef struct {
     vmask nondelta;    // the surface has a diffuse, Phong or microfacet part
     vmask at_x;        // (photons) the first vertex with a non-delta part
     vmask merge_here;  // (photons) a vertex where merging may happen
+    vmask split;       // (glass) the camera's first vertex on smooth glass: path_glass_split
 #if CLPT_HAS_ENV_LIGHT
     vmask escaped;     // the ray left the scene (it sees the environment)
 #endif
@@ -92,6 +94,7 @@ inline PathState path_state_make(vmask active)
     ps.o = ps.d = ps.beta = ps.L = ps.x_prev = v3_zero();
     ps.depth = ps.pdf_prev = ps.own = ps.chain = ps.chain_k = ps.nd_count = (vreal)R(0);
     ps.specular = active;
+    ps.skip_le = active && !active;
     return ps;
 }
 
@@ -109,6 +112,7 @@ inline void path_start(PathState *ps, const CameraRec *cam, vreal px, vreal py, 
     ps->pdf_prev = VSEL(ps->pdf_prev, (vreal)R(0), start);
     ps->nd_count = VSEL(ps->nd_count, (vreal)R(0), start);
     ps->specular = ps->specular || start;
+    ps->skip_le = ps->skip_le && !start;
 }
 
 // The vertex at hit h of the lanes in `active` (rr_depth: the depth from
@@ -138,7 +142,7 @@ inline Vertex vertex_make(const Scene *sc, const PathState *ps, Hit h, vmask act
     material_face(&v.m, v.front);
     v.pr = lobe_probs(&v.m, ps->depth < (real)rr_depth);
     v.nondelta = v.hit && v.m.nondelta != R(0);
-    v.at_x = v.merge_here = v.hit && !v.hit;
+    v.at_x = v.merge_here = v.split = v.hit && !v.hit;
 #if CLPT_HAS_ENV_LIGHT
     v.escaped = active && !(h.t < R(INFINITY));
 #endif
@@ -327,6 +331,52 @@ inline uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, v
     return vpopcount(nee);
 }
 
+#if CLPT_HAS_GLASS
+// Splitting at the camera's first vertex on smooth glass (a material of
+// delta lobes with a dielectric one, lanes in go at depth 0; v->split):
+// the emission its Fresnel reflection meets next (a lamp reflected in the
+// glass) is taken in every sample, with the reflection's expected weight
+// F kt, instead of whole in the share F of samples the Fresnel coin sends
+// that way (its emission is then left out there: ps->skip_le, set by
+// path_scatter). Same expectation; the reflection of a lamp in a glass ball
+// is then seen by every sample instead of one in 10-25 (F = 0.04-0.1), so
+// its pixels are no longer noise to the denoisers (the lamp's emission is
+// confirmed and kept out of the filtering: clpt/denoise.py). One more ray
+// for the lanes on glass: the emission is added to ps->L and to the
+// features' (those that see a lamp counted); returns the rays traced.
+inline uint path_glass_split(const Scene *sc, const PhotonLookup *pl, PathState *ps, Vertex *v, vmask go,
+                             uint rr_depth, VisibleSurface *vis)
+{
+    v->split = go && ps->depth == R(0) && v->m.nondelta == R(0) && v->pr.t > R(0);
+    if (!VANY(v->split))
+        return 0;
+    // The reflection as path_scatter makes it (bsdf_sample's dielectric lobe, offset_scattered,
+    // keep_geometric_side), so the ray is the one the coin's reflection would trace.
+    vreal e = VSEL(R(1) / v->m.ior, v->m.ior, v->front);
+    vreal cos_t;
+    vreal F = fresnel_dielectric(-v3_dot(ps->d, v->n), e, &cos_t);
+    PathState r = *ps;
+    r.d = v3_normalize(v3_reflect(ps->d, v->n));
+    r.o = offset_scattered(sc, v->x, v->n, r.d, v->h.err);
+    keep_geometric_side(sc, &r.o, &r.d, v->x, v->n, v->ng, v->split && v->h.nrm >= R(0), v->h.err);
+    r.beta = v3_mul(ps->beta, v3_scale(v->m.kt, F));
+    r.specular = v->split;
+    r.pdf_prev = (vreal)R(0);  // after a delta lobe: the emission counts whole
+    r.x_prev = v->x;
+    r.depth = ps->depth + R(1);
+    Vertex w = vertex_make(sc, &r, scene_intersect_active(sc, r.o, r.d, v->split), v->split, rr_depth);
+    vmask sees;
+    V3 Le = path_emission(sc, pl, &r, &w, &sees);
+    sees = sees && v->split;
+    ps->L = v3_sel(ps->L, v3_add(ps->L, Le), sees);
+#if CLPT_AUX
+    vreal le_max = fmax(w.m.Le.x, fmax(w.m.Le.y, w.m.Le.z));
+    visible_add_split(vis, Le, sees, w.hit && le_max > R(0) && (w.front || w.m.two_sided != R(0)));
+#endif
+    return vpopcount(v->split);
+}
+#endif
+
 // Scattering at the vertex for the lanes in go: a lobe and a direction from
 // the BSDF, the throughput, and the next ray (kept on the side of the
 // geometric surface its lobe meant). Returns the lanes whose path goes on.
@@ -344,6 +394,7 @@ inline vmask path_scatter(const Scene *sc, PathState *ps, const Vertex *v, vmask
     cont = cont && v3_max_comp(ps->beta) > R(0);
     keep_geometric_side(sc, &ps->o, &ps->d, v->x, v->n, v->ng, cont && v->h.nrm >= R(0), v->h.err);
     ps->depth = VSEL(ps->depth, ps->depth + R(1), cont);
+    ps->skip_le = cont && v->split && bs.fresnel_refl;
     return cont;
 }
 

@@ -128,12 +128,18 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
         V3 Le = path_emission(sc, pl, &ps, &v, &sees);
         if (L.hide_emitters != 0u)  // camera rays see no emission
             sees = sees && ps.depth > R(0);
+#if CLPT_HAS_GLASS
+        sees = sees && !ps.skip_le;  // taken whole at the glass vertex before (path_glass_split)
+#endif
         ps.L = v3_sel(ps.L, v3_add(ps.L, Le), sees);
 #if CLPT_AUX
         v3_add_where(&vis.emission, Le, sees && before_x);
 #endif
         // A one-sided surface is black from behind.
         vmask go = v.hit && ps.depth < jobs.depth && (v.front || v.m.one_sided == R(0));
+#if CLPT_HAS_GLASS
+        n_bounce += path_glass_split(sc, pl, &ps, &v, go, L.rr_depth, &vis);
+#endif
 
         // --- caustic photons: the gather at x, or merging ---------------------------------------
 #if CLPT_PHOTONS
