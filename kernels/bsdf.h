@@ -445,7 +445,6 @@ typedef struct {
     vmask chosen;   // a lobe was chosen (not absorbed; a Phong or microfacet direction above the surface)
     vmask delta;    // ... and it is the mirror or refraction
     vmask up;       // wi leaves on the side of n (not refracted through)
-    vmask fresnel_refl;  // the dielectric's lobe (kt) drew its reflection
 } BsdfSample;
 
 #if CLPT_HAS_MICROFACET || CLPT_HAS_PLASTIC || CLPT_HAS_ROUGH_DIELECTRIC
@@ -682,7 +681,6 @@ CLPT_INLINE void bsdf_sample(const Material *m, LobeProbs pr, V3 d, V3 n, vmask 
 #endif
     bs.chosen = is_d || is_s || is_m || is_p || is_g || is_r || is_t;
     bs.delta = is_r || is_t || p_delta;
-    bs.fresnel_refl = is_t && bs.up;  // (on the lanes of the dielectric's lobe, up is its reflection)
     bs.wi = v3_normalize(wi);
     bs.weight = w;
     // The pdf of the direction under the whole non-delta mixture (what light

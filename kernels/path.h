@@ -334,10 +334,11 @@ inline uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, v
 #if CLPT_HAS_GLASS
 // Splitting at the camera's first vertex on smooth glass (a material of
 // delta lobes with a dielectric one, lanes in go at depth 0; v->split):
-// the emission its Fresnel reflection meets next (a lamp reflected in the
-// glass) is taken in every sample, with the reflection's expected weight
-// F kt, instead of whole in the share F of samples the Fresnel coin sends
-// that way (its emission is then left out there: ps->skip_le, set by
+// the emission its reflection meets next (a lamp reflected in the glass)
+// is taken in every sample, with the reflection's expected weight kr + F kt
+// (the mirror lobe's and the dielectric's, which reflect alike), instead
+// of whole in the share F of samples the Fresnel coin sends that way (a
+// sample that reflects leaves that emission out: ps->skip_le, set by
 // path_scatter). Same expectation; the reflection of a lamp in a glass ball
 // is then seen by every sample instead of one in 10-25 (F = 0.04-0.1), so
 // its pixels are no longer noise to the denoisers (the lamp's emission is
@@ -345,7 +346,7 @@ inline uint path_direct_light(const Scene *sc, PathState *ps, const Vertex *v, v
 // for the lanes on glass: the emission is added to ps->L and to the
 // features' (those that see a lamp counted); returns the rays traced.
 inline uint path_glass_split(const Scene *sc, const PhotonLookup *pl, PathState *ps, Vertex *v, vmask go,
-                             uint rr_depth, VisibleSurface *vis)
+                             VisibleSurface *vis)
 {
     v->split = go && ps->depth == R(0) && v->m.nondelta == R(0) && v->pr.t > R(0);
     if (!VANY(v->split))
@@ -355,23 +356,40 @@ inline uint path_glass_split(const Scene *sc, const PhotonLookup *pl, PathState 
     vreal e = VSEL(R(1) / v->m.ior, v->m.ior, v->front);
     vreal cos_t;
     vreal F = fresnel_dielectric(-v3_dot(ps->d, v->n), e, &cos_t);
-    PathState r = *ps;
-    r.d = v3_normalize(v3_reflect(ps->d, v->n));
-    r.o = offset_scattered(sc, v->x, v->n, r.d, v->h.err);
-    keep_geometric_side(sc, &r.o, &r.d, v->x, v->n, v->ng, v->split && v->h.nrm >= R(0), v->h.err);
-    r.beta = v3_mul(ps->beta, v3_scale(v->m.kt, F));
-    r.specular = v->split;
-    r.pdf_prev = (vreal)R(0);  // after a delta lobe: the emission counts whole
-    r.x_prev = v->x;
-    r.depth = ps->depth + R(1);
-    Vertex w = vertex_make(sc, &r, scene_intersect_active(sc, r.o, r.d, v->split), v->split, rr_depth);
-    vmask sees;
-    V3 Le = path_emission(sc, pl, &r, &w, &sees);
-    sees = sees && v->split;
+    V3 d = v3_normalize(v3_reflect(ps->d, v->n));
+    V3 o = offset_scattered(sc, v->x, v->n, d, v->h.err);
+    keep_geometric_side(sc, &o, &d, v->x, v->n, v->ng, v->split && v->h.nrm >= R(0), v->h.err);
+    // What path_emission gives a hit right after the camera and one delta
+    // lobe (every weight 1: no light sample or merge can make this path; not
+    // a path the photon map owns), without the rest of vertex_make.
+    Hit h = scene_intersect_active(sc, o, d, v->split);
+    vmask hit = v->split && h.t < R(INFINITY);
+    Material m = material_fetch(sc, h.mat);
+#if CLPT_HAS_TEXTURED_EMITTERS
+    emitter_textures_hit(sc, &m, &h, hit);
+#endif
+    vmask sees = hit && (v3_dot(h.ng, d) < R(0) || m.two_sided != R(0));
+    vmask lit = sees && fmax(m.Le.x, fmax(m.Le.y, m.Le.z)) > R(0);
+#if CLPT_PHOTONS
+    if (pl->owns)
+        sees = sees && !pl->stop_at_x;
+#endif
+    V3 Le = m.Le;
+#if CLPT_HAS_ENV_LIGHT
+    vmask esc = v->split && !(h.t < R(INFINITY));
+#if CLPT_PHOTONS
+    esc = esc && !pl->stop_at_x;
+#endif
+    if (VANY(esc)) {
+        vreal pdf_l;
+        Le = v3_sel(Le, env_emission(sc, d, esc, &pdf_l), esc);
+        sees = sees || esc;
+    }
+#endif
+    Le = v3_mul(v3_mul(ps->beta, v3_fma(v->m.kt, F, v->m.kr)), Le);
     ps->L = v3_sel(ps->L, v3_add(ps->L, Le), sees);
 #if CLPT_AUX
-    vreal le_max = fmax(w.m.Le.x, fmax(w.m.Le.y, w.m.Le.z));
-    visible_add_split(vis, Le, sees, w.hit && le_max > R(0) && (w.front || w.m.two_sided != R(0)));
+    visible_add_split(vis, Le, sees, lit);
 #endif
     return vpopcount(v->split);
 }
@@ -394,7 +412,9 @@ inline vmask path_scatter(const Scene *sc, PathState *ps, const Vertex *v, vmask
     cont = cont && v3_max_comp(ps->beta) > R(0);
     keep_geometric_side(sc, &ps->o, &ps->d, v->x, v->n, v->ng, cont && v->h.nrm >= R(0), v->h.err);
     ps->depth = VSEL(ps->depth, ps->depth + R(1), cont);
-    ps->skip_le = cont && v->split && bs.fresnel_refl;
+#if CLPT_HAS_GLASS
+    ps->skip_le = cont && v->split && bs.delta && bs.up;  // (a reflection: the split took its emission)
+#endif
     return cont;
 }
 

@@ -138,7 +138,7 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
         // A one-sided surface is black from behind.
         vmask go = v.hit && ps.depth < jobs.depth && (v.front || v.m.one_sided == R(0));
 #if CLPT_HAS_GLASS
-        n_bounce += path_glass_split(sc, pl, &ps, &v, go, L.rr_depth, &vis);
+        n_bounce += path_glass_split(sc, pl, &ps, &v, go, &vis);
 #endif
 
         // --- caustic photons: the gather at x, or merging ---------------------------------------

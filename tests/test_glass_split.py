@@ -1,14 +1,14 @@
 """The glass split (kernels/path.h path_glass_split): at the camera's first
-vertex on smooth glass, the emission the Fresnel reflection meets is taken
-in every sample with the weight F kt, and left out where the coin's
-reflection meets it again.
+vertex on smooth glass, the emission its reflection meets is taken in every
+sample with the reflection's expected weight kr + F kt, and left out where
+a sample's own reflection meets it again.
 
 The scene: a glass interface at 45 degrees in front of a narrow camera, a
 lamp straight above it, nothing else. Every pixel's value is the lamp
-reflected, F(45 deg) kt Le exactly (the refracted rays leave the scene).
-Sampled by the Fresnel coin alone, a pixel's samples would be Le kt with
-probability F and 0 otherwise: a variance of F (1 - F) (Le kt)^2 per sample.
-Split, every sample carries the same value."""
+reflected, (kr + F(45 deg) kt) Le exactly (the refracted rays leave the
+scene). Sampled by the coins alone, a pixel's samples would be Le kt with
+probability F and 0 otherwise (kr = 0): a variance of F (1 - F) (Le kt)^2
+per sample. Split, every sample carries the same value."""
 
 import math
 
@@ -31,23 +31,25 @@ def fresnel(cos_i, eta):
     return (rs * rs + rp * rp) / 2
 
 
-def scene(kt=1.0, kd=0.0):
+def scene(kt=1.0, kr=0.0):
     a = 2 * math.sqrt(2)
     u, v = np.array([4.0, 0, 0]), np.array([0, a, -a])  # normal u x v along (0, 1, 1): towards camera and lamp
     glass = clpt.Quad(corner=tuple(-(u + v) / 2), edge_u=tuple(u), edge_v=tuple(v),
-                      material=clpt.Material(kt=(kt, kt, kt), kd=(kd, kd, kd), ior=IOR))
+                      material=clpt.Material(kt=(kt, kt, kt), kr=(kr, kr, kr), ior=IOR))
     lamp = clpt.Quad(corner=(-3, 5, -3), edge_u=(6, 0, 0), edge_v=(0, 0, 6), material=clpt.Material(),
                      emission=(LE, LE, LE))  # facing down (-y), onto the glass
     cam = clpt.Camera(origin=(0, 0, 10), target=(0, 0, 0), fov=2, width=16, height=16)
     return clpt.Scene(camera=cam, shapes=[glass, lamp])
 
 
-@pytest.mark.parametrize("kt", [1.0, 0.5])
-def test_a_lamp_reflected_in_glass_is_seen_by_every_sample(device_spec, kt):
-    res = clpt.Renderer(scene(kt), device=device_spec, photons=False, aux=True).render(64, seed=5, max_depth=4)
+@pytest.mark.parametrize("kt, kr", [(1.0, 0.0), (0.5, 0.0), (0.5, 0.3)])
+def test_a_lamp_reflected_in_glass_is_seen_by_every_sample(device_spec, kt, kr):
+    res = clpt.Renderer(scene(kt, kr), device=device_spec, photons=False, aux=True).render(64, seed=5, max_depth=4)
     assert res.stats.nonfinite == 0
     lum = res.image @ LUMA
-    expect = fresnel(math.cos(math.pi / 4), IOR) * kt * LE  # 0.0502 kt Le; the fov of 2 degrees moves F by < 2%
+    # (kr + F kt) Le, F = 0.0502: the mirror lobe reflects alike (chosen by the lobe coin with kr's share);
+    # the fov of 2 degrees moves F by < 2%.
+    expect = (kr + fresnel(math.cos(math.pi / 4), IOR) * kt) * LE
     assert np.allclose(lum, expect, rtol=0.03), (lum.min(), lum.max(), expect)
     # Zero-one sampling would give each pixel a relative standard error of sqrt((1 - F) / (F n)) = 0.54 at
     # n = 64; split, the samples differ only as F does across a pixel.
