@@ -80,7 +80,7 @@ def clear_cache() -> int:
 
 
 def cache_limit_bytes() -> int:
-    """The kernel binaries' bound ($CLPT_CACHE_MB, default 1024 MB)."""
+    """The kernel binaries' bound in bytes ($CLPT_CACHE_MB MiB, default 1024)."""
     raw = os.environ.get("CLPT_CACHE_MB", "1024")
     try:
         mb = float(raw)

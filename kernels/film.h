@@ -231,6 +231,21 @@ inline void visible_start(VisibleSurface *v, vmask start)
     v->path_len = VSEL(v->path_len, (vreal)R(0), start);
 }
 
+// Whether m emits towards a ray that meets its front (or back) face.
+inline vmask emitter_facing(const Material *m, vmask front)
+{
+    return fmax(m->Le.x, fmax(m->Le.y, m->Le.z)) > R(0) && (front || m->two_sided != R(0));
+}
+
+// The lanes in `seen` met an emitter directly or through mirrors and glass:
+// counted once a sample.
+inline void visible_saw_emitter(VisibleSurface *v, vmask seen)
+{
+    seen = seen && !v->lit;
+    vreal_add_where(&v->lights, (vreal)R(1), seen);
+    v->lit = v->lit || seen;
+}
+
 // The surface the lanes in `hit` reached, t further along the path: recorded
 // where it is this sample's feature vertex. Returns the lanes whose emission
 // here the denoisers keep out of the filtering (seen directly): the vertex
@@ -243,10 +258,8 @@ inline vmask visible_add_vertex(VisibleSurface *v, vmask hit, vreal t, const Mat
     vmask before_x = !v->found || v->chain;
     // An emitter seen here is counted (once a sample) in both modes.
     vreal le_max = fmax(m->Le.x, fmax(m->Le.y, m->Le.z));
-    vmask facing = le_max > R(0) && (front || m->two_sided != R(0));
-    vmask seen = hit && before_x && !v->lit && facing;
-    vreal_add_where(&v->lights, (vreal)R(1), seen);
-    v->lit = v->lit || seen;
+    vmask facing = emitter_facing(m, front);
+    visible_saw_emitter(v, hit && before_x && facing);
     v->chain = v->chain && !(hit && m->nondelta != R(0));
     // aux_specular 1: mirrors and glass are surfaces; 2: mirrors are, glass is seen through
     vmask clear = fmax(m->kt.x, fmax(m->kt.y, m->kt.z)) > R(0);
@@ -278,16 +291,13 @@ inline vmask visible_add_vertex(VisibleSurface *v, vmask hit, vreal t, const Mat
     return before_x;
 }
 
-// Emission Le that the lanes in `sees` reached through the Fresnel
-// reflection of the camera's first vertex on glass (path_glass_split): seen
-// through glass, so kept out of the filtering; the lanes in `lit` met an
-// emitter there, counted once a sample as visible_add_vertex counts them.
+// Emission Le that the lanes in `sees` reached through the reflection of
+// the camera's first vertex on glass (path_glass_split): seen through
+// glass, so kept out of the filtering; the lanes in `lit` met an emitter.
 inline void visible_add_split(VisibleSurface *v, V3 Le, vmask sees, vmask lit)
 {
     v3_add_where(&v->emission, Le, sees);
-    vmask seen = lit && !v->lit;
-    vreal_add_where(&v->lights, (vreal)R(1), seen);
-    v->lit = v->lit || seen;
+    visible_saw_emitter(v, lit);
 }
 
 // The photon map's part c of this sample (lanes in m, if finite): rgb and

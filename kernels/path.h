@@ -359,37 +359,34 @@ inline uint path_glass_split(const Scene *sc, const PhotonLookup *pl, PathState 
     V3 d = v3_normalize(v3_reflect(ps->d, v->n));
     V3 o = offset_scattered(sc, v->x, v->n, d, v->h.err);
     keep_geometric_side(sc, &o, &d, v->x, v->n, v->ng, v->split && v->h.nrm >= R(0), v->h.err);
-    // What path_emission gives a hit right after the camera and one delta
-    // lobe (every weight 1: no light sample or merge can make this path; not
-    // a path the photon map owns), without the rest of vertex_make.
-    Hit h = scene_intersect_active(sc, o, d, v->split);
-    vmask hit = v->split && h.t < R(INFINITY);
-    Material m = material_fetch(sc, h.mat);
+    // The hit as path_emission reads it, without the rest of vertex_make (a
+    // second inlined copy of it lengthened the glass scenes' builds by a
+    // quarter): point, faces, material (emitter textures applied). After the
+    // camera and a delta lobe every weight is 1 and the path is not the
+    // photon map's, as path_state_make leaves it.
+    PathState r = *ps;
+    r.o = o;
+    r.d = d;
+    r.beta = v3_mul(ps->beta, v3_fma(v->m.kt, F, v->m.kr));
+    r.pdf_prev = (vreal)R(0);
+    Vertex w;
+    w.h = scene_intersect_active(sc, o, d, v->split);
+    w.hit = v->split && w.h.t < R(INFINITY);
+    w.m = material_fetch(sc, w.h.mat);
 #if CLPT_HAS_TEXTURED_EMITTERS
-    emitter_textures_hit(sc, &m, &h, hit);
+    emitter_textures_hit(sc, &w.m, &w.h, w.hit);
 #endif
-    vmask sees = hit && (v3_dot(h.ng, d) < R(0) || m.two_sided != R(0));
-    vmask lit = sees && fmax(m.Le.x, fmax(m.Le.y, m.Le.z)) > R(0);
-#if CLPT_PHOTONS
-    if (pl->owns)
-        sees = sees && !pl->stop_at_x;
-#endif
-    V3 Le = m.Le;
+    w.x = v3_fma(d, w.h.t, o);
+    w.front = v3_dot(w.h.ng, d) < R(0);
 #if CLPT_HAS_ENV_LIGHT
-    vmask esc = v->split && !(h.t < R(INFINITY));
-#if CLPT_PHOTONS
-    esc = esc && !pl->stop_at_x;
+    w.escaped = v->split && !(w.h.t < R(INFINITY));
 #endif
-    if (VANY(esc)) {
-        vreal pdf_l;
-        Le = v3_sel(Le, env_emission(sc, d, esc, &pdf_l), esc);
-        sees = sees || esc;
-    }
-#endif
-    Le = v3_mul(v3_mul(ps->beta, v3_fma(v->m.kt, F, v->m.kr)), Le);
+    vmask sees;
+    V3 Le = path_emission(sc, pl, &r, &w, &sees);
+    sees = sees && v->split;
     ps->L = v3_sel(ps->L, v3_add(ps->L, Le), sees);
 #if CLPT_AUX
-    visible_add_split(vis, Le, sees, lit);
+    visible_add_split(vis, Le, sees, w.hit && emitter_facing(&w.m, w.front));
 #endif
     return vpopcount(v->split);
 }

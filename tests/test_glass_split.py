@@ -60,4 +60,3 @@ def test_a_lamp_reflected_in_glass_is_seen_by_every_sample(device_spec, kt, kr):
     assert np.allclose(res.aux["emission"] @ LUMA, lum, rtol=1e-4)
     # One more ray a camera sample.
     assert res.stats.bounce_rays >= res.stats.camera_rays
-
