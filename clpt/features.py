@@ -20,6 +20,9 @@ from .pack import PackedScene
 KERNEL_MODES = ("specialized", "generic")
 PIXEL_FILTERS = ("box", "tent", "gaussian")  # CLPT_PIXEL_FILTER 0, 1, 2 (kernels/camera.h)
 BVH_WALKS = ("hybrid", "lane")
+# kernels/sampler.h: "stratified" draws the camera's position and the first vertex's decisions from scrambled
+# (0,2)-sequences per pixel (CLPT_STRATIFIED_DEPTH 1); "independent", every number from the hash (0)
+SAMPLERS = ("stratified", "independent")
 
 
 @dataclass(frozen=True)
@@ -74,6 +77,7 @@ class Features:
     textured_emitters: bool = True  # some area lights' radiance is a texture (with textures)
     textured_spots: bool = True  # some spot light has a texture (with textures and spot lights)
     pixel_filter: str = "box"  # the camera's pixel filter (PIXEL_FILTERS); the box compiles no filter code
+    sampler: str = "stratified"  # SAMPLERS
     counts: tuple = ()  # materials, spheres, quads, triangles, planes, lights, casters, BVH nodes (not generic)
 
     def defines(self) -> dict[str, int]:
@@ -86,6 +90,7 @@ class Features:
             "CLPT_PHOTONS": int(self.photons),
             "CLPT_AUX": int(self.aux),
             "CLPT_PIXEL_FILTER": PIXEL_FILTERS.index(self.pixel_filter),
+            "CLPT_STRATIFIED_DEPTH": int(self.sampler == "stratified"),
             "CLPT_HAS_SPHERES": int(self.spheres),
             "CLPT_HAS_QUADS": int(self.quads),
             "CLPT_HAS_TRIANGLES": int(self.triangles),
@@ -129,6 +134,7 @@ class Features:
             counts = " counts=" + ",".join(str(c) for c in self.counts)
         if self.pixel_filter != "box":
             counts += f" pixel-filter={self.pixel_filter}"
+        counts += f" sampler={self.sampler}"
         if self.bvh and self.bvh_walk != "hybrid":
             counts += f" bvh-walk={self.bvh_walk}"
         return (f"{self.mode} lanes={self.lanes} {'double' if self.double else 'float'} "
@@ -138,24 +144,27 @@ class Features:
 
 def scene_features(packed: PackedScene, *, lanes: int = 8, double: bool = False, accum_double: bool = True,
                    mode: str = "specialized", nee: bool = True, photons: bool | None = None,
-                   aux: bool = False, bvh_walk: str = "hybrid") -> Features:
+                   aux: bool = False, bvh_walk: str = "hybrid", sampler: str = "stratified") -> Features:
     """photons: None turns them on exactly when the scene has caustic casters."""
     if mode not in KERNEL_MODES:
         raise ValueError(f"kernel mode must be one of {', '.join(KERNEL_MODES)} (got {mode!r})")
     if bvh_walk not in BVH_WALKS:
         raise ValueError(f"bvh_walk must be one of {', '.join(BVH_WALKS)} (got {bvh_walk!r})")
+    if sampler not in SAMPLERS:
+        raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)} (got {sampler!r})")
     use_photons = packed.has_caustics if photons is None else bool(photons) and packed.has_caustics
     # The pixel filter is compiled in (or out) in both modes, as the photons and feature buffers are;
     # textures and anisotropy too, so that a scene without them builds exactly as it did before clpt had them.
     if mode == "generic":
         return Features(lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee,
                         photons=use_photons, aux=aux, bvh_walk=bvh_walk, pixel_filter=packed.pixel_filter,
+                        sampler=sampler,
                         textures=bool(packed.textures), anisotropy=packed.anisotropic,
                         textured_emitters=packed.has_textured_emitters, textured_spots=packed.textured_spots,
                         mitsuba_shading=packed.smooth and packed.mitsuba_shading)
     return Features(
         lanes=lanes, double=double, accum_double=accum_double, mode=mode, nee=nee, photons=use_photons, aux=aux,
-        pixel_filter=packed.pixel_filter,
+        pixel_filter=packed.pixel_filter, sampler=sampler,
         spheres=packed.count("spheres") > 0,
         quads=packed.count("quads") > 0,
         triangles=packed.count("triangles") > 0,

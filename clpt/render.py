@@ -37,7 +37,7 @@ from .engine.job import AUX_SPECULAR, DeviceOptions, RenderJob, WorkItem, kernel
 from .engine.processes import ProcessExecutor
 from .engine.schedule import Schedule
 from .errors import CheckpointError, DeviceError, SettingsError
-from .features import KERNEL_MODES, Experimental, Features
+from .features import KERNEL_MODES, SAMPLERS, Experimental, Features
 from .loading import load_scene
 from .photons import (TRIAL_ROUNDS, TRIAL_SPP, PhotonSettings, path_variance, pilot_choice, relmse_per_sample, trial_size,
                       weigh_cost)
@@ -57,13 +57,18 @@ class Renderer:
     clpt.pack.BVH_MIN_PRIMS of them (plain loops are faster below), "on" or
     "off" force it; bvh_method: "sah" or "lbvh" (clpt/bvh.py). experimental:
     a clpt.features.Experimental, the kernel variants kept for `clpt bench`
-    to compare (renders never need one).
+    to compare (renders never need one). sampler: "stratified" (the default)
+    draws each pixel's camera positions and first-vertex decisions (light
+    point, light pick, lobe, direction, Fresnel's choice) from scrambled
+    (0,2)-sequences, every power-of-two run of its samples a stratified net;
+    "independent" draws every number from the hash (kernels/sampler.h).
     """
 
     def __init__(self, scene, *, device=None, lanes: int | None = None, local_size: int | None = None,
                  precision: str = "float", kernel: str = "specialized", nee: bool = True,
                  photons: bool | None = None, aux: bool = False, use_cache: bool = True, accumulate: str = "auto",
-                 bvh="auto", bvh_method: str = "lbvh", experimental: Experimental | None = None):
+                 bvh="auto", bvh_method: str = "lbvh", experimental: Experimental | None = None,
+                 sampler: str = "stratified"):
         if isinstance(scene, (str, Path)):
             scene = load_scene(scene)
         if not isinstance(scene, Scene):
@@ -79,6 +84,8 @@ class Renderer:
             raise ValueError(f"local_size must be a positive integer (got {local_size!r})")
         if kernel not in KERNEL_MODES:
             raise ValueError(f"kernel must be 'specialized' or 'generic' (got {kernel!r})")
+        if sampler not in SAMPLERS:
+            raise ValueError(f"sampler must be one of {', '.join(SAMPLERS)} (got {sampler!r})")
         if experimental is not None and not isinstance(experimental, Experimental):
             raise TypeError(f"experimental must be a clpt.features.Experimental (got {type(experimental).__name__})")
         if photons is not None and not isinstance(photons, (bool, PhotonSettings)):
@@ -89,8 +96,8 @@ class Renderer:
             photons = None
         self.scene = scene
         self._twins = {}
-        self.options = DeviceOptions(lanes=lanes, precision=precision, kernel=kernel, nee=nee, photons=photons,
-                                     aux=aux, use_cache=use_cache, accumulate=accumulate, local_size=local_size,
+        self.options = DeviceOptions(lanes=lanes, precision=precision, kernel=kernel, nee=nee, sampler=sampler,
+                                     photons=photons, aux=aux, use_cache=use_cache, accumulate=accumulate, local_size=local_size,
                                      bvh=bvh, bvh_method=bvh_method)
         self.experimental = (experimental or Experimental()).check()
         t0 = time.perf_counter()

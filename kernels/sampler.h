@@ -31,10 +31,79 @@ typedef struct { vreal pick, u1, u2; } LightU;         // a light and a point on
 typedef struct { vreal lobe, u1, u2, fresnel; } BsdfU;  // a lobe, a direction in it, and Fresnel's choice
 typedef struct { LightU light; vreal caster, u1, u2; } EmitU;  // a photon's start: light point, caster, direction
 
+// --- stratified dimensions -----------------------------------------------------
+// The camera's position and every decision of the first CLPT_STRATIFIED_DEPTH
+// vertices are drawn, per pixel, from scrambled (0,2)-sequences: the
+// first 2^m samples of a pixel put one point in each of the 2^m elementary
+// intervals of every shape (the m-bit strata of x times the (m-k)-bit
+// strata of y), however the samples are split among passes and devices.
+// Each pair of dimensions (camera x y; a light's point; a lobe's
+// direction; the light pick with the merge decision; the lobe with
+// Fresnel's choice) takes the pixel's samples in its own shuffled order,
+// so no pair follows another. Deeper vertices draw independent numbers
+// (rng.h): past the first bounces stratification no longer pays its cost.
+#ifndef CLPT_STRATIFIED_DEPTH
+#define CLPT_STRATIFIED_DEPTH 1
+#endif
+
+// The bits of each word in reverse order.
+inline vuint bits_reversed(vuint x)
+{
+    x = (x << 16) | (x >> 16);
+    x = ((x & 0x00ff00ffu) << 8) | ((x >> 8) & 0x00ff00ffu);
+    x = ((x & 0x0f0f0f0fu) << 4) | ((x >> 4) & 0x0f0f0f0fu);
+    x = ((x & 0x33333333u) << 2) | ((x >> 2) & 0x33333333u);
+    return ((x & 0x55555555u) << 1) | ((x >> 1) & 0x55555555u);
+}
+
+// A random permutation of the words in which bit k is flipped by a function
+// of the key and bits 0 .. k-1 alone (adds carry, and products by even
+// constants shift, only towards the high bits). On an index with its bits
+// reversed, that flips each bit of the index by the bits above it: a nested
+// uniform (Owen) scramble of the order, which keeps every aligned block of
+// 2^m indices within itself.
+inline vuint owen_flips(vuint x, vuint key)
+{
+    x += key;
+    x ^= x * 0x6c50b47cu;
+    x ^= x * 0xb82f1e52u;
+    x ^= x * 0xc7afe638u;
+    x ^= x * 0x8d22f6e6u;
+    return x;
+}
+
+// Sample index i's point of a (0,2)-sequence, its order shuffled by
+// `shuffle` and its digits XOR-ed with (kx, ky) (a random digital shift:
+// Kollig and Keller's scrambling), as top-24-bit reals; ri is i with its
+// bits reversed. The sequence is Sobol's first two dimensions, as binary
+// fractions: x is the shuffled index with its bits reversed (van der
+// Corput), and y's digit q is the XOR of x's digits q' whose positions
+// (31 - bit) are subsets of q's (the generator matrix is Pascal's triangle
+// mod 2: a subset-sum transform in five steps). A shuffled prefix of 2^m
+// samples is an aligned block of indices, so a (0,m,2)-net, and a shift
+// keeps it one; each pair has its own shuffle, so no pair follows another.
+inline void sobol_pair(vuint ri, vuint shuffle, vuint kx, vuint ky, vreal *x, vreal *y)
+{
+    vuint t = owen_flips(ri, shuffle);
+    vuint p = t;
+    p ^= (p << 1) & 0xaaaaaaaau;
+    p ^= (p << 2) & 0xccccccccu;
+    p ^= (p << 4) & 0xf0f0f0f0u;
+    p ^= (p << 8) & 0xff00ff00u;
+    p ^= p << 16;
+    *x = rng_to_unit(t ^ kx);
+    *y = rng_to_unit(p ^ ky);
+}
+
+#define STRATA_SALT 0x2f6b3c5du  // the pairs' keys apart from rng.h's independent numbers
+
 // --- camera paths --------------------------------------------------------------
 typedef struct {
     uint seed;
     vuint pixel, sample;
+#if CLPT_STRATIFIED_DEPTH > 0
+    vuint rsample;  // the sample index, bits reversed (every pair starts from it)
+#endif
 } Sampler;
 
 inline Sampler sampler_make(uint seed, vuint pixel, vuint sample)
@@ -43,23 +112,68 @@ inline Sampler sampler_make(uint seed, vuint pixel, vuint sample)
     s.seed = seed;
     s.pixel = pixel;
     s.sample = sample;
+#if CLPT_STRATIFIED_DEPTH > 0
+    s.rsample = bits_reversed(sample);
+#endif
     return s;
 }
 
+// The pairs of group g: keys from a hash of (seed, pixel, group).
+inline U4 sampler_pair_keys(const Sampler *s, vuint group)
+{
+    return pcg4d(s->pixel ^ (s->seed * 0x9E3779B9u), group, (vuint)(s->seed ^ STRATA_SALT), (vuint)0x51ed27u);
+}
+
+// Group g's numbers: independent (rng.h), or where `strata` holds, from
+// two scrambled pairs: (.b, .c) and, if `both`, (.a, .d) (a compile-time
+// constant: a pair nobody reads is not computed).
+CLPT_INLINE Rand4 sampler_uniform4(const Sampler *s, vuint group, vmask strata, int both)
+{
+    Rand4 r = rng_uniform4(s->seed, s->pixel, s->sample, group);
+#if CLPT_STRATIFIED_DEPTH > 0
+    if (VANY(strata)) {
+        U4 k = sampler_pair_keys(s, group);
+        vreal x, y;
+        sobol_pair(s->rsample, k.x, k.z, k.w, &x, &y);
+        r.b = VSEL(r.b, x, strata); r.c = VSEL(r.c, y, strata);
+        if (both) {
+            sobol_pair(s->rsample, k.y, k.z ^ k.y, k.w ^ k.y, &x, &y);
+            r.a = VSEL(r.a, x, strata); r.d = VSEL(r.d, y, strata);
+        }
+    }
+#endif
+    return r;
+}
+
 inline vuint sampler_vertex_group(vreal depth) { return VUINT(depth) * 2u + 1u; }
+inline vmask sampler_strata(vreal depth) { return depth < R(CLPT_STRATIFIED_DEPTH); }
+
+// The light pick and the merge decision are worth a pair only where they decide something.
+#if CLPT_PHOTONS || !defined(CLPT_NUM_LIGHTS)
+#define LIGHT_PICK_STRATA 1
+#elif CLPT_NUM_LIGHTS > 1
+#define LIGHT_PICK_STRATA 1
+#else
+#define LIGHT_PICK_STRATA 0
+#endif
 
 // Position of the sample within its pixel, in [0, 1)^2.
 inline CameraU sample_camera(const Sampler *s)
 {
-    Rand4 r = rng_uniform4(s->seed, s->pixel, s->sample, (vuint)0u);
     CameraU u;
+#if CLPT_STRATIFIED_DEPTH > 0
+    U4 k = sampler_pair_keys(s, (vuint)0u);
+    sobol_pair(s->rsample, k.x, k.z, k.w, &u.x, &u.y);
+#else
+    Rand4 r = rng_uniform4(s->seed, s->pixel, s->sample, (vuint)0u);
     u.x = r.a; u.y = r.b;
+#endif
     return u;
 }
 
 inline LightU sample_light(const Sampler *s, vreal depth)
 {
-    Rand4 r = rng_uniform4(s->seed, s->pixel, s->sample, sampler_vertex_group(depth));
+    Rand4 r = sampler_uniform4(s, sampler_vertex_group(depth), sampler_strata(depth), LIGHT_PICK_STRATA);
     LightU u;
     u.pick = r.a; u.u1 = r.b; u.u2 = r.c;
     return u;
@@ -67,12 +181,12 @@ inline LightU sample_light(const Sampler *s, vreal depth)
 
 inline vreal sample_merge(const Sampler *s, vreal depth)
 {
-    return rng_uniform4(s->seed, s->pixel, s->sample, sampler_vertex_group(depth)).d;
+    return sampler_uniform4(s, sampler_vertex_group(depth), sampler_strata(depth), 1).d;
 }
 
 inline BsdfU sample_bsdf(const Sampler *s, vreal depth)
 {
-    Rand4 r = rng_uniform4(s->seed, s->pixel, s->sample, sampler_vertex_group(depth) + 1u);
+    Rand4 r = sampler_uniform4(s, sampler_vertex_group(depth) + 1u, sampler_strata(depth), 1);
     BsdfU u;
     u.lobe = r.a; u.u1 = r.b; u.u2 = r.c; u.fresnel = r.d;
     return u;

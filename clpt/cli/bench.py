@@ -24,6 +24,7 @@ def add_parser(sub):
     p.add_argument("--precision", default="float", help="float, double, or float,double")
     p.add_argument("--mitsuba", action="store_true", help="also time Mitsuba 3's cornell_box() (if installed)")
     common.no_nee(p)
+    common.sampler(p)
     p.set_defaults(func=run)
     return p
 

@@ -30,6 +30,9 @@ reference = _option("--reference", default=None)
 ref_spp = _option("--ref-spp", type=int, default=16384)
 ref_dir = _option("--ref-dir", default=".clpt-references", help="where references are cached")
 no_nee = _option("--no-nee", action="store_true")
+sampler = _option("--sampler", choices=("stratified", "independent"), default=None,
+                  help="each pixel's camera positions and first-vertex decisions from scrambled (0,2)-sequences "
+                       "(stratified, the default) or every number independent")
 
 
 def counts(text: str) -> list[int]:

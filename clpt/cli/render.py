@@ -104,6 +104,7 @@ def _add_render_options(p):
                    help="kernel build: only the scene's features (specialized) or everything (generic) "
                         f"(default {_renderer_default('kernel')})")
     common.no_nee(p, help="no next event estimation (pure path tracing)")
+    common.sampler(p)
     p.add_argument("--no-cache", action="store_true", help="do not use the kernel build cache")
 
 
@@ -197,7 +198,7 @@ def _renderer_default(name: str):
 
 def _renderer_kwargs(a):
     kw = dict(device=a.device, lanes=a.lanes, local_size=a.local_size, nee=not a.no_nee, use_cache=not a.no_cache)
-    kw.update({k: getattr(a, k) for k in ("precision", "kernel") if getattr(a, k, None) is not None})
+    kw.update({k: getattr(a, k) for k in ("precision", "kernel", "sampler") if getattr(a, k, None) is not None})
     if getattr(a, "photons", None) == 0:
         kw["photons"] = False
     return kw

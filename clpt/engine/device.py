@@ -52,7 +52,7 @@ def device_features(dctx: DeviceContext, packed: PackedScene, opts: DeviceOption
     return scene_features(packed, lanes=lanes or opts.lanes,
                           double=opts.precision == "double", accum_double=acc_double or opts.precision == "double",
                           mode=opts.kernel, nee=opts.nee, photons=packed.has_caustics and opts.photons is not False,
-                          aux=opts.aux, bvh_walk=(experimental or Experimental()).bvh_walk)
+                          aux=opts.aux, bvh_walk=(experimental or Experimental()).bvh_walk, sampler=opts.sampler)
 
 
 def kernel_sources(packed: PackedScene | None, features: Features) -> list[str]:

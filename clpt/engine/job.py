@@ -60,6 +60,7 @@ class DeviceOptions:
     precision: str = "float"
     kernel: str = "specialized"
     nee: bool = True
+    sampler: str = "stratified"
     photons: bool | None = None
     aux: bool = False
     use_cache: bool = True

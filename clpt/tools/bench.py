@@ -50,24 +50,25 @@ import numpy as np
 from ..constants import LUMA
 
 
-def _cold_build_child(scene: str, device, lanes, local_size, precision, kernel, nee) -> dict:
+def _cold_build_child(scene: str, device, lanes, local_size, precision, kernel, nee, sampler="stratified") -> dict:
     from ..render import Renderer
 
     t0 = time.perf_counter()
     r = Renderer(scene, device=device, lanes=lanes, local_size=local_size, precision=precision, kernel=kernel,
-                 nee=nee)
+                 nee=nee, sampler=sampler)
     t_build = time.perf_counter() - t0
     res = r.render(1, width=16, height=16)
     return {"build_seconds": t_build, "first_launch_seconds": res.stats.first_launch_seconds,
             "total_seconds": time.perf_counter() - t0}
 
 
-def cold_build(scene: str, device: str, lanes, local_size, precision, kernel, nee) -> dict | None:
+def cold_build(scene: str, device: str, lanes, local_size, precision, kernel, nee,
+               sampler: str = "stratified") -> dict | None:
     """Build and first launch in a fresh process with empty caches."""
     with tempfile.TemporaryDirectory() as tmp:
         env = dict(os.environ, CLPT_CACHE_DIR=os.path.join(tmp, "clpt"), POCL_CACHE_DIR=os.path.join(tmp, "pocl"),
                    PYOPENCL_NO_CACHE="1")
-        args = ", ".join(repr(x) for x in (scene, device, lanes, local_size, precision, kernel, nee))
+        args = ", ".join(repr(x) for x in (scene, device, lanes, local_size, precision, kernel, nee, sampler))
         code = f"import json; from clpt.tools.bench import _cold_build_child; print(json.dumps(_cold_build_child({args})))"
         p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
         if p.returncode != 0:
@@ -137,7 +138,7 @@ class _Mitsuba:
 
 
 def measure(scenes, *, device=None, lanes=(None,), local_sizes=(None,), precisions=("float",),
-            kernels=("specialized",), nee=True, width=256, height=256, max_depth=8, rounds=5,
+            kernels=("specialized",), nee=True, sampler="stratified", width=256, height=256, max_depth=8, rounds=5,
             pass_seconds=0.3, cold=True, mitsuba=False, log=None) -> list[dict]:
     from ..device import select_devices
     from ..render import Renderer
@@ -149,7 +150,7 @@ def measure(scenes, *, device=None, lanes=(None,), local_sizes=(None,), precisio
         for n_lanes, local, precision, kernel in combos:
             v = {"lanes": n_lanes, "local_size": local, "precision": precision, "kernel": kernel}
             r = Renderer(scene, device=dev, lanes=n_lanes, local_size=local, precision=precision, kernel=kernel,
-                         nee=nee)
+                         nee=nee, sampler=sampler)
             st = r.states[0]
             row = {"scene": scene, "device": st.dctx.label, "platform": st.dctx.platform, "device_spec": spec,
                    "variant": variant_label(v), "resolution": f"{width}x{height}", "max_depth": max_depth,
@@ -159,13 +160,13 @@ def measure(scenes, *, device=None, lanes=(None,), local_sizes=(None,), precisio
             if log:
                 log(f"{scene} on {st.dctx.label}: {row['variant']} ({st.features.lanes} lanes, local {st.local})")
             if cold:
-                c = cold_build(scene, spec, st.features.lanes, st.local, precision, kernel, nee)
+                c = cold_build(scene, spec, st.features.lanes, st.local, precision, kernel, nee, sampler)
                 if c:
                     row["cold_build_seconds"] = c["build_seconds"]
                     row["cold_first_launch_seconds"] = c["first_launch_seconds"]
             first = r.render(1, width=width, height=height, max_depth=max_depth)  # warm-up: the lazy device compile
             warm = Renderer(scene, device=dev, lanes=st.features.lanes, local_size=st.local, precision=precision,
-                            kernel=kernel, nee=nee)
+                            kernel=kernel, nee=nee, sampler=sampler)
             row["warm_build_seconds"] = warm.states[0].build.seconds
             row["warm_build_cache_hit"] = bool(warm.states[0].build.cache_hit)
             del warm
@@ -332,7 +333,7 @@ def run_bench(a) -> int:
             raise SystemExit(f"clpt bench: cannot read {a.compare}: {e}") from None
     rows = measure(scenes, device=a.device, lanes=_split(a.lanes, int), local_sizes=_split(a.local_size, int),
                    precisions=tuple(a.precision.split(",")), kernels=_split(a.kernel),
-                   nee=not a.no_nee, width=a.width, height=a.height, max_depth=a.max_depth, rounds=a.rounds,
+                   nee=not a.no_nee, sampler=a.sampler or "stratified", width=a.width, height=a.height, max_depth=a.max_depth, rounds=a.rounds,
                    cold=not a.no_cold, mitsuba=a.mitsuba,
                    log=None if a.json or a.csv else (lambda m: print(m, file=sys.stderr)))
     if a.json:
