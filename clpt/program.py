@@ -276,7 +276,12 @@ def device_options(dctx) -> list:
     scene_prefetch). Not elsewhere: Oclgrind, which reports every device
     type, cannot run the intrinsic, and GPU compilers are not known to take
     the builtin. The environment variable CLPT_PREFETCH=0 leaves it out;
-    images are the same either way."""
+    images are the same either way. On simulators (Oclgrind), which cannot
+    run LLVM's bitreverse intrinsic either, CLPT_BITREVERSE_TABLE: the
+    sampler reverses bits by a table (kernels/sampler.h bits_reversed)."""
+    from .device import SIMULATORS
+    if any(s in f"{dctx.platform} {getattr(dctx, 'name', '')}".lower() for s in SIMULATORS):
+        return ["-DCLPT_BITREVERSE_TABLE=1"]
     if os.environ.get("CLPT_PREFETCH", "1") == "0" or not getattr(dctx, "is_cpu", False):
         return []
     if getattr(dctx, "is_pocl", False) or ("intel" in dctx.platform.lower()

@@ -46,7 +46,34 @@ typedef struct { LightU light; vreal caster, u1, u2; } EmitU;  // a photon's sta
 #define CLPT_STRATIFIED_DEPTH 1
 #endif
 
-// The bits of each word in reverse order.
+// The bits of each word in reverse order. LLVM-based compilers turn the
+// swaps into their bitreverse intrinsic (one instruction on GPUs, a few
+// byte shuffles on CPUs); Oclgrind cannot run that intrinsic, so there
+// (CLPT_BITREVERSE_TABLE, clpt/program.py device_options) each byte is
+// looked up instead.
+#if CLPT_BITREVERSE_TABLE
+__constant uchar NIBBLE_REVERSED[16] = {0x0, 0x8, 0x4, 0xc, 0x2, 0xa, 0x6, 0xe, 0x1, 0x9, 0x5, 0xd, 0x3, 0xb, 0x7, 0xf};
+
+inline uint word_reversed(uint x)
+{
+    uint r = 0u;
+    for (int k = 0; k < 8; k++)  // nibble k to nibble 7 - k, its bits reversed
+        r |= (uint)NIBBLE_REVERSED[(x >> (4 * k)) & 15u] << (4 * (7 - k));
+    return r;
+}
+
+inline vuint bits_reversed(vuint x)
+{
+#if CLPT_LANES == 1
+    return word_reversed(x);
+#else
+    vuint r;
+    for (int l = 0; l < CLPT_LANES; l++)
+        VLANE_U(r, l) = word_reversed(VLANE_U(x, l));
+    return r;
+#endif
+}
+#else
 inline vuint bits_reversed(vuint x)
 {
     x = (x << 16) | (x >> 16);
@@ -55,6 +82,7 @@ inline vuint bits_reversed(vuint x)
     x = ((x & 0x33333333u) << 2) | ((x >> 2) & 0x33333333u);
     return ((x & 0x55555555u) << 1) | ((x >> 1) & 0x55555555u);
 }
+#endif
 
 // A random permutation of the words in which bit k is flipped by a function
 // of the key and bits 0 .. k-1 alone (adds carry, and products by even
@@ -97,16 +125,43 @@ inline void sobol_pair(vuint ri, vuint shuffle, vuint kx, vuint ky, vreal *x, vr
 
 #define STRATA_SALT 0x2f6b3c5du  // the pairs' keys apart from rng.h's independent numbers
 
+// The keys of a pixel's pairs, by group (0: the camera, 1: the first
+// vertex's light, 2: its lobe; each .x, .y the shuffles of pairs (.b, .c)
+// and (.a, .d), .z, .w the shifts): a hash of (seed, pixel, group), worked
+// out when a lane takes a pixel (sampler_keys_take), not at every vertex.
+typedef struct {
+#if CLPT_STRATIFIED_DEPTH > 0
+    vuint k[3][4];
+#else
+    int none;
+#endif
+} SamplerKeys;
+
+inline void sampler_keys_take(SamplerKeys *keys, uint seed, vuint pixel, vmask took)
+{
+#if CLPT_STRATIFIED_DEPTH > 0
+    if (!VANY(took))
+        return;
+    vint m = VINT(took);  // (a 32-bit mask for 32-bit words, in double builds too)
+    for (uint g = 0; g < 3u; g++) {
+        U4 k = pcg4d(pixel ^ (seed * 0x9E3779B9u), (vuint)g, (vuint)(seed ^ STRATA_SALT), (vuint)0x51ed27u);
+        keys->k[g][0] = VSEL(keys->k[g][0], k.x, m); keys->k[g][1] = VSEL(keys->k[g][1], k.y, m);
+        keys->k[g][2] = VSEL(keys->k[g][2], k.z, m); keys->k[g][3] = VSEL(keys->k[g][3], k.w, m);
+    }
+#endif
+}
+
 // --- camera paths --------------------------------------------------------------
 typedef struct {
     uint seed;
     vuint pixel, sample;
 #if CLPT_STRATIFIED_DEPTH > 0
     vuint rsample;  // the sample index, bits reversed (every pair starts from it)
+    const SamplerKeys *keys;
 #endif
 } Sampler;
 
-inline Sampler sampler_make(uint seed, vuint pixel, vuint sample)
+inline Sampler sampler_make(uint seed, vuint pixel, vuint sample, const SamplerKeys *keys)
 {
     Sampler s;
     s.seed = seed;
@@ -114,39 +169,34 @@ inline Sampler sampler_make(uint seed, vuint pixel, vuint sample)
     s.sample = sample;
 #if CLPT_STRATIFIED_DEPTH > 0
     s.rsample = bits_reversed(sample);
+    s.keys = keys;
 #endif
     return s;
 }
 
-// The pairs of group g: keys from a hash of (seed, pixel, group).
-inline U4 sampler_pair_keys(const Sampler *s, vuint group)
+// Group g's numbers, into *r: independent (rng.h), or where `strata` holds
+// (then g is 1 or 2), from two scrambled pairs: (.b, .c) and, if `both`,
+// (.a, .d) (a compile-time constant: a pair nobody reads is not computed;
+// always inlined, so it fills *r rather than returning a struct: simd.h).
+CLPT_INLINE void sampler_uniform4(const Sampler *s, vuint group, vmask strata, int g, int both, Rand4 *r)
 {
-    return pcg4d(s->pixel ^ (s->seed * 0x9E3779B9u), group, (vuint)(s->seed ^ STRATA_SALT), (vuint)0x51ed27u);
-}
-
-// Group g's numbers: independent (rng.h), or where `strata` holds, from
-// two scrambled pairs: (.b, .c) and, if `both`, (.a, .d) (a compile-time
-// constant: a pair nobody reads is not computed).
-CLPT_INLINE Rand4 sampler_uniform4(const Sampler *s, vuint group, vmask strata, int both)
-{
-    Rand4 r = rng_uniform4(s->seed, s->pixel, s->sample, group);
+    *r = rng_uniform4(s->seed, s->pixel, s->sample, group);
 #if CLPT_STRATIFIED_DEPTH > 0
     if (VANY(strata)) {
-        U4 k = sampler_pair_keys(s, group);
+        const vuint *k = s->keys->k[g];
         vreal x, y;
-        sobol_pair(s->rsample, k.x, k.z, k.w, &x, &y);
-        r.b = VSEL(r.b, x, strata); r.c = VSEL(r.c, y, strata);
+        sobol_pair(s->rsample, k[0], k[2], k[3], &x, &y);
+        r->b = VSEL(r->b, x, strata); r->c = VSEL(r->c, y, strata);
         if (both) {
-            sobol_pair(s->rsample, k.y, k.z ^ k.y, k.w ^ k.y, &x, &y);
-            r.a = VSEL(r.a, x, strata); r.d = VSEL(r.d, y, strata);
+            sobol_pair(s->rsample, k[1], k[2] ^ k[1], k[3] ^ k[1], &x, &y);
+            r->a = VSEL(r->a, x, strata); r->d = VSEL(r->d, y, strata);
         }
     }
 #endif
-    return r;
 }
 
 inline vuint sampler_vertex_group(vreal depth) { return VUINT(depth) * 2u + 1u; }
-inline vmask sampler_strata(vreal depth) { return depth < R(CLPT_STRATIFIED_DEPTH); }
+inline vmask sampler_strata(vreal depth) { return depth < R(CLPT_STRATIFIED_DEPTH > 0); }
 
 // The light pick and the merge decision are worth a pair only where they decide something.
 #if CLPT_PHOTONS || !defined(CLPT_NUM_LIGHTS)
@@ -162,8 +212,8 @@ inline CameraU sample_camera(const Sampler *s)
 {
     CameraU u;
 #if CLPT_STRATIFIED_DEPTH > 0
-    U4 k = sampler_pair_keys(s, (vuint)0u);
-    sobol_pair(s->rsample, k.x, k.z, k.w, &u.x, &u.y);
+    const vuint *k = s->keys->k[0];
+    sobol_pair(s->rsample, k[0], k[2], k[3], &u.x, &u.y);
 #else
     Rand4 r = rng_uniform4(s->seed, s->pixel, s->sample, (vuint)0u);
     u.x = r.a; u.y = r.b;
@@ -173,7 +223,8 @@ inline CameraU sample_camera(const Sampler *s)
 
 inline LightU sample_light(const Sampler *s, vreal depth)
 {
-    Rand4 r = sampler_uniform4(s, sampler_vertex_group(depth), sampler_strata(depth), LIGHT_PICK_STRATA);
+    Rand4 r;
+    sampler_uniform4(s, sampler_vertex_group(depth), sampler_strata(depth), 1, LIGHT_PICK_STRATA, &r);
     LightU u;
     u.pick = r.a; u.u1 = r.b; u.u2 = r.c;
     return u;
@@ -181,12 +232,15 @@ inline LightU sample_light(const Sampler *s, vreal depth)
 
 inline vreal sample_merge(const Sampler *s, vreal depth)
 {
-    return sampler_uniform4(s, sampler_vertex_group(depth), sampler_strata(depth), 1).d;
+    Rand4 r;
+    sampler_uniform4(s, sampler_vertex_group(depth), sampler_strata(depth), 1, 1, &r);
+    return r.d;
 }
 
 inline BsdfU sample_bsdf(const Sampler *s, vreal depth)
 {
-    Rand4 r = sampler_uniform4(s, sampler_vertex_group(depth) + 1u, sampler_strata(depth), 1);
+    Rand4 r;
+    sampler_uniform4(s, sampler_vertex_group(depth) + 1u, sampler_strata(depth), 2, 1, &r);
     BsdfU u;
     u.lobe = r.a; u.u1 = r.b; u.u2 = r.c; u.fresnel = r.d;
     return u;

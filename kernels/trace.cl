@@ -83,11 +83,13 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
     vreal done_count = (vreal)R(0);  // samples of its pixel a lane has finished
     vmask active = lane_next(&jobs, &film, &vis, jobs.n == jobs.n, &L, gid, pix_jobs, pix_sum, pix_sq, aux_buf,
                              aux_out);
+    SamplerKeys keys;
+    sampler_keys_take(&keys, L.seed, jobs.pixel, jobs.n == jobs.n);  // every lane's (none left unset)
     vmask restart = active;
     PathState ps = path_state_make(active);
 
     while (VANY(active)) {
-        Sampler sp = sampler_make(L.seed, jobs.pixel, jobs.s_begin + VUINT(done_count));
+        Sampler sp = sampler_make(L.seed, jobs.pixel, jobs.s_begin + VUINT(done_count), &keys);
 
         // --- start new paths in lanes whose previous path ended ----------------------------
         if (VANY(restart)) {
@@ -179,6 +181,7 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
                 vmask more = lane_next(&jobs, &film, &vis, ended, &L, gid, pix_jobs, pix_sum, pix_sq, aux_buf,
                                        aux_out);
                 done_count = VSEL(done_count, (vreal)R(0), more);
+                sampler_keys_take(&keys, L.seed, jobs.pixel, more);
                 restart = restart || more;
             }
             active = (active && !done) || restart;
