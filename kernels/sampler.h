@@ -198,13 +198,22 @@ CLPT_INLINE void sampler_uniform4(const Sampler *s, vuint group, vmask strata, i
 inline vuint sampler_vertex_group(vreal depth) { return VUINT(depth) * 2u + 1u; }
 inline vmask sampler_strata(vreal depth) { return depth < R(CLPT_STRATIFIED_DEPTH > 0); }
 
-// The light pick and the merge decision are worth a pair only where they decide something.
+// The light pick and the merge decision, and the lobe with Fresnel's choice,
+// are worth a pair only where they decide something: several lights or
+// photons; a lobe besides the diffuse one (before rr_depth a diffuse
+// material's lobe coin decides nothing: absorption is left out there).
 #if CLPT_PHOTONS || !defined(CLPT_NUM_LIGHTS)
 #define LIGHT_PICK_STRATA 1
 #elif CLPT_NUM_LIGHTS > 1
 #define LIGHT_PICK_STRATA 1
 #else
 #define LIGHT_PICK_STRATA 0
+#endif
+#if CLPT_HAS_PHONG || CLPT_HAS_MIRROR || CLPT_HAS_GLASS || CLPT_HAS_MICROFACET || CLPT_HAS_PLASTIC \
+    || CLPT_HAS_ROUGH_DIELECTRIC
+#define LOBE_STRATA 1
+#else
+#define LOBE_STRATA 0
 #endif
 
 // Position of the sample within its pixel, in [0, 1)^2.
@@ -240,7 +249,7 @@ inline vreal sample_merge(const Sampler *s, vreal depth)
 inline BsdfU sample_bsdf(const Sampler *s, vreal depth)
 {
     Rand4 r;
-    sampler_uniform4(s, sampler_vertex_group(depth) + 1u, sampler_strata(depth), 2, 1, &r);
+    sampler_uniform4(s, sampler_vertex_group(depth) + 1u, sampler_strata(depth), 2, LOBE_STRATA, &r);
     BsdfU u;
     u.lobe = r.a; u.u1 = r.b; u.u2 = r.c; u.fresnel = r.d;
     return u;
