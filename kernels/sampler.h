@@ -151,6 +151,14 @@ inline void sampler_keys_take(SamplerKeys *keys, uint seed, vuint pixel, vmask t
 #endif
 }
 
+// Every lane's keys (for the pixels they have now).
+inline SamplerKeys sampler_keys_make(uint seed, vuint pixel)
+{
+    SamplerKeys keys;
+    sampler_keys_take(&keys, seed, pixel, (vreal)R(0) == (vreal)R(0));
+    return keys;
+}
+
 // --- camera paths --------------------------------------------------------------
 typedef struct {
     uint seed;

@@ -83,8 +83,7 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
     vreal done_count = (vreal)R(0);  // samples of its pixel a lane has finished
     vmask active = lane_next(&jobs, &film, &vis, jobs.n == jobs.n, &L, gid, pix_jobs, pix_sum, pix_sq, aux_buf,
                              aux_out);
-    SamplerKeys keys;
-    sampler_keys_take(&keys, L.seed, jobs.pixel, jobs.n == jobs.n);  // every lane's (none left unset)
+    SamplerKeys keys = sampler_keys_make(L.seed, jobs.pixel);
     vmask restart = active;
     PathState ps = path_state_make(active);
 

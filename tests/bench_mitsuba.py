@@ -2,7 +2,7 @@
 tracing's samples per CPU second, best of N, and the ratio.
 
     python tests/bench_mitsuba.py SCENE [SCENE ...] [--device intel] [--rounds 5]
-        [--spp 16] [--max-depth D] [-D NAME=VALUE ...] [--lanes N]
+        [--spp 16] [--max-depth D] [-D NAME=VALUE ...] [--lanes N] [--sampler independent]
         [--mitsuba-python /work/main/.venv/bin/python]
 
 SCENE is a Mitsuba 3 XML file both renderers load (-D parameters go to
@@ -113,13 +113,13 @@ class MitsubaProc:
 
 
 def bench(scene, *, device=None, rounds=5, spp=16, max_depth=None, params=None, lanes=None,
-          mitsuba_python=MITSUBA_PYTHON, log=print) -> dict:
+          mitsuba_python=MITSUBA_PYTHON, log=print, sampler="stratified") -> dict:
     import clpt
 
     path, params = resolve(scene, dict(params or {}))
     sc = clpt.load_scene(path if path != "cornell_box" else "cornell_box",
                          **({"params": params} if path.endswith(".xml") else {}))
-    r = clpt.Renderer(sc, device=device, photons=False, lanes=lanes)
+    r = clpt.Renderer(sc, device=device, photons=False, lanes=lanes, sampler=sampler)
     kw = {} if max_depth is None else {"max_depth": max_depth}
     if path == "cornell_box" and max_depth is None:
         kw["max_depth"] = 8
@@ -170,6 +170,8 @@ def main():
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--max-depth", type=int, default=None)
     ap.add_argument("--lanes", type=int, default=None)
+    ap.add_argument("--sampler", default="stratified", help="clpt's (Mitsuba's is the scene's: independent in "
+                                                            "cornell_box() and the files here)")
     ap.add_argument("-D", dest="defs", action="append", default=[], metavar="NAME=VALUE")
     ap.add_argument("--mitsuba-python", default=MITSUBA_PYTHON, help="'' to time clpt only")
     ap.add_argument("--json", default=None, help="write the results here")
@@ -179,7 +181,7 @@ def main():
     for s in a.scenes:
         print(f"{s}:", flush=True)
         o = bench(s, device=a.device, rounds=a.rounds, spp=a.spp, max_depth=a.max_depth, params=params,
-                  lanes=a.lanes, mitsuba_python=a.mitsuba_python or None)
+                  lanes=a.lanes, mitsuba_python=a.mitsuba_python or None, sampler=a.sampler)
         rows.append(o)
         line = (f"{s} {o['width']}x{o['height']} {o['spp']} spp, {o['clpt_kernel']}\n"
                 f"  clpt    {o['clpt_msamples_per_cpu_s']:.3f} Msamples/CPU-s ({o['clpt_msamples_per_wall_s']:.3f}/wall-s),"

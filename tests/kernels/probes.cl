@@ -41,8 +41,7 @@ __kernel void probe_sampler(uint seed, uint bounce, __global const uint *pixel, 
                             __global const uint *depth, __global real *out)
 {
     size_t i = get_global_id(0);
-    SamplerKeys keys;
-    sampler_keys_take(&keys, seed, LDU(pixel, i), (vreal)R(0) == (vreal)R(0));
+    SamplerKeys keys = sampler_keys_make(seed, LDU(pixel, i));
     Sampler s = sampler_make(seed, LDU(pixel, i), LDU(sample, i), &keys);
     vreal d = VREAL(LDU(depth, i));
     CameraU c = sample_camera(&s);
