@@ -36,7 +36,7 @@ import pyopencl as cl
 
 from . import probe, tune
 from .errors import DeviceError, DeviceWarning
-from .runtimes import platform_short_name
+from .runtimes import SIMULATORS, platform_short_name
 
 
 @dataclass(frozen=True)
@@ -147,9 +147,8 @@ def _match(spec: str, found) -> list:
                       f"name one exactly, by platform:device, or by a platform's short name")
 
 
-# Simulators and debuggers: never chosen by default or by "all", whatever
-# device type they report (Oclgrind reports a GPU); only by name.
-SIMULATORS = ("oclgrind",)
+# Simulators and debuggers (runtimes.SIMULATORS): never chosen by default or
+# by "all", whatever device type they report (Oclgrind reports a GPU); only by name.
 
 # Samples/s of CPU runtimes that rank the default CPU device, per kind of
 # kernel: path tracing alone, and with the caustic photon gather. Measured on

@@ -62,6 +62,7 @@ from .constants import kernel_defines
 from .errors import KernelBuildError, SettingsError
 from .layout import c_source
 from .resources import cache_dir, kernel_dir
+from .runtimes import SIMULATORS
 
 # Device libraries in dependency order; entry files (*.cl) come after them.
 LIBRARY_FILES = ("features.h", "simd.h", "rng.h", "sampler.h", "sampling.h", "scene.h", "bvh.h", "texture.h",
@@ -279,7 +280,6 @@ def device_options(dctx) -> list:
     images are the same either way. On simulators (Oclgrind), which cannot
     run LLVM's bitreverse intrinsic either, CLPT_BITREVERSE_TABLE: the
     sampler reverses bits by a table (kernels/sampler.h bits_reversed)."""
-    from .device import SIMULATORS
     if any(s in f"{dctx.platform} {getattr(dctx, 'name', '')}".lower() for s in SIMULATORS):
         return ["-DCLPT_BITREVERSE_TABLE=1"]
     if os.environ.get("CLPT_PREFETCH", "1") == "0" or not getattr(dctx, "is_cpu", False):

@@ -38,6 +38,9 @@ from pathlib import Path
 from .resources import cache_dir
 
 SYSTEM_VENDORS = "/etc/OpenCL/vendors"
+# Simulators and debuggers, by platform or device name (clpt.device never
+# chooses them unasked; clpt.program builds them what they can run).
+SIMULATORS = ("oclgrind",)
 
 
 @dataclass(frozen=True)

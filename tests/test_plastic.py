@@ -336,9 +336,15 @@ def test_rough_plastic_scene_agrees_across_lane_widths(device_spec):
     its own tolerance (the loop once every lane has), and next event
     estimation samples the lanes' sphere lights in one gathered pass beside
     the quad light's, so the scalar and the 16-lane kernels make the
-    same image, bit for bit (Beckmann roughplastics, a sphere and a quad light)."""
+    same image (Beckmann roughplastics, a sphere and a quad light), but for
+    the last bits: the runtimes' scalar and vector exp and log (the
+    Beckmann lobe's) may differ by an ulp, which moved 0-4 of these 384
+    pixels by 1e-7 relative in 12 seeds, on Intel's runtime and PoCL, with
+    either sampler. A lane that traced another lane's path, or stopped at
+    another tolerance, would be wrong by far more."""
     kw = dict(spp=2, seed=7, width=24, height=16)
     sc = clpt.load_scene(SPHERES)
     ref = clpt.Renderer(sc, device=device_spec, photons=False, lanes=1).render(**kw).image
     img = clpt.Renderer(sc, device=device_spec, photons=False, lanes=16).render(**kw).image
-    assert np.array_equal(img, ref)
+    assert np.allclose(img, ref, rtol=1e-6, atol=1e-9)
+    assert (np.abs(img - ref).max(-1) > 0).sum() <= 8
