@@ -98,15 +98,16 @@ DOT_ROWS = 4096  # rows a product takes at a time (dot_rows)
 
 def dot_rows(a, w) -> np.ndarray:
     """a @ w (w a vector over a's last axis), DOT_ROWS rows at a time: the
-    same numbers as one product, but each is small enough that the BLAS
+    same numbers as one product of a's rows, but each is small enough that the BLAS
     library runs it on the calling thread. One large product wakes its
     worker threads, which then spin for about 0.1 s of CPU after every
     render (as measured with OpenBLAS), competing with the OpenCL runtime
     for the cores."""
     a = np.asarray(a)
-    flat = a.reshape(-1, a.shape[-1])
+    flat = a.reshape(-1, a.shape[-1])  # always rows: numpy's batched product of a
+    # 3-d array rounds some rows differently (numpy 2.4), so one shape, one number
     if len(flat) <= DOT_ROWS:
-        return a @ w
+        return (flat @ w).reshape(a.shape[:-1])
     out = np.concatenate([flat[i:i + DOT_ROWS] @ w for i in range(0, len(flat), DOT_ROWS)])
     return out.reshape(a.shape[:-1])
 
