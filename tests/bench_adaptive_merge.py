@@ -56,6 +56,7 @@ def main(argv=None) -> int:
     ap.add_argument("--threshold", type=float, default=None,
                     help="the adaptive noise threshold (default: AdaptiveSettings'; one the time cannot reach "
                          "makes adaptive sampling use all of it)")
+    ap.add_argument("--sampler", choices=("stratified", "independent"), default="stratified")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
@@ -70,7 +71,7 @@ def main(argv=None) -> int:
     scene = load_scene(a.scene)
     W, H = a.width, a.height
     ref = reference_image(scene, W, H, a.ref_spp, a.ref, a.device, max_depth=a.max_depth)
-    r = Renderer(scene, device=a.device)
+    r = Renderer(scene, device=a.device, sampler=a.sampler)
     kw = dict(width=W, height=H, max_depth=a.max_depth)
     methods = {"uniform": {}, "adaptive": {"adaptive": AdaptiveSettings() if a.threshold is None else
                                                  AdaptiveSettings(threshold=a.threshold)}}
