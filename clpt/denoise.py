@@ -288,7 +288,10 @@ def kept_emission(aux, count, k: float):
     # (chosen in float32: no float64 image in between)
     mask = dilate(confirmed, 1)
     out = np.zeros(np.shape(emission), np.float32)
-    out[mask] = np.asarray(emission, np.float32)[mask]
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(rows):  # only the rows a lamp's image spans (a masked copy of the whole image took 1 ms at 512x512)
+        a, b = rows[0], rows[-1] + 1
+        out[a:b] = np.where(mask[a:b, :, None], np.asarray(emission[a:b], np.float32), np.float32(0))
     return out
 
 
@@ -356,9 +359,10 @@ def apply_denoiser(cone, image, lum_var, count, aux, settings):
             keep = keep + aux["caustic"] * share[..., None]
             rest_var = np.maximum(lum_var - aux["caustic_var"] * share, 0.0)
     mean_var = rest_var / np.maximum(count, 1.0)
-    out = keep + cone(image - keep, mean_var, aux["normal"], aux["albedo"], aux["depth"], settings,
-                      emitter=aux["emitter"])
-    return np.maximum(out, 0.0).astype(np.float32, copy=False)
+    out = cone(image - keep, mean_var, aux["normal"], aux["albedo"], aux["depth"], settings,
+               emitter=aux["emitter"])
+    out += keep  # in place: the filter's result is a new array
+    return np.maximum(out, 0.0, out=out).astype(np.float32, copy=False)
 
 
 def oidn_denoise(color, albedo, normal, settings: OidnSettings):
