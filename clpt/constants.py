@@ -104,11 +104,10 @@ def dot_rows(a, w) -> np.ndarray:
     render (as measured with OpenBLAS), competing with the OpenCL runtime
     for the cores."""
     a = np.asarray(a)
-    flat = a.reshape(-1, a.shape[-1])  # always rows: numpy's batched product of a
-    # 3-d array rounds some rows differently (numpy 2.4), so one shape, one number
-    if len(flat) <= DOT_ROWS:
-        return (flat @ w).reshape(a.shape[:-1])
-    out = np.concatenate([flat[i:i + DOT_ROWS] @ w for i in range(0, len(flat), DOT_ROWS)])
+    # Always as rows: numpy's batched product of a 3-d array rounds some rows otherwise (numpy 2.4).
+    flat = a.reshape(-1, a.shape[-1])
+    out = flat @ w if len(flat) <= DOT_ROWS else \
+        np.concatenate([flat[i:i + DOT_ROWS] @ w for i in range(0, len(flat), DOT_ROWS)])
     return out.reshape(a.shape[:-1])
 
 

@@ -35,6 +35,8 @@ import warnings
 
 import numpy as np
 
+from clpt.features import SAMPLERS
+
 
 def scene_parser(doc: str) -> argparse.ArgumentParser:
     """The adaptive benches' arguments: a scene, a device and the image size."""
@@ -56,7 +58,7 @@ def main(argv=None) -> int:
     ap.add_argument("--threshold", type=float, default=None,
                     help="the adaptive noise threshold (default: AdaptiveSettings'; one the time cannot reach "
                          "makes adaptive sampling use all of it)")
-    ap.add_argument("--sampler", choices=("stratified", "independent"), default="stratified")
+    ap.add_argument("--sampler", choices=SAMPLERS, default="stratified")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
