@@ -58,6 +58,21 @@ def test_counters_count_launches_and_read_times_once_settled():
     assert c.take() == ({}, {})
 
 
+def test_counters_keep_the_times_of_launches_still_running_when_asked():
+    """A photon map built ahead for the next item may still run when an item's
+    counters are taken: its times come with a later take."""
+    c = Counters()
+    done, running = _Event(2_000_000), _Event(3_000_000)
+    done.command_execution_status = cl.command_execution_status.COMPLETE
+    running.command_execution_status = cl.command_execution_status.RUNNING
+    c.launched("a", done)
+    c.launched("b", running)
+    launches, seconds = c.take(finished_only=True)
+    assert launches == {"a": 1, "b": 1} and seconds == {"a": pytest.approx([2e-3])}
+    running.command_execution_status = cl.command_execution_status.COMPLETE
+    assert c.take(finished_only=True) == ({}, {"b": pytest.approx([3e-3])})
+
+
 def _kernel_params(path, name):
     src = (kernel_dir() / path).read_text()
     sig = src[src.index(f" void {name}("):]  # (after __kernel and any attributes)
@@ -147,11 +162,46 @@ def test_trace_pass_records_for_ranges_and_pixel_lists(device_spec):
     jobs = np.zeros((5, 4), np.uint32)
     jobs[:, 0] = 2
     rec, gsize = w.trace.item_record(job.seed, WorkItem("pixels", pixels=pixels, jobs=jobs))
-    assert (rec["n_list"], rec["n_samples"], rec["wi_entries"]) == (5, 0, 4)
+    assert (rec["n_samples"], rec["wi_entries"]) == (0, 4)
     assert gsize == w.local  # two work-items' worth, in a whole group
-    got = np.empty((5, 4), np.uint32)
+    assert rec["n_list"] == gsize * 4  # the list as uploaded: every work-item's entries, most of them empty
+    got = np.empty((gsize * 4, 4), np.uint32)
     cl.enqueue_copy(w.dctx.queue, got, w.trace.jobs_buf)
-    assert (got[:, 3] == pixels).all() and (got[:, 0] == 2).all()
+    assert (got[:5, 3] == pixels).all() and (got[:5, 0] == 2).all()
+    assert (got[5:, 0] == 0).all() and (got[5:, 3] == 0xFFFFFFFF).all()  # no samples: lanes skip them
+
+
+def test_pixel_lists_deal_work_items_over_the_work_groups(device_spec):
+    """An adaptive item's runs of entries (one work-item's each) are dealt
+    back and forth over the launch's work-groups (TracePass._pixel_list), so
+    that the heavy runs the host puts first do not all fall to the first
+    work-groups, which PoCL runs on one thread; every entry is uploaded
+    once, in its run's order."""
+    r = clpt.Renderer("cornell_box", device=device_spec, lanes=4)
+    w = r.states[0]
+    job = r.job(4, width=64, height=64, seed=3)
+    w.start(job)
+    n = 3001
+    pixels = np.arange(n, dtype=np.uint32) * 3 % 4096
+    jobs = np.zeros((n, 4), np.uint32)
+    jobs[:, 0] = np.arange(n) + 1  # distinct counts: each entry recognisable
+    rec, gsize = w.trace.item_record(job.seed, WorkItem("pixels", pixels=pixels, jobs=jobs))
+    e, local = int(rec["wi_entries"]), w.local
+    runs = -(-n // e)
+    groups = gsize // local
+    assert groups > 1 and gsize == -(-runs // local) * local and rec["n_list"] == gsize * e
+    got = np.empty((gsize, e, 4), np.uint32)
+    cl.enqueue_copy(w.dctx.queue, got, w.trace.jobs_buf)
+    for k in range(runs):  # run k: back and forth over the groups, one work-item of each a time
+        row, col = divmod(k, groups)
+        group = col if row % 2 == 0 else groups - 1 - col
+        want = np.full((e, 4), 0, np.uint32)
+        want[:, 3] = 0xFFFFFFFF
+        part = slice(k * e, min(n, (k + 1) * e))
+        m = part.stop - part.start
+        want[:m, 0], want[:m, 3] = jobs[part, 0], pixels[part]
+        np.testing.assert_array_equal(got[group * local + row][:, [0, 3]], want[:, [0, 3]])
+    assert (got[..., 0] > 0).sum() == n  # every entry once, the rest empty
 
 
 def _gaussian_box():
@@ -390,3 +440,40 @@ def test_the_trial_relmse_uses_both_techniques_mean_as_reference():
     assert out == pytest.approx({"path": 0.3 / den, "merge": 0.1 / den})
     assert trial_size(1920, 1080)[0] * trial_size(1920, 1080)[1] <= 64 * 64
     assert trial_size(16, 12) == (16, 12)
+
+
+def test_a_photon_map_built_ahead_gives_the_same_bits(device_spec):
+    """An item that names the next one's photon map (WorkItem.then: one
+    worker takes every item in order) has the worker queue that map's build
+    behind its launch (DeviceWorker.run): the next item gathers from it with
+    no build of its own, the sums are the same bits as with each map built
+    by its own item, and each map's info and device times come with the item
+    that gathers from it."""
+    r = clpt.Renderer("cornell_box_caustics", device=device_spec)
+    w = r.states[0]
+    job = r.job(24, width=24, height=16, seed=3)
+    per = job.spp_per_map
+    assert per and job.uniform_spp == 24 and per < 24
+    maps = -(-24 // per)
+
+    def items(hints):
+        return [WorkItem("samples", k * per, min(per, 24 - k * per), iteration=k,
+                         then=k + 1 if hints and k + 1 < maps else -1) for k in range(maps)]
+
+    got = {}
+    for hints in (False, True):
+        w.start(job)
+        res = [w.run(it) for it in items(hints)]
+        got[hints] = (w.sums(), res)
+    plain, ahead = got[False][1], got[True][1]
+    for p, a in zip(plain, ahead):
+        assert len(p.photon_maps) == len(a.photon_maps) == 1
+        pm, am = p.photon_maps[0], a.photon_maps[0]
+        assert (pm["iteration"], pm["stored"], pm["seed"]) == (am["iteration"], am["stored"], am["seed"])
+        assert np.isfinite(am["trace_seconds"]) and np.isfinite(am["grid_seconds"])
+    # The builds ahead were queued during the item before: its launches, their times with the next item.
+    assert ahead[0].launches["trace_photons"] == 2 and ahead[-1].launches.get("trace_photons", 0) == 0
+    assert sum(len(a.kernel_seconds.get("trace_photons", [])) for a in ahead) == maps
+    assert all(np.isfinite(a.kernel_seconds["trace_photons"]).all() for a in ahead if "trace_photons" in a.kernel_seconds)
+    for k, v in got[False][0].planes.items():
+        np.testing.assert_array_equal(v, got[True][0].planes[k], err_msg=k)
