@@ -16,6 +16,20 @@ gain. No reference and no timing: the counts alone, so that changes to the
 allocation can be compared without the noise of equal-time runs (an
 adaptive sample's extra cost is not in it: tests/bench_adaptive_merge.py
 measures at equal CPU time).
+
+The ceiling from the renders' own spread over-states what any allocation
+can reach: the counts proportional to S_i and the S_i they are judged by
+share the same noise. So the renders are also split in two halves (even
+and odd seeds): counts from one half's S_i (the pixel's own, and blended
+with its 3x3 neighbourhood as allocate_error does), judged by the other
+half's S_i^2, both ways, averaged (no pixel below 1/32 of the mean, as
+min_spp's 32 of 1024). That under-states the best counts a
+little (each half is noisier than all the renders), so the attainable gain
+lies between it and the ceiling. The counts the renders' film variance
+gives (each pixel's own per-sample luminance variance, weighed by colour
+and blended as allocate_error does, from all the renders' samples) are
+judged the same way: what allocate_error would reach if it knew the
+film's variance exactly.
 """
 
 from __future__ import annotations
@@ -36,7 +50,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")
 
-    from clpt.adaptive import ERROR_FLOOR, AdaptiveSettings
+    from clpt.adaptive import ERROR_FLOOR, AdaptiveSettings, _neighbourhood_blend, relative_error
     from clpt.constants import LUMA
     from clpt.loading import load_scene
     from clpt.render import Renderer
@@ -61,10 +75,32 @@ def main(argv=None) -> int:
 
     print(f"{a.scene}, {a.width}x{a.height}, {a.renders} x {a.spp_each} spp uniform: ceiling RGB "
           f"{P * S2.sum() / np.sqrt(S2).sum() ** 2:.3f}, luminance {P * s2.sum() / np.sqrt(s2).sum() ** 2:.3f}")
+    shape = (a.height, a.width)
+
+    def rel_var(part):  # each pixel's S_i^2 from a subset of the renders (their own mean)
+        m = part.mean(axis=0)
+        return (part.var(axis=0, ddof=1) * a.spp_each / (m * m + eps)).sum(axis=-1).ravel()
+
+    def blended(s):
+        return _neighbourhood_blend(s.reshape(shape)).ravel()
+
+    def floored(n):  # no pixel below 1/32 of the mean: AdaptiveSettings' min_spp at 1024 spp
+        n = n / max(n.mean(), 1e-300)
+        return np.maximum(n, 1.0 / 32)
+
+    halves = (rel_var(imgs[0::2]), rel_var(imgs[1::2]))
+    own = np.mean([gain(halves[1 - k], floored(np.sqrt(halves[k]))) for k in (0, 1)])
+    blend = np.mean([gain(halves[1 - k], floored(blended(np.sqrt(halves[k])))) for k in (0, 1)])
+    film = relative_error(lum.reshape(shape), np.mean(lum_var, axis=0), 1.0, mean.reshape(shape + (3,)))
+    film_n = floored(_neighbourhood_blend(film).ravel())
+    film_gain = np.mean([gain(h, film_n) for h in halves])
+    print(f"cross-validated (counts from one half's spread, judged by the other's), RGB: the pixel's own "
+          f"{own:.3f}, blended {blend:.3f}; the film variance's counts (blended, colour) {film_gain:.3f}")
     for spp in (int(x) for x in a.adaptive_spp.split(",")):
         res = r.render(spp, seed=7, **kw, adaptive=AdaptiveSettings(threshold=a.threshold))
         n = res.sample_count.astype(np.float64).ravel()
-        print(f"adaptive {spp} spp: its counts' gain RGB {gain(S2, n):.3f}, luminance {gain(s2, n):.3f} "
+        print(f"adaptive {spp} spp: its counts' gain RGB {gain(S2, n):.3f} (by each half's spread "
+              f"{gain(halves[0], n):.3f}, {gain(halves[1], n):.3f}), luminance {gain(s2, n):.3f} "
               f"({res.stats.adaptive_rounds} rounds, {n.min():.0f}-{n.max():.0f} samples a pixel)")
     return 0
 
