@@ -58,21 +58,6 @@ def test_counters_count_launches_and_read_times_once_settled():
     assert c.take() == ({}, {})
 
 
-def test_counters_keep_the_times_of_launches_still_running_when_asked():
-    """A photon map built ahead for the next item may still run when an item's
-    counters are taken: its times come with a later take."""
-    c = Counters()
-    done, running = _Event(2_000_000), _Event(3_000_000)
-    done.command_execution_status = cl.command_execution_status.COMPLETE
-    running.command_execution_status = cl.command_execution_status.RUNNING
-    c.launched("a", done)
-    c.launched("b", running)
-    launches, seconds = c.take(finished_only=True)
-    assert launches == {"a": 1, "b": 1} and seconds == {"a": pytest.approx([2e-3])}
-    running.command_execution_status = cl.command_execution_status.COMPLETE
-    assert c.take(finished_only=True) == ({}, {"b": pytest.approx([3e-3])})
-
-
 def _kernel_params(path, name):
     src = (kernel_dir() / path).read_text()
     sig = src[src.index(f" void {name}("):]  # (after __kernel and any attributes)
@@ -441,39 +426,3 @@ def test_the_trial_relmse_uses_both_techniques_mean_as_reference():
     assert trial_size(1920, 1080)[0] * trial_size(1920, 1080)[1] <= 64 * 64
     assert trial_size(16, 12) == (16, 12)
 
-
-def test_a_photon_map_built_ahead_gives_the_same_bits(device_spec):
-    """An item that names the next one's photon map (WorkItem.then: one
-    worker takes every item in order) has the worker queue that map's build
-    behind its launch (DeviceWorker.run): the next item gathers from it with
-    no build of its own, the sums are the same bits as with each map built
-    by its own item, and each map's info and device times come with the item
-    that gathers from it."""
-    r = clpt.Renderer("cornell_box_caustics", device=device_spec)
-    w = r.states[0]
-    job = r.job(24, width=24, height=16, seed=3)
-    per = job.spp_per_map
-    assert per and job.uniform_spp == 24 and per < 24
-    maps = -(-24 // per)
-
-    def items(hints):
-        return [WorkItem("samples", k * per, min(per, 24 - k * per), iteration=k,
-                         then=k + 1 if hints and k + 1 < maps else -1) for k in range(maps)]
-
-    got = {}
-    for hints in (False, True):
-        w.start(job)
-        res = [w.run(it) for it in items(hints)]
-        got[hints] = (w.sums(), res)
-    plain, ahead = got[False][1], got[True][1]
-    for p, a in zip(plain, ahead):
-        assert len(p.photon_maps) == len(a.photon_maps) == 1
-        pm, am = p.photon_maps[0], a.photon_maps[0]
-        assert (pm["iteration"], pm["stored"], pm["seed"]) == (am["iteration"], am["stored"], am["seed"])
-        assert np.isfinite(am["trace_seconds"]) and np.isfinite(am["grid_seconds"])
-    # The builds ahead were queued during the item before: its launches, their times with the next item.
-    assert ahead[0].launches["trace_photons"] == 2 and ahead[-1].launches.get("trace_photons", 0) == 0
-    assert sum(len(a.kernel_seconds.get("trace_photons", [])) for a in ahead) == maps
-    assert all(np.isfinite(a.kernel_seconds["trace_photons"]).all() for a in ahead if "trace_photons" in a.kernel_seconds)
-    for k, v in got[False][0].planes.items():
-        np.testing.assert_array_equal(v, got[True][0].planes[k], err_msg=k)

@@ -132,7 +132,6 @@ class DeviceWorker:
         self.launches = {}      # kernel name -> launches since start()
         self.kernel_times = {}  # kernel name -> device seconds of each launch since start()
         self.job = None
-        self._ahead = None      # the info of the photon map built ahead for the next item (run)
 
     # The photon map (tests and benchmarks read its buffers), the feature
     # sums, and the trace pass's work-group size.
@@ -169,10 +168,7 @@ class DeviceWorker:
         self.trace.set_image(job, self.packed, frame, self.eps_abs)
         self.job = job
         if self.photon is not None:
-            if self._ahead is not None:
-                self.photon.complete(self._ahead)
             self.photon.held = None
-        self._ahead = None
         for p in self.passes:  # what ran before belongs to no item of this job
             p.counters.clear()
         self.launches = {}
@@ -211,7 +207,7 @@ class DeviceWorker:
         filter's run between items), added to the worker's since start()."""
         launches, seconds = {}, {}
         for p in self.passes:
-            got_l, got_s = p.counters.take(finished_only=True)  # a map built ahead counts with its item
+            got_l, got_s = p.counters.take()
             for k, v in got_l.items():
                 launches[k] = launches.get(k, 0) + v
             for k, v in got_s.items():
@@ -228,16 +224,9 @@ class DeviceWorker:
         # A sample range's map is only queued: its launch follows it in the
         # queue without a return to the host in between (one wait per item).
         pm = self.prepare_photons(item.iteration, wait=item.kind == "photons")
-        ahead, self._ahead = self._ahead, None
-        if ahead is not None:
-            if pm is None and ahead["iteration"] == item.iteration:
-                pm = ahead  # built during the last item, for this one
-            else:
-                self.photon.complete(ahead)  # built for an item that went elsewhere: not reported
         if item.kind == "photons":
             if pm is None:
                 raise ValueError(f"{self.label}: the job has no photon map to build")
-            self.photon.complete(pm)
             pm["power"] = self.photon.stored_power()
             launches, seconds = self._take_counters()
             return RunResult(seconds=pm["host_seconds"], wall=pm["host_seconds"], photon_maps=[pm],
@@ -256,15 +245,7 @@ class DeviceWorker:
                          pix_jobs=None, aux=self.film.aux)
         if self.features.photons:
             self.photon.fill(args)
-        then = None
-        if (item.then >= 0 and item.then != item.iteration and not prepass and self.photon is not None
-                and job.photons is not None):
-            # The next item's map, queued behind this launch: the device builds it while the host
-            # takes this item's result and hands out the next (that idle time was 4% of a
-            # progressive render's, 8% of an adaptive one's).
-            def then():
-                self._ahead = self.prepare_photons(item.then, wait=False)
-        secs, wall, first, stats = self.trace.run(rec, global_size, args, then)
+        secs, wall, first, stats = self.trace.run(rec, global_size, args)
         if pm is not None:
             self.photon.complete(pm)  # (the launch has finished, and the build before it)
         launches, seconds = self._take_counters()

@@ -140,7 +140,6 @@ class Driver:
                 warnings.warn(f"{label}: {item.describe()} failed ({type(err).__name__}: {err}); trying again")
                 return
             self.ex.drop(slot)
-            self.schedule.hints = len(self.ex.slots) == 1
             self.failures.append((label, f"{type(err).__name__}: {err}"))
             warnings.warn(f"{label} failed ({type(err).__name__}: {err}); its work goes to the others")
             if self.ex.resident:
@@ -274,7 +273,6 @@ class Driver:
         # eight times slower.
         items = []
         if job.spp_per_map:
-            parts_of = []  # (pixels, jobs, iteration) of each item, in the order they are handed out
             first = -(-job.uniform_spp // job.spp_per_map) + sch.maps
             k = int(max(1, min(round(int(jobs[:, 0].sum()) / (n_pix * job.spp_per_map)), int(jobs[:, 0].max()))))
             n = jobs[:, 0].astype(np.int64)
@@ -287,13 +285,9 @@ class Driver:
                     if len(idx):
                         sl = np.zeros((len(idx), 4), dtype=np.uint32)
                         sl[:, 0], sl[:, 1], sl[:, 2] = count_j[idx], depth[idx], begin[idx] + lo[idx]
-                        parts_of.append((pixels[idx], sl, first + j))
+                        items.append(WorkItem("pixels", pixels=pixels[idx], jobs=sl, iteration=first + j,
+                                              round=sch.rounds))
             sch.maps += k
-            # One worker takes them in order: each names the next one's map (Schedule.hints).
-            hint = sch.hints and len(parts) == 1
-            items = [WorkItem("pixels", pixels=px, jobs=sl, iteration=it, round=sch.rounds,
-                              then=parts_of[i + 1][2] if hint and i + 1 < len(parts_of) else -1)
-                     for i, (px, sl, it) in enumerate(parts_of)]
         else:
             items = [WorkItem("pixels", pixels=pixels[idx], jobs=jobs[idx], iteration=0, round=sch.rounds)
                      for idx in parts if len(idx)]
@@ -399,7 +393,6 @@ class Driver:
         self.tries = {}
         self.ex.start(self.job, self.initial)
         self.first_slot = min(self.ex.slots) if self.ex.slots else 0
-        self.schedule.hints = len(self.ex.slots) == 1
         self.host = self.empty()
         if not self.ex.resident and self.initial is not None:
             self.host.add(self.initial)

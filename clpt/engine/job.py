@@ -199,7 +199,6 @@ class WorkItem:
     pixels: np.ndarray | None = None
     jobs: np.ndarray | None = None
     round: int = -1
-    then: int = -1         # the photon map the worker's next item will gather from, if known (-1: not)
 
     @property
     def samples(self) -> int:

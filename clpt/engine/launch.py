@@ -12,8 +12,6 @@ PhotonPassArgs) follow.
 
 from __future__ import annotations
 
-import collections
-
 import numpy as np
 import pyopencl as cl
 
@@ -60,24 +58,13 @@ def photon_record(double: bool) -> np.ndarray:
 class RecordBuffer:
     """A device buffer holding one launch record, rewritten before each launch."""
 
-    KEEP = 4  # copies whose host side is kept alive (their transfers long done when dropped)
-
     def __init__(self, dctx, record: np.ndarray):
         self.dctx = dctx
         self.buffer = cl.Buffer(dctx.context, cl.mem_flags.READ_ONLY, max(record.nbytes, 16))
-        self._copies = collections.deque(maxlen=self.KEEP)
 
     def write(self, record: np.ndarray):
-        """Queue a copy of record into the buffer, without waiting for it: in
-        an in-order queue it lands after every launch queued before and before
-        every launch queued after, so a launch queued behind work still
-        running (a photon map's build) follows it with no return to the host
-        in between. The record is copied first, so the caller's array may
-        change at once; pyopencl's event keeps that copy alive until the
-        transfer is done (dropping the event waits for it: the last KEEP
-        are kept, and by the time one is dropped later launches have
-        followed it)."""
-        host = np.array(record, copy=True, order="C")
-        self._copies.append(cl.enqueue_copy(self.dctx.queue, self.buffer, host, is_blocking=False))
+        """Copy record in (blocking: the host array may change right after; in
+        an in-order queue the copy also lands after every launch queued before)."""
+        cl.enqueue_copy(self.dctx.queue, self.buffer, np.ascontiguousarray(record), is_blocking=True)
         return self.buffer
 

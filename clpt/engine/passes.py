@@ -44,22 +44,15 @@ class Counters:
         self.launches[name] = self.launches.get(name, 0) + 1
         self._pending.append((name, event))
 
-    def settle(self, finished_only: bool = False):
-        """Note the device times of the launches queued so far (they must have
-        finished); finished_only: of those that have, the others' wait for a
-        later settle (a photon map built ahead for the next item: its times
-        come with that item's)."""
-        keep = []
+    def settle(self):
+        """Note the device times of the launches queued so far (they must have finished)."""
         for name, ev in self._pending:
-            if finished_only and ev.command_execution_status != cl.command_execution_status.COMPLETE:
-                keep.append((name, ev))
-                continue
             self.seconds.setdefault(name, []).append(event_seconds(ev))
-        self._pending = keep
+        self._pending = []
 
-    def take(self, finished_only: bool = False) -> tuple[dict[str, int], dict[str, list[float]]]:
+    def take(self) -> tuple[dict[str, int], dict[str, list[float]]]:
         """(launches, seconds) since the last take, and start counting afresh."""
-        self.settle(finished_only)
+        self.settle()
         out = self.launches, self.seconds
         self.launches, self.seconds = {}, {}
         return out
@@ -247,12 +240,10 @@ class TracePass:
         self.jobs_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dealt)
         return global_size * entries, global_size
 
-    def run(self, rec: np.ndarray, global_size: int, args: TraceArgs, then=None) -> tuple[float, float, bool, np.ndarray]:
+    def run(self, rec: np.ndarray, global_size: int, args: TraceArgs) -> tuple[float, float, bool, np.ndarray]:
         """Launch over global_size work-items and wait: (device seconds (the
         host's where the queue has no profiling), host seconds, whether it
-        was the first launch, ray counts summed over the work-items).
-        then(): called once the launch is queued, before the wait: it may
-        queue work that runs after it (the next item's photon map)."""
+        was the first launch, ray counts summed over the work-items)."""
         args.launch = self.launch_buf.write(rec)
         args.stats, args.pix_jobs = self.stats_buf, self.jobs_buf
         self.kernel.set_args(*args.ordered(self.features.aux, self.features.photons))
@@ -260,10 +251,7 @@ class TracePass:
         t0 = time.perf_counter()
         ev = cl.enqueue_nd_range_kernel(q, self.kernel, (global_size,), (self.local,))
         stats = self.stats_host[:global_size]
-        read = cl.enqueue_copy(q, stats, self.stats_buf, is_blocking=False)
-        if then is not None:
-            then()
-        read.wait()
+        cl.enqueue_copy(q, stats, self.stats_buf)
         wall = time.perf_counter() - t0
         self.counters.launched("trace_paths", ev)
         self.counters.settle()
@@ -304,8 +292,7 @@ class PhotonPass:
         self.inv_cell = 1.0
         self.sorted_keys = None
         self.held = None  # the key of the map built last (DeviceWorker: its iteration)
-        self._queued = {}  # id(info) -> what complete(info) reads, for builds queued and not yet completed
-        self._last = None  # the info of the build queued last
+        self._queued = (None, None, None, None)  # the last build's info until complete()
 
     def _alloc(self, n: int):
         ctx = self.dctx.context
@@ -372,35 +359,27 @@ class PhotonPass:
             args = PhotonPassArgs(scene_buf, self.launch.write(rec), *self.raw, self.counter)
             events.append(self._launch("trace_photons", self.k_trace, -(-n // lanes), *args.ordered()))
         stored = np.zeros(1, dtype=np.uint32)
-        # Read once the photons are traced; the event is kept (dropping it would wait for the read).
-        read = cl.enqueue_copy(q, stored, self.counter, is_blocking=False)
+        cl.enqueue_copy(q, stored, self.counter, is_blocking=False)  # read once the queue has finished
         grid_events = self.build_grid(n, radius, wait=wait)
         self.n_emitted = n
         info = {"host_seconds": time.perf_counter() - t_host}
-        self._queued[id(info)] = (info, stored, read, events, grid_events)
-        self._last = info
+        self._queued = (info, stored, events, grid_events)
         if wait:
             self.complete(info)
         return info
 
     def complete(self, info: dict):
-        """Fill in the info of a build queued without waiting (build(wait=False)):
-        the photons stored, the device times; waits for the build if it is
-        still running. Builds queued after it (the next item's map, built
-        ahead) may still be running."""
-        queued = self._queued.pop(id(info), None)
-        if queued is None or queued[0] is not info:
+        """Fill in the info of the build queued last (build(wait=False)),
+        once the queue has finished: the photons stored, the device times."""
+        queued, stored, events, grid_events = self._queued
+        if queued is not info:
             if "stored" in info:
                 return  # (completed already: a build that waited)
-            raise RuntimeError("a photon map's info is completed once, after the build that returned it")
-        _, stored, read, events, grid_events = queued
-        read.wait()
-        if grid_events:
-            grid_events[-1].wait()  # (the queue is in order: the build's every launch has ended)
-        info.update(stored=int(stored[0]), trace_seconds=_device_seconds(events),
+            raise RuntimeError("a photon map's info is completed after the build that returned it, and no later")
+        self.n_stored = int(stored[0])
+        info.update(stored=self.n_stored, trace_seconds=_device_seconds(events),
                     grid_seconds=_device_seconds(grid_events))
-        if info is self._last:  # the map the buffers hold
-            self.n_stored = info["stored"]
+        self._queued = (None, None, None, None)
 
     def load(self, pos, dirs, power, radius: float):
         """Use the given photons (arrays of n x 3) instead of traced ones, and
@@ -416,7 +395,6 @@ class PhotonPass:
                 cl.enqueue_copy(self.dctx.queue, buf, h)
         self.n_stored = n
         self.n_emitted = n
-        self._last = None
         events = self.build_grid(n, radius)
         self.counters.settle()
         return {"stored": n, "grid_seconds": _device_seconds(events)}

@@ -28,9 +28,6 @@ class Schedule:
         self.adaptive_over = job.adaptive is None
         self.out = 0               # items handed out and not yet done or failed
         self.stopped = False
-        # One worker takes every item in order: each item then names the photon map of the next
-        # (WorkItem.then), which the worker builds while the host takes the item's result.
-        self.hints = False
 
     # --- handing out ------------------------------------------------------------------
     def take(self, n: int) -> WorkItem | None:
@@ -49,8 +46,7 @@ class Schedule:
             n = per_map if per_map else max(1, int(n))
             n = min(n, job.uniform_spp - s0)
             self.next = s0 + n
-            then = self.next // per_map if per_map and self.hints and self.next < job.uniform_spp else -1
-            return self._out(WorkItem("samples", s0, n, iteration=s0 // per_map if per_map else 0, then=then))
+            return self._out(WorkItem("samples", s0, n, iteration=s0 // per_map if per_map else 0))
         if self.round_items:
             return self._out(self.round_items.pop(0))
         return None
