@@ -138,6 +138,7 @@ def test_trace_pass_records_for_ranges_and_pixel_lists(device_spec):
     w.start(job)
     rec, gsize = w.trace.item_record(job.seed, WorkItem("samples", 2, 5))
     assert (rec["sample_begin"], rec["n_samples"], rec["n_list"], rec["group_offset"]) == (2, 5, 0, 0)
+    assert w.trace.deal_lists == w.dctx.is_cpu
     assert (rec["width"], rec["height"], rec["seed"]) == (20, 12, 3)
     assert w.trace.entries == work_item_entries(4) == 4 * LANE_PIXELS  # the most pixels a work-item takes
     e = int(rec["wi_entries"])  # (240 pixels: one per lane, so that the groups spread over the units)
@@ -166,6 +167,7 @@ def test_pixel_lists_deal_work_items_over_the_work_groups(device_spec):
     w = r.states[0]
     job = r.job(4, width=64, height=64, seed=3)
     w.start(job)
+    w.trace.deal_lists = True  # (as on CPUs)
     n = 3001
     pixels = np.arange(n, dtype=np.uint32) * 3 % 4096
     jobs = np.zeros((n, 4), np.uint32)
@@ -426,3 +428,29 @@ def test_the_trial_relmse_uses_both_techniques_mean_as_reference():
     assert trial_size(1920, 1080)[0] * trial_size(1920, 1080)[1] <= 64 * 64
     assert trial_size(16, 12) == (16, 12)
 
+
+
+@pytest.mark.parametrize("scene", ["cornell_box", "cornell_box_caustics"])
+def test_dealt_lists_give_the_same_bits(device_spec, scene):
+    """An adaptive list dealt over the work-groups (TracePass._pixel_list)
+    and the same list in order give the same sums bit for bit."""
+    r = clpt.Renderer(scene, device=device_spec, lanes=4)
+    w = r.states[0]
+    job = r.job(6, width=37, height=29, seed=7)
+    pixels = np.arange(0, 37 * 29, 3, dtype=np.uint32)
+    jobs = np.zeros((len(pixels), 4), np.uint32)
+    jobs[:, 0] = 1 + pixels % 5
+    jobs[:, 1] = job.max_depth
+    jobs[:, 2] = 6
+    got = []
+    kept = w.trace.deal_lists
+    for deal in (False, True):
+        w.trace.deal_lists = deal
+        w.start(job)
+        w.run(WorkItem("samples", 0, 6))
+        w.run(WorkItem("pixels", pixels=pixels, jobs=jobs))
+        got.append(w.sums())
+    w.trace.deal_lists = kept
+    assert got[0].samples == got[1].samples == 37 * 29 * 6 + int(jobs[:, 0].sum())
+    for k, v in got[0].planes.items():
+        np.testing.assert_array_equal(v, got[1].planes[k], err_msg=k)

@@ -125,6 +125,16 @@ def local_size(dctx) -> int:
     return LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
 
 
+def dealt_work_items(runs: int, groups: int, local: int) -> np.ndarray:
+    """The work-item that takes each of a launch's first `runs` runs when
+    they are dealt over its `groups` work-groups of `local` back and forth:
+    runs 0 .. G-1 to the work-groups' first work-items in order, the next G
+    to their second ones in reverse order, and so on (the inverse of
+    kernels/film.h lane_run)."""
+    row, col = np.divmod(np.arange(runs), groups)
+    return np.where(row % 2 == 0, col, groups - 1 - col) * local + row
+
+
 def _groups(n: int, entries: int, local: int) -> int:
     """The global size of a launch over n pixels' or entries' work, `entries`
     a work-item: whole work-groups."""
@@ -148,6 +158,9 @@ class TracePass:
         self.wi_entries = self.entries  # this image's launches' (allocate)
         self.counters = Counters()
         self.launched = False    # the first launch may include a lazy device compile
+        # Adaptive lists' runs dealt over the work-groups on CPUs, where a work-group is one thread's
+        # (_pixel_list; a GPU's work-groups keep their runs together).
+        self.deal_lists = bool(getattr(dctx, "is_cpu", False))
         self.record = None
         self.stats_buf = self.jobs_buf = None
         self.stats_host = np.empty((0, 4), np.uint32)
@@ -209,12 +222,12 @@ class TracePass:
         """Upload an adaptive item's list, `entries` a work-item; returns (the
         list's length as uploaded, the launch's global size).
 
-        The work-items' runs of entries are dealt over the G work-groups as
-        cards are, back and forth: runs 0 .. G-1 to work-groups 0 .. G-1,
-        runs G .. 2G-1 to work-groups G-1 .. 0, and so on, so every
-        work-group gets its share of the heavy runs the host put first
-        (Driver._adaptive_round sorts the pixels by their samples), padded
-        with empty work-items. A work-group runs on one CPU thread, and PoCL
+        On CPUs (self.deal_lists) the work-items' runs of entries are dealt over
+        the G work-groups as cards are, back and forth (dealt_work_items):
+        runs 0 .. G-1 to work-groups 0 .. G-1, runs G .. 2G-1 to work-groups
+        G-1 .. 0, and so on, so every work-group gets its share of the heavy
+        runs the host put first (Driver._adaptive_round sorts the pixels by
+        their samples), padded with empty work-items. A work-group runs on one CPU thread, and PoCL
         hands a launch's work-groups to its threads in contiguous blocks:
         with the list in its sorted order one thread took the heavy half, and
         adaptive passes ran at about half the samples per wall second of uniform ones on
@@ -227,12 +240,11 @@ class TracePass:
         global_size = groups * self.local
         dealt = np.zeros((global_size, entries, 4), dtype=np.uint32)  # no samples: lanes skip the entry
         dealt[:, :, 3] = 0xFFFFFFFF
-        row, col = np.divmod(np.arange(runs), groups)
-        group = np.where(row % 2 == 0, col, groups - 1 - col)
         full = np.zeros((runs * entries, 4), dtype=np.uint32)
         full[:, 3] = 0xFFFFFFFF
         full[:len(jobs)] = jobs
-        dealt[group * self.local + row] = full.reshape(runs, entries, 4)
+        dealt[dealt_work_items(runs, groups, self.local) if self.deal_lists else np.arange(runs)] = \
+            full.reshape(runs, entries, 4)
         if global_size > len(self.stats_host):
             self.stats_buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_WRITE, global_size * 16)
             self.stats_host = np.empty((global_size, 4), dtype=np.uint32)
