@@ -129,8 +129,7 @@ def dealt_work_items(runs: int, groups: int, local: int) -> np.ndarray:
     """The work-item that takes each of a launch's first `runs` runs when
     they are dealt over its `groups` work-groups of `local` back and forth:
     runs 0 .. G-1 to the work-groups' first work-items in order, the next G
-    to their second ones in reverse order, and so on (the inverse of
-    kernels/film.h lane_run)."""
+    to their second ones in reverse order, and so on."""
     row, col = np.divmod(np.arange(runs), groups)
     return np.where(row % 2 == 0, col, groups - 1 - col) * local + row
 
@@ -227,12 +226,14 @@ class TracePass:
         runs 0 .. G-1 to work-groups 0 .. G-1, runs G .. 2G-1 to work-groups
         G-1 .. 0, and so on, so every work-group gets its share of the heavy
         runs the host put first (Driver._adaptive_round sorts the pixels by
-        their samples), padded with empty work-items. A work-group runs on one CPU thread, and PoCL
-        hands a launch's work-groups to its threads in contiguous blocks:
-        with the list in its sorted order one thread took the heavy half, and
-        adaptive passes ran at about half the samples per wall second of uniform ones on
-        the caustics box (1.4 of 2 cores busy). Each pixel's samples are still
-        one lane's, in order, so the images are the same bits."""
+        their samples), padded with empty work-items. A work-group runs on
+        one CPU thread, and PoCL hands a launch's work-groups to its threads
+        in contiguous blocks:
+        with the list in its sorted order one thread took the heavy half: a
+        1024-spp adaptive render of the caustics box took 3.79 wall seconds
+        against uniform's 2.49 (1.35 of 2 cores busy; 2.96 s dealt). Each
+        pixel's samples are still one lane's, in order, so the images are the
+        same bits."""
         jobs = np.array(item.jobs, dtype=np.uint32).reshape(-1, 4)
         jobs[:, 3] = item.pixels  # (samples, max depth, first sample, pixel): kernels/film.h lane_jobs
         runs = -(-len(jobs) // entries)
