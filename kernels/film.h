@@ -22,7 +22,7 @@
 
 // --- the lanes' pixels -------------------------------------------------------------
 // A work-item takes L->wi_entries consecutive entries: pixels of the image
-// (row-major, from group_offset work-items on), all taking samples
+// (row-major, from group_offset work-items on; lane_run), all taking samples
 // [sample_begin, sample_begin + n_samples); or, when n_list > 0 (adaptive
 // sampling), entries of jobs, each (samples, max depth, first sample, pixel):
 // the host continues each pixel's sample sequence where it stands. With
@@ -51,12 +51,36 @@ inline LaneJobs lane_jobs_none(void)
     return j;
 }
 
+// The run of wi_entries pixels of the image that work-item gid takes. A
+// work-group takes a band of consecutive runs. With CLPT_DEAL_RUNS (PoCL's
+// CPU devices: clpt/program.py device_options) the first half of a launch's
+// work-groups take the even bands, the second half the odd ones: PoCL gives
+// each of its threads a contiguous block of the work-groups, so with the
+// bands in order one thread of two took the image's top half, the other its
+// bottom, however unequal their work (the gallery: 1.66 of 2 cores busy).
+// Each pixel's samples are one lane's, in order, so the images are the
+// same bits.
+#ifndef CLPT_DEAL_RUNS
+#define CLPT_DEAL_RUNS 0
+#endif
+inline uint lane_run(const TraceLaunch *L, uint gid)
+{
+#if CLPT_DEAL_RUNS
+    uint size = (uint)get_local_size(0), groups = (uint)get_num_groups(0);
+    uint g = gid / size, first_odd = (groups + 1u) / 2u;
+    uint band = g < first_odd ? 2u * g : 2u * (g - first_odd) + 1u;
+    return L->group_offset + band * size + gid % size;
+#else
+    return L->group_offset + gid;
+#endif
+}
+
 // Entry k of work-item gid: (samples, max depth, first sample, pixel); no
 // samples past the image or the list.
 inline uint4 lane_entry(const TraceLaunch *L, __global const uint4 *jobs, uint gid, uint k)
 {
     if (L->n_list == 0) {
-        uint p = (L->group_offset + gid) * L->wi_entries + k;
+        uint p = lane_run(L, gid) * L->wi_entries + k;
         return p < L->width * L->height ? (uint4)(L->n_samples, L->max_depth, L->sample_begin, p)
                                         : (uint4)(0u, 0u, 0u, NO_PIXEL);
     }

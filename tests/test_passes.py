@@ -454,3 +454,29 @@ def test_dealt_lists_give_the_same_bits(device_spec, scene):
     assert got[0].samples == got[1].samples == 37 * 29 * 6 + int(jobs[:, 0].sum())
     for k, v in got[0].planes.items():
         np.testing.assert_array_equal(v, got[1].planes[k], err_msg=k)
+
+
+@pytest.mark.parametrize("scene", ["cornell_box", "cornell_box_caustics"])
+def test_interleaved_bands_give_the_same_bits(device_spec, monkeypatch, scene):
+    """Uniform launches whose work-groups take the image's bands interleaved
+    (kernels/film.h lane_run, built with CLPT_DEAL_RUNS, as on PoCL) and in
+    order give the same sums bit for bit, on an image whose runs leave the
+    last work-group part empty and an odd number of work-groups."""
+    import clpt.program as program
+
+    plain = program.device_options
+    got = []
+    for deal in (False, True):
+        monkeypatch.setattr(program, "device_options", lambda dctx, deal=deal: [
+            o for o in plain(dctx) if not o.startswith("-DCLPT_DEAL_RUNS")] + (["-DCLPT_DEAL_RUNS=1"] if deal else []))
+        r = clpt.Renderer(scene, device=device_spec, lanes=4)
+        w = r.states[0]
+        assert ("-DCLPT_DEAL_RUNS=1" in w.build.options) == deal
+        job = r.job(6, width=61, height=37, seed=7)
+        w.start(job)
+        assert w.trace.global_size // w.local >= 3
+        w.run(WorkItem("samples", 0, 6))
+        got.append(w.sums())
+    assert got[0].samples == got[1].samples == 61 * 37 * 6
+    for k, v in got[0].planes.items():
+        np.testing.assert_array_equal(v, got[1].planes[k], err_msg=k)
