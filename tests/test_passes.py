@@ -429,7 +429,6 @@ def test_the_trial_relmse_uses_both_techniques_mean_as_reference():
     assert trial_size(16, 12) == (16, 12)
 
 
-
 @pytest.mark.parametrize("scene", ["cornell_box", "cornell_box_caustics"])
 def test_dealt_lists_give_the_same_bits(device_spec, scene):
     """An adaptive list dealt over the work-groups (TracePass._pixel_list)

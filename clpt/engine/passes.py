@@ -125,6 +125,9 @@ def local_size(dctx) -> int:
     return LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
 
 
+NO_PIXEL = 0xFFFFFFFF  # kernels/film.h: an entry of no pixel
+
+
 def dealt_work_items(runs: int, groups: int, local: int) -> np.ndarray:
     """The work-item that takes each of a launch's first `runs` runs when
     they are dealt over its `groups` work-groups of `local` back and forth:
@@ -221,37 +224,31 @@ class TracePass:
         """Upload an adaptive item's list, `entries` a work-item; returns (the
         list's length as uploaded, the launch's global size).
 
-        On CPUs (self.deal_lists) the work-items' runs of entries are dealt over
-        the G work-groups as cards are, back and forth (dealt_work_items):
-        runs 0 .. G-1 to work-groups 0 .. G-1, runs G .. 2G-1 to work-groups
-        G-1 .. 0, and so on, so every work-group gets its share of the heavy
-        runs the host put first (Driver._adaptive_round sorts the pixels by
-        their samples), padded with empty work-items. A work-group runs on
-        one CPU thread, and PoCL hands a launch's work-groups to its threads
-        in contiguous blocks:
-        with the list in its sorted order one thread took the heavy half: a
-        1024-spp adaptive render of the caustics box took 3.79 wall seconds
-        against uniform's 2.49 (1.35 of 2 cores busy; 2.96 s dealt). Each
-        pixel's samples are still one lane's, in order, so the images are the
-        same bits."""
+        On CPUs (self.deal_lists) the work-items' runs of entries are dealt
+        over the launch's work-groups back and forth (dealt_work_items), the
+        work-items left over padded with entries of no samples, which lanes
+        skip. A work-group is one CPU thread's, and PoCL hands a launch's
+        work-groups to its threads in contiguous blocks: with the list in the
+        order Driver._adaptive_round sorts it (heaviest first) one thread took
+        the heavy half, and a 1024-spp adaptive render of the caustics box
+        took 3.79 wall seconds against uniform's 2.49 (2.96 s dealt). Each
+        pixel's samples are still one lane's, in order: the same bits."""
         jobs = np.array(item.jobs, dtype=np.uint32).reshape(-1, 4)
         jobs[:, 3] = item.pixels  # (samples, max depth, first sample, pixel): kernels/film.h lane_jobs
         runs = -(-len(jobs) // entries)
-        groups = -(-runs // self.local)
-        global_size = groups * self.local
-        dealt = np.zeros((global_size, entries, 4), dtype=np.uint32)  # no samples: lanes skip the entry
-        dealt[:, :, 3] = 0xFFFFFFFF
-        full = np.zeros((runs * entries, 4), dtype=np.uint32)
-        full[:, 3] = 0xFFFFFFFF
-        full[:len(jobs)] = jobs
-        dealt[dealt_work_items(runs, groups, self.local) if self.deal_lists else np.arange(runs)] = \
-            full.reshape(runs, entries, 4)
+        global_size = -(-runs // self.local) * self.local
+        work_item = (dealt_work_items(runs, global_size // self.local, self.local) if self.deal_lists
+                     else np.arange(runs))
+        i = np.arange(len(jobs))
+        dealt = np.zeros((global_size * entries, 4), dtype=np.uint32)
+        dealt[:, 3] = NO_PIXEL
+        dealt[work_item[i // entries] * entries + i % entries] = jobs
         if global_size > len(self.stats_host):
             self.stats_buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_WRITE, global_size * 16)
             self.stats_host = np.empty((global_size, 4), dtype=np.uint32)
         mf = cl.mem_flags
         self.jobs_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dealt)
-        return global_size * entries, global_size
+        return len(dealt), global_size
 
     def run(self, rec: np.ndarray, global_size: int, args: TraceArgs) -> tuple[float, float, bool, np.ndarray]:
         """Launch over global_size work-items and wait: (device seconds (the
