@@ -318,7 +318,7 @@ TRACE_LAUNCH = Record("TraceLaunch", (
     ("scene", SCENE_INFO), ("camera", CAMERA), ("photons", PHOTON_LOOKUP), ("lum_scale", "real"),
     ("width", "uint"), ("height", "uint"), ("group_offset", "uint"), ("sample_begin", "uint"),
     ("n_samples", "uint"), ("max_depth", "uint"), ("rr_depth", "uint"), ("seed", "uint"), ("n_list", "uint"),
-    ("wi_entries", "uint"),
+    ("wi_entries", "uint"), ("pull_runs", "uint"),
     ("aux_specular", "uint"), ("hide_emitters", "uint"), ("pixel_filter", FILTER)),
     "one trace_paths launch (kernels/trace.cl)")
 PHOTON_LAUNCH = Record("PhotonLaunch", (("scene", SCENE_INFO), ("seed", "uint"), ("n_emit", "uint"),

@@ -46,7 +46,6 @@ import contextlib
 import hashlib
 import json
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -271,13 +270,6 @@ def filter_options(dctx) -> list:
     return [] if filter_pixels(dctx) == 8 else [f"-DCLPT_FILTER_PIXELS={filter_pixels(dctx)}"]
 
 
-def pocl_version(dctx) -> tuple[int, int]:
-    """A PoCL device's driver version as (major, minor) ("3.1+debian": (3, 1);
-    (0, 0) if it does not read as one)."""
-    m = re.match(r"\s*(\d+)\.(\d+)", str(getattr(getattr(dctx, "device", None), "driver_version", "") or ""))
-    return (int(m.group(1)), int(m.group(2))) if m else (0, 0)
-
-
 def device_options(dctx) -> list:
     """Build options that follow the device: CLPT_PREFETCH on PoCL's CPU
     devices and Intel's CPU runtime, which compile with clang, whose
@@ -287,28 +279,15 @@ def device_options(dctx) -> list:
     the builtin. The environment variable CLPT_PREFETCH=0 leaves it out;
     images are the same either way. On simulators (Oclgrind), which cannot
     run LLVM's bitreverse intrinsic either, CLPT_BITREVERSE_TABLE: the
-    sampler reverses bits by a table (kernels/sampler.h bits_reversed).
-    CLPT_DEAL_RUNS on PoCL's CPU devices (below)."""
+    sampler reverses bits by a table (kernels/sampler.h bits_reversed)."""
     if any(s in f"{dctx.platform} {getattr(dctx, 'name', '')}".lower() for s in SIMULATORS):
         return ["-DCLPT_BITREVERSE_TABLE=1"]
-    if not getattr(dctx, "is_cpu", False):
+    if os.environ.get("CLPT_PREFETCH", "1") == "0" or not getattr(dctx, "is_cpu", False):
         return []
-    out = []
-    if getattr(dctx, "is_pocl", False) and pocl_version(dctx) >= (3, 1):
-        # PoCL's threads each take a contiguous block of a launch's work-groups: trace_paths
-        # interleaves the image's bands over them (kernels/film.h lane_run). Uniform launches on
-        # Debian's PoCL 3.1, 2 cores, Msamples per wall second: the gallery (96x54) 0.66-0.68 ->
-        # 0.80 (1.66 -> 1.97 cores busy), cornell_box 12.5-12.6 -> 12.8-13.1, the caustics box
-        # 6.8-7.0 -> 6.8-7.3. Intel's runtime steals work between its threads: not there. Not on
-        # pyopencl's PoCL 3.0 either, whose images came out 4.7% too bright with it (cornell_box,
-        # 37x29 at 6 spp: 0.11837 every time; without it 0.1126-0.1148 from run to run, against
-        # 0.11299 on Intel's runtime and Debian's PoCL 3.1).
-        out.append("-DCLPT_DEAL_RUNS=1")
-    if os.environ.get("CLPT_PREFETCH", "1") != "0" and (
-            getattr(dctx, "is_pocl", False) or ("intel" in dctx.platform.lower()
-                                                and dctx.device.type == cl.device_type.CPU)):
-        out.append("-DCLPT_PREFETCH=1")
-    return out
+    if getattr(dctx, "is_pocl", False) or ("intel" in dctx.platform.lower()
+                                            and dctx.device.type == cl.device_type.CPU):
+        return ["-DCLPT_PREFETCH=1"]
+    return []
 
 
 def build(dctx, source: str, options, use_cache: bool = True):

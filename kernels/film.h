@@ -33,68 +33,81 @@
 // then takes more pixels instead of idling until the slowest lane's last
 // path ends. One lane takes all of a pixel's samples, in order, so its sums
 // are the same bits however the entries fell to lanes and work-items.
+//
+// The image's pixels and a list's entries come in runs of wi_entries:
+// work-item gid takes run gid, or, when L->pull_runs (CPU devices: clpt/
+// engine/passes.py TracePass), the work-items pull runs one after another
+// from a counter after the list (pix_jobs[n_list].x; at pix_jobs[0] for the
+// image), in order (a list's heaviest first), until none is left. A
+// work-item's lanes go on to its next run as soon as they have taken the
+// last one's entries, and the device's threads end a launch together
+// however unevenly the runtime handed them its work-groups: PoCL gives a
+// thread a contiguous block of them, in chunks that shrink as they run out
+// (of 11 work-groups, 6 to one thread and 5 to the other).
+#define NO_RUN 0xFFFFFFFFu
 typedef struct {
     vuint pixel;     // row-major index (NO_PIXEL: none)
     vuint s_begin;   // index of the pixel's first sample here
     vreal n;         // samples to take (0: none)
     vreal depth;     // most scattering events of a path
-    uint next;       // the work-item's first entry no lane has taken
+    uint run;        // the run of entries the work-item takes from (NO_RUN: none left)
+    uint next;       // the run's first entry no lane has taken
 } LaneJobs;
 
-inline LaneJobs lane_jobs_none(void)
+// No pixel in any lane yet, the work-item at entry `next` of run `run`:
+// its own run's first, or, pulling, past the end (lane_take pulls one).
+// (Scalars, not the launch record: a struct-returning function with a
+// pointer parameter, inlined, leaves a noalias scope declaration Oclgrind
+// cannot run; kernels/simd.h CLPT_INLINE.)
+inline LaneJobs lane_jobs_none(uint run, uint next)
 {
     LaneJobs j;
     j.pixel = (vuint)NO_PIXEL;
     j.s_begin = (vuint)0u;
     j.n = j.depth = (vreal)R(0);
-    j.next = 0u;
+    j.run = run;
+    j.next = next;
     return j;
 }
 
-// The run of wi_entries pixels of the image that work-item gid takes. A
-// work-group takes a band of consecutive runs. With CLPT_DEAL_RUNS (PoCL's
-// CPU devices: clpt/program.py device_options) the first half of a launch's
-// work-groups take the even bands, the second half the odd ones: PoCL gives
-// each of its threads a contiguous block of the work-groups, so with the
-// bands in order one thread of two took the image's top half, the other its
-// bottom, however unequal their work (the gallery: 1.66 of 2 cores busy).
-// Each pixel's samples are one lane's, in order, so the images are the
-// same bits.
-#ifndef CLPT_DEAL_RUNS
-#define CLPT_DEAL_RUNS 0
-#endif
-inline uint lane_run(const TraceLaunch *L, uint gid)
-{
-#if CLPT_DEAL_RUNS
-    uint size = (uint)get_local_size(0), groups = (uint)get_num_groups(0);
-    uint g = gid / size, first_odd = (groups + 1u) / 2u;
-    uint band = g < first_odd ? 2u * g : 2u * (g - first_odd) + 1u;
-    return L->group_offset + band * size + gid % size;
-#else
-    return L->group_offset + gid;
-#endif
-}
-
-// Entry k of work-item gid: (samples, max depth, first sample, pixel); no
+// Entry k of run `run`: (samples, max depth, first sample, pixel); no
 // samples past the image or the list.
-inline uint4 lane_entry(const TraceLaunch *L, __global const uint4 *jobs, uint gid, uint k)
+inline uint4 lane_entry(const TraceLaunch *L, __global const uint4 *jobs, uint run, uint k)
 {
     if (L->n_list == 0) {
-        uint p = lane_run(L, gid) * L->wi_entries + k;
+        uint p = (L->group_offset + run) * L->wi_entries + k;
         return p < L->width * L->height ? (uint4)(L->n_samples, L->max_depth, L->sample_begin, p)
                                         : (uint4)(0u, 0u, 0u, NO_PIXEL);
     }
-    uint e = gid * L->wi_entries + k;
+    uint e = run * L->wi_entries + k;
     return e < L->n_list ? jobs[e] : (uint4)(0u, 0u, 0u, NO_PIXEL);
+}
+
+// The next run pulled (NO_RUN: none left): of the list, or of the image's
+// pixels in order.
+inline uint lane_pull(const TraceLaunch *L, __global uint4 *jobs)
+{
+    uint r = atomic_inc((volatile __global uint *)(jobs + L->n_list));
+    uint runs = L->n_list != 0u ? L->n_list / L->wi_entries
+                                : (L->width * L->height + L->wi_entries - 1u) / L->wi_entries;
+    return r < runs ? r : NO_RUN;
 }
 
 // Lane l takes the work-item's next entry with samples (none left: n = 0);
 // returns its pixel, or NO_PIXEL.
-inline uint lane_take(LaneJobs *j, int l, const TraceLaunch *L, __global const uint4 *jobs, uint gid)
+inline uint lane_take(LaneJobs *j, int l, const TraceLaunch *L, __global uint4 *jobs)
 {
     uint4 e = (uint4)(0u, 0u, 0u, NO_PIXEL);
-    while (j->next < L->wi_entries) {
-        e = lane_entry(L, jobs, gid, j->next++);
+    for (;;) {
+        if (j->next >= L->wi_entries) {
+            if (!L->pull_runs || j->run == NO_RUN)
+                break;
+            j->run = lane_pull(L, jobs);
+            j->next = 0u;
+            if (j->run == NO_RUN)
+                break;
+        }
+        e = lane_entry(L, jobs, j->run, j->next++);
         if (e.x > 0u && e.w < L->width * L->height)
             break;
         e = (uint4)(0u, 0u, 0u, NO_PIXEL);
@@ -349,8 +362,8 @@ inline void visible_end_sample(VisibleSurface *v, vmask done)
 // The lanes in `want` have finished their pixels: their sums go back to the
 // buffers (the features' unless aux_out is 0), and each takes the next entry
 // with samples and loads its pixel's sums. Returns the lanes that got one.
-inline vmask lane_next(LaneJobs *j, Film *f, VisibleSurface *vis, vmask want, const TraceLaunch *L, uint gid,
-                       __global const uint4 *jobs, __global pix_sum_t *ps, __global pix_sq_t *pq,
+inline vmask lane_next(LaneJobs *j, Film *f, VisibleSurface *vis, vmask want, const TraceLaunch *L,
+                       __global uint4 *jobs, __global pix_sum_t *ps, __global pix_sq_t *pq,
                        __global float4 *aux, int aux_out)
 {
     uint n_pix = L->width * L->height;
@@ -365,7 +378,7 @@ inline vmask lane_next(LaneJobs *j, Film *f, VisibleSurface *vis, vmask want, co
                 visible_store_lane(vis, l, p, n_pix, aux);
 #endif
         }
-        p = lane_take(j, l, L, jobs, gid);
+        p = lane_take(j, l, L, jobs);
         if (p < n_pix) {
             film_load_lane(f, l, ps, pq, p);
 #if CLPT_AUX

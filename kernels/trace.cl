@@ -23,7 +23,8 @@
 //   pix_sq    in/out  per pixel: sum of squared luminance
 //   stats     out     per work-item: non-finite samples dropped, camera rays,
 //                     bounce rays, shadow rays (this launch)
-//   pix_jobs  in      adaptive passes: per entry (samples, max depth, first sample, pixel)
+//   pix_jobs  in      adaptive passes: per entry (samples, max depth, first sample, pixel);
+//                     in/out with pull_runs: the runs' counter after them (film.h)
 //   aux       in/out  (CLPT_AUX) the feature sums, four planes (film.h VisibleSurface)
 //   ph_pos, ph_dir, ph_pow, bucket_start, ph_occ  in  (CLPT_PHOTONS) the
 //                     photon map and its grid (photon_grid.h)
@@ -44,7 +45,7 @@
 
 __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __constant TraceLaunch *launch,
                           __global pix_sum_t *pix_sum, __global pix_sq_t *pix_sq, __global uint4 *stats,
-                          __global const uint4 *pix_jobs
+                          __global uint4 *pix_jobs
 #if CLPT_AUX
                           , __global float4 *aux
 #endif
@@ -71,7 +72,7 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
     __global float4 *aux_buf = 0;
 #endif
     int aux_out = !pl->stop_at_x;  // the offline pre-pass's samples are not the image's features
-    LaneJobs jobs = lane_jobs_none();
+    LaneJobs jobs = lane_jobs_none(gid, L.pull_runs ? L.wi_entries : 0u);
     Film film;
     film_zero(&film);
     VisibleSurface vis;
@@ -81,7 +82,7 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
 
     uint nonfinite = 0, n_camera = 0, n_bounce = 0, n_shadow = 0;
     vreal done_count = (vreal)R(0);  // samples of its pixel a lane has finished
-    vmask active = lane_next(&jobs, &film, &vis, jobs.n == jobs.n, &L, gid, pix_jobs, pix_sum, pix_sq, aux_buf,
+    vmask active = lane_next(&jobs, &film, &vis, jobs.n == jobs.n, &L, pix_jobs, pix_sum, pix_sq, aux_buf,
                              aux_out);
     SamplerKeys keys = sampler_keys_make(L.seed, jobs.pixel);
     vmask restart = active;
@@ -177,7 +178,7 @@ __kernel TRACE_PATHS_ATTRS void trace_paths(__global const real4 *scene, __const
             restart = done && done_count < jobs.n;
             vmask ended = done && !restart;  // pixels finished: their lanes take the next ones
             if (VANY(ended)) {
-                vmask more = lane_next(&jobs, &film, &vis, ended, &L, gid, pix_jobs, pix_sum, pix_sq, aux_buf,
+                vmask more = lane_next(&jobs, &film, &vis, ended, &L, pix_jobs, pix_sum, pix_sq, aux_buf,
                                        aux_out);
                 done_count = VSEL(done_count, (vreal)R(0), more);
                 sampler_keys_take(&keys, L.seed, jobs.pixel, more);

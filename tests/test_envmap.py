@@ -298,14 +298,13 @@ def test_prefetching_a_large_map_leaves_the_image_unchanged(device_spec, dctx, m
     assert np.array_equal(images[0], images[1])
     monkeypatch.setenv("CLPT_PREFETCH", "1")
     if dctx.is_pocl or dctx.platform.lower().startswith("intel"):
-        assert "-DCLPT_PREFETCH=1" in device_options(dctx)
+        assert device_options(dctx) == ["-DCLPT_PREFETCH=1"]
     monkeypatch.setenv("CLPT_PREFETCH", "0")
-    assert "-DCLPT_PREFETCH=1" not in device_options(dctx)
+    assert device_options(dctx) == []
 
 
 def test_prefetch_is_built_only_for_clang_cpu_runtimes(monkeypatch):
-    """CLPT_PREFETCH goes to PoCL's and Intel's CPU devices (CLPT_DEAL_RUNS
-    too, to PoCL 3.1 and later on CPUs), not to Oclgrind
+    """CLPT_PREFETCH goes to PoCL's and Intel's CPU devices, not to Oclgrind
     (which reports every device type, CPU included, and cannot run the
     intrinsic; it gets the sampler's table for bit reversal instead) nor to
     GPUs; CLPT_PREFETCH=0 turns it off."""
@@ -315,19 +314,12 @@ def test_prefetch_is_built_only_for_clang_cpu_runtimes(monkeypatch):
 
     from clpt.program import device_options
 
-    def fake(platform, kind, pocl=False, version="3.0-rc2"):
+    def fake(platform, kind, pocl=False):
         return types.SimpleNamespace(platform=platform, is_pocl=pocl, is_cpu=bool(kind & cl.device_type.CPU),
-                                     device=types.SimpleNamespace(type=kind, driver_version=version))
+                                     device=types.SimpleNamespace(type=kind))
     on = ["-DCLPT_PREFETCH=1"]
     monkeypatch.delenv("CLPT_PREFETCH", raising=False)
     assert device_options(fake("Portable Computing Language", cl.device_type.CPU, pocl=True)) == on
-    # PoCL 3.1 and later on CPUs also interleave the image's bands over the work-groups (CLPT_DEAL_RUNS).
-    assert device_options(fake("Portable Computing Language", cl.device_type.CPU, pocl=True,
-                               version="3.1+debian")) == ["-DCLPT_DEAL_RUNS=1"] + on
-    assert device_options(fake("Portable Computing Language", cl.device_type.CPU, pocl=True,
-                               version="6.0")) == ["-DCLPT_DEAL_RUNS=1"] + on
-    assert device_options(fake("Portable Computing Language", cl.device_type.GPU, pocl=True,
-                               version="3.1")) == []
     assert device_options(fake("Intel(R) OpenCL", cl.device_type.CPU)) == on
     assert device_options(fake("Oclgrind", cl.device_type.ALL)) == ["-DCLPT_BITREVERSE_TABLE=1"]
     assert device_options(fake("Intel(R) OpenCL Graphics", cl.device_type.GPU)) == []
@@ -335,8 +327,6 @@ def test_prefetch_is_built_only_for_clang_cpu_runtimes(monkeypatch):
     assert device_options(fake("Portable Computing Language", cl.device_type.GPU, pocl=True)) == []
     monkeypatch.setenv("CLPT_PREFETCH", "0")
     assert device_options(fake("Intel(R) OpenCL", cl.device_type.CPU)) == []
-    assert device_options(fake("Portable Computing Language", cl.device_type.CPU, pocl=True,
-                               version="3.1+debian")) == ["-DCLPT_DEAL_RUNS=1"]
 
 
 def _xml(tmp_path, emitters, shapes='<shape type="rectangle"><bsdf type="diffuse"/></shape>'):

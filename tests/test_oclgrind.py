@@ -149,8 +149,8 @@ def assert_clean(rc, stderr, reports, what):
 # 16 (CLPT_TUNE=query); the variants add a GPU's work-groups of 64, PoCL's
 # 16 lanes (the vector code, the BVH's packet walk, the per-lane walk alone),
 # the other photon modes, photon maps rebuilt each sample with capped and
-# subsampled gathers, double precision, the generic kernel, and adaptive
-# sampling's pixel lists.
+# subsampled gathers, double precision, the generic kernel, adaptive
+# sampling's pixel lists, and work-items that pull their runs (as on CPUs).
 
 W, H, SPP = 7, 5, 2
 
@@ -179,6 +179,11 @@ def _cases():
         ("double", "cornell_box_caustics", ["--precision", "double"], {}, None),
         ("generic", "cornell_box_caustics", ["--kernel", "generic"], {}, None),
         ("adaptive", "cornell_box", ["--adaptive", "error", "--min-spp", "2", "--spp", "4"], {}, None),
+        # Work-items pulling their runs from a counter, as on CPUs (Oclgrind reads as a GPU).
+        ("pulled-runs", "cornell_box_caustics", ["--adaptive", "error", "--min-spp", "2", "--spp", "4"],
+         {"CLPT_PULL_RUNS": "1"}, None),
+        ("pulled-runs-16-lanes", "cornell_box", ["--lanes", "16", "--adaptive", "error", "--min-spp", "2",
+                                                 "--spp", "4"], {"CLPT_PULL_RUNS": "1", **NO_OPT}, None),
     ]
     out += [pytest.param(scene, extra, env, api, id=f"{scene}-{name}") for name, scene, extra, env, api in variants]
     return out

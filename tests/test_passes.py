@@ -20,7 +20,7 @@ from clpt.constants import LANE_PIXELS, work_item_entries
 from clpt.engine.driver import run_item
 from clpt.engine.executors import LocalExecutor
 from clpt.engine.job import RenderJob, WorkItem
-from clpt.engine.passes import IMAGE_FIELDS, ITEM_FIELDS, Counters, PhotonPassArgs, TraceArgs
+from clpt.engine.passes import IMAGE_FIELDS, ITEM_FIELDS, Counters, PhotonPassArgs, TraceArgs, pulls_runs
 from clpt.engine.runresult import RunResult
 from clpt.photons import (RELMSE_EPS, PhotonSettings, path_variance, pilot_choice, relmse_per_sample, trial_size,
                           weigh_cost)
@@ -138,7 +138,7 @@ def test_trace_pass_records_for_ranges_and_pixel_lists(device_spec):
     w.start(job)
     rec, gsize = w.trace.item_record(job.seed, WorkItem("samples", 2, 5))
     assert (rec["sample_begin"], rec["n_samples"], rec["n_list"], rec["group_offset"]) == (2, 5, 0, 0)
-    assert w.trace.deal_lists == w.dctx.is_cpu
+    assert w.trace.pull == pulls_runs(w.dctx) and rec["pull_runs"] == w.trace.pull
     assert (rec["width"], rec["height"], rec["seed"]) == (20, 12, 3)
     assert w.trace.entries == work_item_entries(4) == 4 * LANE_PIXELS  # the most pixels a work-item takes
     e = int(rec["wi_entries"])  # (240 pixels: one per lane, so that the groups spread over the units)
@@ -150,45 +150,12 @@ def test_trace_pass_records_for_ranges_and_pixel_lists(device_spec):
     rec, gsize = w.trace.item_record(job.seed, WorkItem("pixels", pixels=pixels, jobs=jobs))
     assert (rec["n_samples"], rec["wi_entries"]) == (0, 4)
     assert gsize == w.local  # two work-items' worth, in a whole group
-    assert rec["n_list"] == gsize * 4  # the list as uploaded: every work-item's entries, most of them empty
-    got = np.empty((gsize * 4, 4), np.uint32)
+    assert rec["n_list"] == 8 and rec["pull_runs"] == w.trace.pull  # two runs as uploaded, the last padded
+    got = np.empty((9, 4), np.uint32)
     cl.enqueue_copy(w.dctx.queue, got, w.trace.jobs_buf)
     assert (got[:5, 3] == pixels).all() and (got[:5, 0] == 2).all()
-    assert (got[5:, 0] == 0).all() and (got[5:, 3] == 0xFFFFFFFF).all()  # no samples: lanes skip them
-
-
-def test_pixel_lists_deal_work_items_over_the_work_groups(device_spec):
-    """An adaptive item's runs of entries (one work-item's each) are dealt
-    back and forth over the launch's work-groups (TracePass._pixel_list), so
-    that the heavy runs the host puts first do not all fall to the first
-    work-groups, which PoCL runs on one thread; every entry is uploaded
-    once, in its run's order."""
-    r = clpt.Renderer("cornell_box", device=device_spec, lanes=4)
-    w = r.states[0]
-    job = r.job(4, width=64, height=64, seed=3)
-    w.start(job)
-    w.trace.deal_lists = True  # (as on CPUs)
-    n = 3001
-    pixels = np.arange(n, dtype=np.uint32) * 3 % 4096
-    jobs = np.zeros((n, 4), np.uint32)
-    jobs[:, 0] = np.arange(n) + 1  # distinct counts: each entry recognisable
-    rec, gsize = w.trace.item_record(job.seed, WorkItem("pixels", pixels=pixels, jobs=jobs))
-    e, local = int(rec["wi_entries"]), w.local
-    runs = -(-n // e)
-    groups = gsize // local
-    assert groups > 1 and gsize == -(-runs // local) * local and rec["n_list"] == gsize * e
-    got = np.empty((gsize, e, 4), np.uint32)
-    cl.enqueue_copy(w.dctx.queue, got, w.trace.jobs_buf)
-    for k in range(runs):  # run k: back and forth over the groups, one work-item of each a time
-        row, col = divmod(k, groups)
-        group = col if row % 2 == 0 else groups - 1 - col
-        want = np.full((e, 4), 0, np.uint32)
-        want[:, 3] = 0xFFFFFFFF
-        part = slice(k * e, min(n, (k + 1) * e))
-        m = part.stop - part.start
-        want[:m, 0], want[:m, 3] = jobs[part, 0], pixels[part]
-        np.testing.assert_array_equal(got[group * local + row][:, [0, 3]], want[:, [0, 3]])
-    assert (got[..., 0] > 0).sum() == n  # every entry once, the rest empty
+    assert (got[5:8, 0] == 0).all() and (got[5:8, 3] == 0xFFFFFFFF).all()  # no samples: lanes skip them
+    assert (got[8] == 0).all()  # the runs' counter (kernels/film.h lane_pull)
 
 
 def _gaussian_box():
@@ -430,52 +397,52 @@ def test_the_trial_relmse_uses_both_techniques_mean_as_reference():
 
 
 @pytest.mark.parametrize("scene", ["cornell_box", "cornell_box_caustics"])
-def test_dealt_lists_give_the_same_bits(device_spec, scene):
-    """An adaptive list dealt over the work-groups (TracePass._pixel_list)
-    and the same list in order give the same sums bit for bit."""
+def test_pulled_runs_give_the_same_bits(device_spec, scene):
+    """Work-items that pull their runs from a counter (TracePass.pull, as on
+    CPUs: kernels/film.h lane_pull) and work-items that keep their own run
+    give the same sums bit for bit: two launches over the image (each starts
+    its counter from 0, so the second's samples all arrive) on an image whose
+    last run is part empty, then an adaptive list."""
     r = clpt.Renderer(scene, device=device_spec, lanes=4)
     w = r.states[0]
-    job = r.job(6, width=37, height=29, seed=7)
-    pixels = np.arange(0, 37 * 29, 3, dtype=np.uint32)
+    if w.dctx.is_pocl and not pulls_runs(w.dctx):
+        pytest.skip(f"this PoCL ({w.dctx.device.driver_version}) renders pulled runs wrong: they stay off there")
+    job = r.job(9, width=61, height=37, seed=7)
+    pixels = np.arange(0, 61 * 37, 3, dtype=np.uint32)[::-1].copy()
     jobs = np.zeros((len(pixels), 4), np.uint32)
     jobs[:, 0] = 1 + pixels % 5
     jobs[:, 1] = job.max_depth
-    jobs[:, 2] = 6
+    jobs[:, 2] = 9
     got = []
-    kept = w.trace.deal_lists
-    for deal in (False, True):
-        w.trace.deal_lists = deal
-        w.start(job)
-        w.run(WorkItem("samples", 0, 6))
-        w.run(WorkItem("pixels", pixels=pixels, jobs=jobs))
-        got.append(w.sums())
-    w.trace.deal_lists = kept
-    assert got[0].samples == got[1].samples == 37 * 29 * 6 + int(jobs[:, 0].sum())
+    kept = w.trace.pull
+    try:
+        for pull in (False, True):
+            w.trace.pull = pull
+            w.start(job)
+            assert w.trace.global_size // w.local >= 3
+            w.run(WorkItem("samples", 0, 6))
+            w.run(WorkItem("samples", 6, 3))
+            w.run(WorkItem("pixels", pixels=pixels, jobs=jobs))
+            got.append(w.sums())
+    finally:
+        w.trace.pull = kept
+    assert got[0].samples == got[1].samples == 61 * 37 * 9 + int(jobs[:, 0].sum())
     for k, v in got[0].planes.items():
         np.testing.assert_array_equal(v, got[1].planes[k], err_msg=k)
 
 
-@pytest.mark.parametrize("scene", ["cornell_box", "cornell_box_caustics"])
-def test_interleaved_bands_give_the_same_bits(device_spec, monkeypatch, scene):
-    """Uniform launches whose work-groups take the image's bands interleaved
-    (kernels/film.h lane_run, built with CLPT_DEAL_RUNS, as on PoCL) and in
-    order give the same sums bit for bit, on an image whose runs leave the
-    last work-group part empty and an odd number of work-groups."""
-    import clpt.program as program
+def test_runs_are_pulled_on_the_cpu_runtimes_checked():
+    """Pulled runs on Intel's CPU runtime and PoCL 3.1 and later; not on
+    GPUs (coherent work-groups), not on PoCL 3.0 (wrong images)."""
+    import types
 
-    plain = program.device_options
-    got = []
-    for deal in (False, True):
-        monkeypatch.setattr(program, "device_options", lambda dctx, deal=deal: [
-            o for o in plain(dctx) if not o.startswith("-DCLPT_DEAL_RUNS")] + (["-DCLPT_DEAL_RUNS=1"] if deal else []))
-        r = clpt.Renderer(scene, device=device_spec, lanes=4)
-        w = r.states[0]
-        assert ("-DCLPT_DEAL_RUNS=1" in w.build.options) == deal
-        job = r.job(6, width=61, height=37, seed=7)
-        w.start(job)
-        assert w.trace.global_size // w.local >= 3
-        w.run(WorkItem("samples", 0, 6))
-        got.append(w.sums())
-    assert got[0].samples == got[1].samples == 61 * 37 * 6
-    for k, v in got[0].planes.items():
-        np.testing.assert_array_equal(v, got[1].planes[k], err_msg=k)
+    def fake(platform, cpu, version=""):
+        return types.SimpleNamespace(platform=platform, is_cpu=cpu, is_pocl="Portable" in platform,
+                                     device=types.SimpleNamespace(driver_version=version))
+    assert pulls_runs(fake("Intel(R) OpenCL", True))
+    assert pulls_runs(fake("Portable Computing Language", True, "3.1+debian"))
+    assert pulls_runs(fake("Portable Computing Language", True, "6.0"))
+    assert not pulls_runs(fake("Portable Computing Language", True, "3.0-rc2"))
+    assert not pulls_runs(fake("Portable Computing Language", False, "6.0"))
+    assert not pulls_runs(fake("NVIDIA CUDA", False))
+    assert not pulls_runs(fake("Oclgrind", False))

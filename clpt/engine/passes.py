@@ -14,6 +14,8 @@ into the sums.
 from __future__ import annotations
 
 import math
+import os
+import re
 import time
 from dataclasses import dataclass, fields
 
@@ -113,7 +115,7 @@ for _record, _names in ((TraceArgs, TRACE_ARGS + AUX_ARGS + PHOTON_ARGS), (Photo
         raise TypeError(f"{_record.__name__}'s fields are not the kernel's parameters {', '.join(_names)}")
 
 # The TraceLaunch fields a launch sets for its item; start() sets the others.
-ITEM_FIELDS = ("seed", "sample_begin", "n_samples", "n_list", "wi_entries", "photons")
+ITEM_FIELDS = ("seed", "sample_begin", "n_samples", "n_list", "wi_entries", "pull_runs", "photons")
 IMAGE_FIELDS = ("scene", "camera", "lum_scale", "width", "height", "group_offset", "max_depth", "rr_depth",
                 "aux_specular", "hide_emitters", "pixel_filter")
 
@@ -125,16 +127,28 @@ def local_size(dctx) -> int:
     return LOCAL_SIZE_CPU if dctx.is_cpu else LOCAL_SIZE_GPU
 
 
+def pocl_version(dctx) -> tuple[int, int]:
+    """A PoCL device's driver version as (major, minor) ("3.1+debian": (3, 1);
+    (0, 0) if it does not read as one)."""
+    m = re.match(r"\s*(\d+)\.(\d+)", str(getattr(getattr(dctx, "device", None), "driver_version", "") or ""))
+    return (int(m.group(1)), int(m.group(2))) if m else (0, 0)
+
+
+def pulls_runs(dctx) -> bool:
+    """Whether trace_paths' work-items pull their runs from a counter on this
+    device (TracePass.pull): on the CPU runtimes where that was checked to
+    give the same bits, Intel's and PoCL 3.1 and later. pyopencl's PoCL 3.0
+    renders them wrong (`cornell_box`, 24x16 at 8 spp, one thread: a mean
+    of 0.0980 against 0.0848, and a second Renderer another 0.0981)."""
+    if not getattr(dctx, "is_cpu", False):
+        return False
+    if getattr(dctx, "is_pocl", False):
+        return pocl_version(dctx) >= (3, 1)
+    return str(getattr(dctx, "platform", "")).lower().startswith("intel")
+
+
 NO_PIXEL = 0xFFFFFFFF  # kernels/film.h: an entry of no pixel
-
-
-def dealt_work_items(runs: int, groups: int, local: int) -> np.ndarray:
-    """The work-item that takes each of a launch's first `runs` runs when
-    they are dealt over its `groups` work-groups of `local` back and forth:
-    runs 0 .. G-1 to the work-groups' first work-items in order, the next G
-    to their second ones in reverse order, and so on."""
-    row, col = np.divmod(np.arange(runs), groups)
-    return np.where(row % 2 == 0, col, groups - 1 - col) * local + row
+_ZERO4 = np.zeros(4, dtype=np.uint32)  # a pulled launch's counter before it starts
 
 
 def _groups(n: int, entries: int, local: int) -> int:
@@ -160,9 +174,13 @@ class TracePass:
         self.wi_entries = self.entries  # this image's launches' (allocate)
         self.counters = Counters()
         self.launched = False    # the first launch may include a lazy device compile
-        # Adaptive lists' runs dealt over the work-groups on CPUs, where a work-group is one thread's
-        # (_pixel_list; a GPU's work-groups keep their runs together).
-        self.deal_lists = bool(getattr(dctx, "is_cpu", False))
+        # On CPUs the work-items pull their runs of pixels or list entries from a counter, in
+        # order, one after another (kernels/film.h lane_pull): the device's threads end a launch
+        # together however the runtime handed them the work-groups, and a work-item's lanes go on
+        # to the next run instead of idling until its last path ends. A GPU's work-items keep
+        # their own runs (coherent work-groups). CLPT_PULL_RUNS=1 or 0 overrides (any device).
+        self.pull = {"1": True, "0": False}.get(os.environ.get("CLPT_PULL_RUNS", ""), pulls_runs(dctx))
+        self.counter_buf = None  # the runs' counter of launches over the image
         self.record = None
         self.stats_buf = self.jobs_buf = None
         self.stats_host = np.empty((0, 4), np.uint32)
@@ -181,7 +199,7 @@ class TracePass:
         ctx, rw = self.dctx.context, cl.mem_flags.READ_WRITE
         try:
             self.stats_buf = cl.Buffer(ctx, rw, self.global_size * 16)
-            self.jobs_buf = cl.Buffer(ctx, rw, 16)  # pixel lists replace it
+            self.counter_buf = self.jobs_buf = cl.Buffer(ctx, rw, 16)  # pixel lists replace it
         except cl.Error as e:
             raise DeviceError(f"cannot allocate the work-item statistics of {n_pix} pixels on {self.dctx.label} "
                               f"({e}); render a smaller image") from None
@@ -207,12 +225,14 @@ class TracePass:
         the record's photon part (builds with photons)."""
         rec = self.record.copy()
         rec["seed"] = seed
+        rec["pull_runs"] = int(self.pull)
         if item.kind == "pixels":
             entries = self.entries_for(len(item.pixels))
             n_list, global_size = self._pixel_list(item, entries)
             rec["sample_begin"], rec["n_samples"], rec["n_list"] = 0, 0, n_list
             rec["wi_entries"] = entries
         else:
+            self.jobs_buf = self.counter_buf
             rec["sample_begin"], rec["n_samples"], rec["n_list"] = item.s0, item.n, 0
             rec["wi_entries"] = self.wi_entries
             global_size = self.global_size
@@ -222,33 +242,23 @@ class TracePass:
 
     def _pixel_list(self, item, entries: int) -> tuple[int, int]:
         """Upload an adaptive item's list, `entries` a work-item; returns (the
-        list's length as uploaded, the launch's global size).
-
-        On CPUs (self.deal_lists) the work-items' runs of entries are dealt
-        over the launch's work-groups back and forth (dealt_work_items), the
-        work-items left over padded with entries of no samples, which lanes
-        skip. A work-group is one CPU thread's, and PoCL hands a launch's
-        work-groups to its threads in contiguous blocks: with the list in the
-        order Driver._adaptive_round sorts it (heaviest first) one thread took
-        the heavy half, and a 1024-spp adaptive render of the caustics box
-        took 3.79 wall seconds against uniform's 2.49 (2.96 s dealt). Each
-        pixel's samples are still one lane's, in order: the same bits."""
+        list's length as uploaded, the launch's global size). The list keeps
+        the order Driver._adaptive_round gives it (heaviest first); its last
+        run is padded with entries of no samples, which lanes skip, and the
+        runs' counter follows it (0: kernels/film.h lane_pull)."""
         jobs = np.array(item.jobs, dtype=np.uint32).reshape(-1, 4)
         jobs[:, 3] = item.pixels  # (samples, max depth, first sample, pixel): kernels/film.h lane_jobs
         runs = -(-len(jobs) // entries)
         global_size = -(-runs // self.local) * self.local
-        work_item = (dealt_work_items(runs, global_size // self.local, self.local) if self.deal_lists
-                     else np.arange(runs))
-        i = np.arange(len(jobs))
-        dealt = np.zeros((global_size * entries, 4), dtype=np.uint32)
-        dealt[:, 3] = NO_PIXEL
-        dealt[work_item[i // entries] * entries + i % entries] = jobs
+        up = np.zeros((runs * entries + 1, 4), dtype=np.uint32)
+        up[len(jobs):runs * entries, 3] = NO_PIXEL
+        up[:len(jobs)] = jobs
         if global_size > len(self.stats_host):
             self.stats_buf = cl.Buffer(self.dctx.context, cl.mem_flags.READ_WRITE, global_size * 16)
             self.stats_host = np.empty((global_size, 4), dtype=np.uint32)
         mf = cl.mem_flags
-        self.jobs_buf = cl.Buffer(self.dctx.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=dealt)
-        return len(dealt), global_size
+        self.jobs_buf = cl.Buffer(self.dctx.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=up)
+        return runs * entries, global_size
 
     def run(self, rec: np.ndarray, global_size: int, args: TraceArgs) -> tuple[float, float, bool, np.ndarray]:
         """Launch over global_size work-items and wait: (device seconds (the
@@ -259,6 +269,8 @@ class TracePass:
         self.kernel.set_args(*args.ordered(self.features.aux, self.features.photons))
         q = self.dctx.queue
         t0 = time.perf_counter()
+        if rec["pull_runs"] and rec["n_list"] == 0:
+            cl.enqueue_copy(q, self.counter_buf, _ZERO4, is_blocking=False)
         ev = cl.enqueue_nd_range_kernel(q, self.kernel, (global_size,), (self.local,))
         stats = self.stats_host[:global_size]
         cl.enqueue_copy(q, stats, self.stats_buf)
