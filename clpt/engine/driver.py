@@ -276,17 +276,19 @@ class Driver:
             first = -(-job.uniform_spp // job.spp_per_map) + sch.maps
             k = int(max(1, min(round(int(jobs[:, 0].sum()) / (n_pix * job.spp_per_map)), int(jobs[:, 0].max()))))
             n = jobs[:, 0].astype(np.int64)
-            depth, begin = jobs[:, 1], jobs[:, 2].astype(np.int64)
-            bounds = n[None, :] * np.arange(k + 1)[:, None] // k  # map j: samples [bounds[j], bounds[j + 1])
+            lo = np.zeros_like(n)
             for j in range(k):
-                lo, count_j = bounds[j], bounds[j + 1] - bounds[j]
+                hi = n * (j + 1) // k  # map j: samples [lo, hi) of each pixel's
+                count_j = hi - lo
                 for idx in parts:
                     idx = idx[count_j[idx] > 0]
                     if len(idx):
-                        sl = np.zeros((len(idx), 4), dtype=np.uint32)
-                        sl[:, 0], sl[:, 1], sl[:, 2] = count_j[idx], depth[idx], begin[idx] + lo[idx]
+                        sl = np.take(jobs, idx, axis=0)  # (its samples, max depth, its first sample, 0)
+                        sl[:, 0] = count_j[idx]
+                        sl[:, 2] += lo[idx].astype(np.uint32)
                         items.append(WorkItem("pixels", pixels=pixels[idx], jobs=sl, iteration=first + j,
                                               round=sch.rounds))
+                lo = hi
             sch.maps += k
         else:
             items = [WorkItem("pixels", pixels=pixels[idx], jobs=jobs[idx], iteration=0, round=sch.rounds)
