@@ -22,7 +22,7 @@
 
 // --- the lanes' pixels -------------------------------------------------------------
 // A work-item takes L->wi_entries consecutive entries: pixels of the image
-// (row-major, from group_offset work-items on; lane_run), all taking samples
+// (row-major, from group_offset runs on), all taking samples
 // [sample_begin, sample_begin + n_samples); or, when n_list > 0 (adaptive
 // sampling), entries of jobs, each (samples, max depth, first sample, pixel):
 // the host continues each pixel's sample sequence where it stands. With
