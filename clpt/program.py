@@ -243,8 +243,12 @@ def builds_at_once(dctx) -> bool:
     them (a GPU driver's build is mostly one thread anyway)."""
     if dctx.is_pocl:
         return True
-    # Intel's CPU runtime is the CPU device of an Intel platform (its GPU and
-    # FPGA-emulator runtimes are other device types).
+    return intel_cpu(dctx)
+
+
+def intel_cpu(dctx) -> bool:
+    """Whether a device is Intel's CPU runtime: the CPU device of an Intel
+    platform (its GPU and FPGA-emulator runtimes are other device types)."""
     return "intel" in dctx.platform.lower() and dctx.device.type == cl.device_type.CPU
 
 
@@ -284,8 +288,7 @@ def device_options(dctx) -> list:
         return ["-DCLPT_BITREVERSE_TABLE=1"]
     if os.environ.get("CLPT_PREFETCH", "1") == "0" or not getattr(dctx, "is_cpu", False):
         return []
-    if getattr(dctx, "is_pocl", False) or ("intel" in dctx.platform.lower()
-                                            and dctx.device.type == cl.device_type.CPU):
+    if getattr(dctx, "is_pocl", False) or intel_cpu(dctx):
         return ["-DCLPT_PREFETCH=1"]
     return []
 

@@ -437,8 +437,9 @@ def test_runs_are_pulled_on_the_cpu_runtimes_checked():
     import types
 
     def fake(platform, cpu, version=""):
+        kind = cl.device_type.CPU if cpu else cl.device_type.GPU
         return types.SimpleNamespace(platform=platform, is_cpu=cpu, is_pocl="Portable" in platform,
-                                     device=types.SimpleNamespace(driver_version=version))
+                                     device=types.SimpleNamespace(type=kind, driver_version=version))
     assert pulls_runs(fake("Intel(R) OpenCL", True))
     assert pulls_runs(fake("Portable Computing Language", True, "3.1+debian"))
     assert pulls_runs(fake("Portable Computing Language", True, "6.0"))

@@ -27,7 +27,7 @@ from ..denoise import ALBEDO_FLOOR, FilterSettings, Planar
 from ..errors import DeviceError
 from ..photons import (GRID_CELL_RADII, MAX_TABLE_BITS, PM_MERGE, PM_OFFLINE, PM_OWNED, PM_PREPASS, RADIX_BITS,
                        PhotonSettings)
-from ..program import event_seconds, filter_pixels
+from ..program import event_seconds, filter_pixels, intel_cpu
 from .job import AUX_SPECULAR
 from .launch import (AUX_ARGS, PHOTON_ARGS, PHOTON_PASS_ARGS, TRACE_ARGS, RecordBuffer, fill_pixel_filter, fill_scene_info,
                      photon_record, trace_record)
@@ -115,9 +115,9 @@ for _record, _names in ((TraceArgs, TRACE_ARGS + AUX_ARGS + PHOTON_ARGS), (Photo
         raise TypeError(f"{_record.__name__}'s fields are not the kernel's parameters {', '.join(_names)}")
 
 # The TraceLaunch fields a launch sets for its item; start() sets the others.
-ITEM_FIELDS = ("seed", "sample_begin", "n_samples", "n_list", "wi_entries", "pull_runs", "photons")
+ITEM_FIELDS = ("seed", "sample_begin", "n_samples", "n_list", "wi_entries", "photons")
 IMAGE_FIELDS = ("scene", "camera", "lum_scale", "width", "height", "group_offset", "max_depth", "rr_depth",
-                "aux_specular", "hide_emitters", "pixel_filter")
+                "aux_specular", "hide_emitters", "pixel_filter", "pull_runs")
 
 
 FILTER_LOCAL_SIZE = 64  # the cone filter's work-groups (kernels/filter.cl)
@@ -144,7 +144,7 @@ def pulls_runs(dctx) -> bool:
         return False
     if getattr(dctx, "is_pocl", False):
         return pocl_version(dctx) >= (3, 1)
-    return str(getattr(dctx, "platform", "")).lower().startswith("intel")
+    return intel_cpu(dctx)
 
 
 NO_PIXEL = 0xFFFFFFFF  # kernels/film.h: an entry of no pixel
@@ -214,7 +214,8 @@ class TracePass:
         values = {"lum_scale": packed.lum_scale, "width": job.width, "height": job.height,
                   "group_offset": 0,  # a launch covers the image from its first pixel
                   "max_depth": min(job.max_depth, 2**31), "rr_depth": min(job.rr_depth, 2**31),
-                  "aux_specular": AUX_SPECULAR.index(job.aux_specular), "hide_emitters": int(job.hide_emitters)}
+                  "aux_specular": AUX_SPECULAR.index(job.aux_specular), "hide_emitters": int(job.hide_emitters),
+                  "pull_runs": int(self.pull)}
         for k, v in values.items():
             rec[k] = v
         fill_pixel_filter(rec["pixel_filter"], job.scene.camera.pixel_filter)
@@ -225,7 +226,6 @@ class TracePass:
         the record's photon part (builds with photons)."""
         rec = self.record.copy()
         rec["seed"] = seed
-        rec["pull_runs"] = int(self.pull)
         if item.kind == "pixels":
             entries = self.entries_for(len(item.pixels))
             n_list, global_size = self._pixel_list(item, entries)
